@@ -1,0 +1,81 @@
+"""Registration of every Warp kernel as a ``gvnn_warp::*`` torch custom op (see :mod:`._bridge`).
+
+These ops take already-validated, flattened, contiguous tensors; the public, documented entry
+points are in :mod:`gvnn_warp.functional`.
+"""
+
+from __future__ import annotations
+
+from ._bridge import Output, Param, warp_op
+from .kernels import camera_kernels, lie_kernels, sampling_kernels
+
+
+def _rows(t, *_):
+    return t.shape[0]
+
+
+def _per_row(*inner):
+    return lambda t, *_: (t.shape[0], *inner)
+
+
+so3_exp = warp_op("so3_exp", lie_kernels.so3_exp, ["omega"], [], [Output("R", "mat33", _per_row(3, 3))], _rows)
+so3_log = warp_op("so3_log", lie_kernels.so3_log, ["R"], [], [Output("omega", "vec3", _per_row(3))], _rows)
+quaternion_to_matrix = warp_op(
+    "quaternion_to_matrix", lie_kernels.quaternion_to_matrix, ["q"], [],
+    [Output("R", "mat33", _per_row(3, 3))], _rows,
+)
+euler_to_matrix = warp_op(
+    "euler_to_matrix", lie_kernels.euler_to_matrix, ["angles"],
+    [Param("a0", "int"), Param("a1", "int"), Param("a2", "int")],
+    [Output("R", "mat33", _per_row(3, 3))], _rows,
+)
+se3_to_matrix = warp_op(
+    "se3_to_matrix", lie_kernels.se3_to_matrix, ["omega", "t"], [], [Output("T", "mat34", _per_row(3, 4))], _rows
+)
+sim3_to_matrix = warp_op(
+    "sim3_to_matrix", lie_kernels.sim3_to_matrix, ["omega", "t", "sigma"], [],
+    [Output("T", "mat34", _per_row(3, 4))], _rows,
+)
+se3_exp = warp_op(
+    "se3_exp", lie_kernels.se3_exp, ["omega", "u"], [], [Output("T", "mat34", _per_row(3, 4))], _rows
+)
+se3_log = warp_op(
+    "se3_log", lie_kernels.se3_log, ["T"], [],
+    [Output("omega", "vec3", _per_row(3)), Output("u", "vec3", _per_row(3))], _rows,
+)
+
+# depth (B*H*W,), K (B, 3, 3) -> points (B*H*W, 3)
+depth_to_points = warp_op(
+    "depth_to_points", camera_kernels.depth_to_points, ["depth", "K"], [Param("H", "int"), Param("W", "int")],
+    [Output("points", "vec3", _per_row(3))], _rows,
+)
+# T (B, 3, 4), points (B*P, 3) -> (B*P, 3)
+transform_points = warp_op(
+    "transform_points", camera_kernels.transform_points, ["T", "points"], [Param("P", "int")],
+    [Output("out", "vec3", lambda T, p, P: (p.shape[0], 3))], lambda T, p, P: p.shape[0],
+)
+# points (B*P, 3), K (B, 3, 3) -> pixels (B*P, 2)
+project_points = warp_op(
+    "project_points", camera_kernels.project_points, ["points", "K"],
+    [Param("P", "int"), Param("min_depth", "float")],
+    [Output("pixels", "vec2", _per_row(2))], _rows,
+)
+# image (B, C, H, W), grid (B*h*w, 2) -> (B, C, h*w)
+bilinear_sample = warp_op(
+    "bilinear_sample", sampling_kernels.bilinear_sample, ["image", "grid"],
+    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("hw", "int"),
+     Param("align_corners", "int"), Param("padding", "int")],
+    [Output("out", "scalar", lambda img, g, C, H, W, hw, a, p: (img.shape[0], C, hw))],
+    lambda img, g, *_: g.shape[0],
+)
+# image (B, C, H, W), depth (B, 1, H, W), pose (B, 3, 4), K (B, 3, 3) -> (B, C, H, W), (B, 1, H, W) bool
+warp_frame_depth = warp_op(
+    "warp_frame_depth", sampling_kernels.warp_frame_depth, ["image", "depth", "pose", "K"],
+    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"),
+     Param("padding", "int")],
+    [
+        Output("out", "scalar", lambda img, *_: tuple(img.shape)),
+        Output("valid", "bool", lambda img, d, *_: tuple(d.shape), differentiable=False),
+    ],
+    lambda img, d, *_: d.numel(),
+)
