@@ -7,7 +7,8 @@ argument, what was expected and what came.
 
 Shape specs are space-separated tokens: an integer (that size), ``a|b`` (one of these sizes), an
 upper-case name (a size bound on first use and checked after), ``*`` (any size), and a leading
-``...`` (any number of leading dimensions, including none).
+``...`` (any number of dimensions, including none, at that place). ``spec1 or spec2`` accepts
+either (alternatives of different ranks).
 """
 
 from __future__ import annotations
@@ -46,23 +47,34 @@ class ArgCheck:
                     f"argument '{name}' has dtype {t.dtype} but '{self.dtype[1]}' has {self.dtype[0]}; "
                     "all floating arguments must share one dtype",
                 )
+        alternatives = spec.split(" or ")
+        if len(alternatives) > 1:  # pick the alternative of matching rank, for a specific message
+            same_rank = [a for a in alternatives if len(a.split()) == t.dim()]
+            if not same_rank:
+                wants = " or ".join(f"({', '.join(a.split())})" for a in alternatives)
+                self._fail(ValueError, f"argument '{name}' must have shape {wants}, got {tuple(t.shape)}")
+            spec = same_rank[0]
         self._shape(name, tuple(t.shape), spec)
         return t
 
     def _shape(self, name: str, shape: tuple[int, ...], spec: str) -> None:
         tokens = spec.split()
-        leading = bool(tokens) and tokens[0] == "..."
-        if leading:
-            tokens = tokens[1:]
-        want = f"({', '.join(spec.split())})"
-        if len(shape) < len(tokens) or (not leading and len(shape) != len(tokens)):
+        want = f"({', '.join(tokens)})"
+        if "..." in tokens:  # fixed tokens before and after any number of free dimensions
+            k = tokens.index("...")
+            head, tail = tokens[:k], tokens[k + 1 :]
+            ok = len(shape) >= len(head) + len(tail)
+            pairs = list(zip(head, shape)) + list(zip(tail, shape[len(shape) - len(tail) :] if tail else ()))
+        else:
+            ok = len(shape) == len(tokens)
+            pairs = list(zip(tokens, shape))
+        if not ok:
             self._fail(ValueError, f"argument '{name}' must have shape {want}, got {shape}")
-        for tok, size in zip(tokens, shape[len(shape) - len(tokens) :]):
+        for tok, size in pairs:
             if tok == "*":
                 continue
             if tok[0].isdigit():
-                allowed = [int(a) for a in tok.split("|")]
-                if size not in allowed:
+                if size not in [int(a) for a in tok.split("|")]:
                     self._fail(ValueError, f"argument '{name}' must have shape {want}, got {shape}")
             elif tok in self.dims:
                 bound, src = self.dims[tok]

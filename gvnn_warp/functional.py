@@ -55,11 +55,8 @@ def _pose34(chk: ArgCheck, name: str, T: Tensor, spec: str) -> Tensor:
 
 def _intrinsics(chk: ArgCheck, K: Tensor) -> Tensor:
     """Accept K as (3, 3) (shared) or (B, 3, 3); return a contiguous (B, 3, 3)."""
-    if isinstance(K, Tensor) and K.dim() == 2:
-        chk.tensor("K", K, "3 3")
-        return K.expand(chk.dim("B"), 3, 3).contiguous()
-    chk.tensor("K", K, "B 3 3")
-    return K.contiguous()
+    chk.tensor("K", K, "3 3 or B 3 3")
+    return (K.expand(chk.dim("B"), 3, 3) if K.dim() == 2 else K).contiguous()
 
 
 # ----------------------------------------------------------------------------- rotations
@@ -209,7 +206,7 @@ def depth_to_points(depth: Tensor, K: Tensor) -> Tensor:
     chk.tensor("depth", depth, "B 1 H W")
     Kb = _intrinsics(chk, K)
     B, _, H, W = depth.shape
-    return _ops.depth_to_points(depth.contiguous(), Kb, H, W).reshape(B, H, W, 3)
+    return _ops.depth_to_points(depth.reshape(-1).contiguous(), Kb, H, W).reshape(B, H, W, 3)
 
 
 def transform_points(T: Tensor, points: Tensor) -> Tensor:

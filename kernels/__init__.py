@@ -1,1 +1,62 @@
-"""Pure-Warp building blocks of gvnn_warp (installed as ``gvnn_warp.kernels``; never imports torch)."""
+"""Pure-Warp building blocks of gvnn_warp, installed as ``gvnn_warp.kernels``; never imports torch.
+
+- ``@wp.func`` libraries to call from your own kernels: :mod:`.lie` (so3/SE3/Sim3 exp and log,
+  quaternions, Euler angles, poses), :mod:`.camera` (unproject, project), :mod:`.sampler`
+  (bilinear sampling with zeros/border padding).
+- Thin kernels with float32/float64 overloads: :mod:`.lie_kernels`, :mod:`.camera_kernels`,
+  :mod:`.sampling_kernels` (including the fused 3D spatial transformer).
+- Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`.
+- The launch helper and overload machinery: :mod:`.launch`.
+
+Conventions: ``docs/conventions.md``.
+"""
+
+from . import camera, camera_kernels, launch, lie, lie_kernels, pipeline, sampler, sampling_kernels
+from .camera import MIN_DEPTH, pixel_ray, project, project_clamped, unproject
+from .lie import (
+    euler_to_matrix,
+    hat,
+    pose_from_rt,
+    quat_wxyz_to_matrix,
+    se3_exp,
+    se3_to_pose,
+    sim3_to_pose,
+    so3_exp,
+    so3_log,
+    transform_point,
+    vee,
+)
+from .pipeline import masked_squared_error, warp_frame_depth
+from .sampler import bilinear, normalized_to_pixel, sample_position
+
+__all__ = [
+    "MIN_DEPTH",
+    "bilinear",
+    "camera",
+    "camera_kernels",
+    "euler_to_matrix",
+    "hat",
+    "launch",
+    "lie",
+    "lie_kernels",
+    "masked_squared_error",
+    "normalized_to_pixel",
+    "pipeline",
+    "pixel_ray",
+    "pose_from_rt",
+    "project",
+    "project_clamped",
+    "quat_wxyz_to_matrix",
+    "sample_position",
+    "sampler",
+    "sampling_kernels",
+    "se3_exp",
+    "se3_to_pose",
+    "sim3_to_pose",
+    "so3_exp",
+    "so3_log",
+    "transform_point",
+    "unproject",
+    "vee",
+    "warp_frame_depth",
+]

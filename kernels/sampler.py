@@ -50,8 +50,12 @@ def sample_position(x: Any, y: Any, H: int, W: int, padding: int):
     xs = x
     ys = y
     if padding == PADDING_BORDER:
-        xs = wp.clamp(x, zero, type(x)(W - 1))
-        ys = wp.clamp(y, zero, type(x)(H - 1))
+        # Like grid_sample: clamp into [0, size-1], no gradient at or beyond the bounds; NaN stays
+        # NaN (comparisons are false) and is then rejected below.
+        xmax = type(x)(W - 1)
+        ymax = type(x)(H - 1)
+        xs = wp.where(x <= zero, zero, wp.where(x >= xmax, xmax, x))
+        ys = wp.where(y <= zero, zero, wp.where(y >= ymax, ymax, y))
     inside = xs > -one and xs < type(x)(W) and ys > -one and ys < type(x)(H)
     return xs, ys, inside
 

@@ -1,0 +1,1 @@
+"""Demos of gvnn_warp, exposed as ``gvnn-warp`` sub-commands."""

@@ -1,0 +1,97 @@
+"""Host functions that run gvnn_warp pipelines on ``wp.array``s, with no torch involved.
+
+They check their arguments, allocate outputs (with gradients when the inputs have them) and
+launch the same kernels the torch layers use, so a ``wp.Tape`` records them::
+
+    tape = wp.Tape()
+    with tape:
+        warped, valid = warp_frame_depth(image, depth, pose, K)
+        loss = masked_squared_error(warped, target, valid)
+    tape.backward(loss=loss)          # pose.grad, image.grad, depth.grad, K.grad
+
+Shapes: image (B, C, H, W), depth (B, 1, H, W), pose (B,) of 3x4 matrices [R | t] (mapping the
+depth's frame into the image's), K (B,) of 3x3 intrinsics; float32 or float64 throughout.
+Conventions are in ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+from . import sampling_kernels
+from .camera import MIN_DEPTH
+from .sampler import PADDING_BORDER, PADDING_ZEROS
+
+_PADDING = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
+
+
+def _expect(fn: str, name: str, cond: bool, what: str, got) -> None:
+    if not cond:
+        raise ValueError(f"gvnn_warp.kernels.{fn}: argument '{name}' must be {what}, got {got}")
+
+
+def warp_frame_depth(
+    image: wp.array,
+    depth: wp.array,
+    pose: wp.array,
+    K: wp.array,
+    *,
+    padding_mode: str = "zeros",
+    min_depth: float = MIN_DEPTH,
+) -> tuple[wp.array, wp.array]:
+    """The 3D spatial transformer on Warp arrays (same semantics as ``gvnn_warp.warp_frame_depth``).
+
+    Returns ``warped`` (B, C, H, W) and ``valid`` (B, 1, H, W) of ``wp.bool``. ``warped`` has a
+    gradient buffer when any input does, so the call can be recorded on a ``wp.Tape``.
+    """
+    fn = "warp_frame_depth"
+    _expect(fn, "image", image.ndim == 4, "a 4-D (B, C, H, W) array", image.shape)
+    B, C, H, W = image.shape
+    _expect(fn, "depth", tuple(depth.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}", depth.shape)
+    _expect(fn, "pose", pose.ndim == 1 and pose.shape[0] == B, f"a ({B},) array of 3x4 matrices", pose.shape)
+    _expect(fn, "K", K.ndim == 1 and K.shape[0] == B, f"a ({B},) array of 3x3 matrices", K.shape)
+    _expect(fn, "padding_mode", padding_mode in _PADDING, f"one of {list(_PADDING)}", repr(padding_mode))
+    ft = image.dtype
+    _expect(fn, "depth", depth.dtype == ft, f"of dtype {ft.__name__}", depth.dtype.__name__)
+    requires_grad = image.requires_grad or depth.requires_grad or pose.requires_grad or K.requires_grad
+    warped = wp.zeros((B, C, H, W), dtype=ft, device=image.device, requires_grad=requires_grad)
+    valid = wp.zeros((B, 1, H, W), dtype=wp.bool, device=image.device)
+    wp.launch(
+        sampling_kernels.warp_frame_depth[ft],
+        dim=B * H * W,
+        inputs=[0, image.flatten(), depth.flatten(), pose, K, C, H, W, float(min_depth), _PADDING[padding_mode]],
+        outputs=[warped.flatten(), valid.flatten()],
+        device=image.device,
+    )
+    return warped, valid
+
+
+@wp.kernel
+def _masked_squared_error(
+    a: wp.array(dtype=Any), b: wp.array(dtype=Any), valid: wp.array(dtype=wp.bool), hw: int, C: int,
+    loss: wp.array(dtype=Any),
+):
+    i = wp.tid()  # flat (b, c, pixel)
+    pix = (i // (C * hw)) * hw + i % hw
+    if valid[pix]:
+        r = a[i] - b[i]
+        wp.atomic_add(loss, 0, r * r * a.dtype(0.5))
+
+
+def masked_squared_error(a: wp.array, b: wp.array, valid: wp.array) -> wp.array:
+    """0.5 * sum over valid pixels and all channels of (a - b)^2, as a 1-element array.
+
+    a, b: (B, C, H, W) of one float type; valid: (B, 1, H, W) of ``wp.bool``.
+    """
+    fn = "masked_squared_error"
+    _expect(fn, "b", tuple(b.shape) == tuple(a.shape), f"of shape {tuple(a.shape)}", b.shape)
+    B, C, H, W = a.shape
+    _expect(fn, "valid", tuple(valid.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}", valid.shape)
+    loss = wp.zeros(1, dtype=a.dtype, device=a.device, requires_grad=a.requires_grad or b.requires_grad)
+    wp.launch(
+        _masked_squared_error, dim=a.size, inputs=[a.flatten(), b.flatten(), valid.flatten(), H * W, C],
+        outputs=[loss], device=a.device,
+    )
+    return loss

@@ -1,0 +1,179 @@
+"""so3 / quaternion / Euler / SE3 / Sim3 layers against independent references (matrix_exp,
+closed forms, kornia) and float64 finite differences, including 0, 1e-8 and pi - 1e-3."""
+
+import math
+
+import kornia
+import pytest
+import torch
+from refs import ANGLES, rotvec_with_angle, skew, tol
+from torch.autograd import gradcheck
+
+import gvnn_warp as G
+
+
+def ref_so3_exp(w):
+    return torch.linalg.matrix_exp(skew(w.double()))
+
+
+@pytest.mark.parametrize("name", list(ANGLES))
+def test_so3_exp_matches_matrix_exp(name, dtype):
+    w = rotvec_with_angle(ANGLES[name], n=5, dtype=dtype)
+    R = G.so3_exp(w)
+    assert R.dtype == dtype and R.shape == (5, 3, 3)
+    torch.testing.assert_close(R.double(), ref_so3_exp(w), rtol=tol(dtype)[0], atol=tol(dtype)[1])
+
+
+def test_so3_exp_large_angles_and_orthonormality():
+    w = torch.randn(200, 3, dtype=torch.float64) * 4.0  # angles well beyond pi
+    R = G.so3_exp(w)
+    torch.testing.assert_close(R, ref_so3_exp(w), rtol=1e-10, atol=1e-11)
+    eye = torch.eye(3, dtype=torch.float64).expand(200, 3, 3)
+    torch.testing.assert_close(R @ R.transpose(-1, -2), eye, rtol=0, atol=1e-12)
+    torch.testing.assert_close(torch.linalg.det(R), torch.ones(200, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("name", list(ANGLES))
+def test_so3_exp_gradcheck(name):
+    w = rotvec_with_angle(ANGLES[name], n=3).requires_grad_()
+    assert gradcheck(G.so3_exp, (w,))
+
+
+def test_so3_exp_gradient_at_zero_is_exact():
+    # d R / d w_i at 0 is hat(e_i): the gradient of <G, R> is vee(G - G^T)/2 * 2 = (G32 - G23, ...)
+    w = torch.zeros(1, 3, dtype=torch.float64, requires_grad=True)
+    Gm = torch.randn(1, 3, 3, dtype=torch.float64)
+    (G.so3_exp(w) * Gm).sum().backward()
+    expected = torch.stack([Gm[0, 2, 1] - Gm[0, 1, 2], Gm[0, 0, 2] - Gm[0, 2, 0], Gm[0, 1, 0] - Gm[0, 0, 1]])
+    torch.testing.assert_close(w.grad[0], expected, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", list(ANGLES))
+def test_so3_log_round_trip(name, dtype):
+    w = rotvec_with_angle(ANGLES[name], n=5, dtype=dtype)
+    w_back = G.so3_log(G.so3_exp(w))
+    atol = 2e-6 if dtype == torch.float32 else 1e-10
+    if name == "near_pi" and dtype == torch.float32:
+        atol = 5e-4  # the axis at pi - 1e-3 is conditioned by 1 / sin(theta)
+    torch.testing.assert_close(w_back, w, rtol=0, atol=atol)
+
+
+def test_so3_log_at_pi_and_beyond():
+    # at exactly pi either sign is a logarithm: check exp(log(R)) == R and |log| == pi
+    w = rotvec_with_angle(math.pi, n=8, seed=3)
+    R = G.so3_exp(w)
+    w_back = G.so3_log(R)
+    torch.testing.assert_close(w_back.norm(dim=-1), torch.full((8,), math.pi, dtype=torch.float64))
+    torch.testing.assert_close(G.so3_exp(w_back), R, rtol=0, atol=1e-12)
+    # angles in (pi, 2 pi) come back as the equivalent rotation of angle 2 pi - theta
+    w = rotvec_with_angle(4.0, n=4, seed=4)
+    torch.testing.assert_close(G.so3_exp(G.so3_log(G.so3_exp(w))), G.so3_exp(w), rtol=0, atol=1e-12)
+
+
+def test_so3_log_matches_kornia():
+    w = rotvec_with_angle(0.7, n=6, seed=1)
+    R = G.so3_exp(w)
+    torch.testing.assert_close(G.so3_log(R), kornia.geometry.conversions.rotation_matrix_to_axis_angle(R))
+
+
+@pytest.mark.parametrize("name", ["zero", "tiny", "small", "generic", "near_pi"])
+def test_so3_log_gradcheck(name):
+    R = G.so3_exp(rotvec_with_angle(ANGLES[name], n=2, seed=2)).requires_grad_()
+    assert gradcheck(G.so3_log, (R,))
+
+
+def test_quaternion_to_matrix(dtype):
+    q = torch.randn(7, 4, dtype=torch.float64) * 3  # not unit: normalised inside
+    ref = kornia.geometry.conversions.quaternion_to_rotation_matrix(torch.nn.functional.normalize(q, dim=-1))
+    R = G.quaternion_to_matrix(q.to(dtype))
+    torch.testing.assert_close(R.double(), ref, rtol=tol(dtype)[0], atol=tol(dtype)[1])
+    # (w, x, y, z) order: q = (cos a/2, sin a/2 * axis) equals so3_exp(a * axis)
+    w = rotvec_with_angle(0.9, n=3, seed=5)
+    half = w.norm(dim=-1, keepdim=True) / 2
+    qa = torch.cat([half.cos(), half.sin() * torch.nn.functional.normalize(w, dim=-1)], -1)
+    torch.testing.assert_close(G.quaternion_to_matrix(qa), G.so3_exp(w))
+
+
+def test_quaternion_gradcheck_and_zero():
+    q = torch.randn(4, 4, dtype=torch.float64, requires_grad=True)
+    assert gradcheck(G.quaternion_to_matrix, (q,))
+    q0 = torch.zeros(1, 4, dtype=torch.float64, requires_grad=True)
+    R = G.quaternion_to_matrix(q0)
+    torch.testing.assert_close(R[0], torch.eye(3, dtype=torch.float64))
+    R.sum().backward()
+    assert torch.isfinite(q0.grad).all()
+
+
+def _axis_rot(axis, a):
+    c, s = math.cos(a), math.sin(a)
+    m = {
+        "X": [[1, 0, 0], [0, c, -s], [0, s, c]],
+        "Y": [[c, 0, s], [0, 1, 0], [-s, 0, c]],
+        "Z": [[c, -s, 0], [s, c, 0], [0, 0, 1]],
+    }[axis]
+    return torch.tensor(m, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("convention", ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "ZYZ", "XYX"])
+def test_euler_to_matrix(convention, dtype):
+    angles = torch.tensor([[0.3, -1.1, 2.5], [0.0, 0.0, 0.0], [3.0, 1.5, -0.2]], dtype=torch.float64)
+    R = G.euler_to_matrix(angles.to(dtype), convention)
+    for i, a in enumerate(angles.tolist()):
+        ref = _axis_rot(convention[0], a[0]) @ _axis_rot(convention[1], a[1]) @ _axis_rot(convention[2], a[2])
+        torch.testing.assert_close(R[i].double(), ref, rtol=tol(dtype)[0], atol=tol(dtype)[1])
+    if dtype == torch.float64:
+        assert gradcheck(lambda x: G.euler_to_matrix(x, convention), (angles.clone().requires_grad_(),))
+
+
+def test_se3_and_sim3_to_matrix():
+    xi = torch.randn(2, 3, 7, dtype=torch.float64)
+    xi[0, 0, :3] = 0.0  # zero rotation
+    T = G.sim3_to_matrix(xi)
+    assert T.shape == (2, 3, 3, 4)
+    R = ref_so3_exp(xi[..., :3])
+    torch.testing.assert_close(T[..., :3], R * xi[..., 6, None, None].exp())
+    torch.testing.assert_close(T[..., 3], xi[..., 3:6])
+    T6 = G.se3_to_matrix(xi[..., :6])
+    torch.testing.assert_close(T6[..., :3], R)
+    torch.testing.assert_close(T6[..., 3], xi[..., 3:6])
+    x = xi.reshape(-1, 7).clone().requires_grad_()
+    assert gradcheck(G.sim3_to_matrix, (x,))
+    assert gradcheck(G.se3_to_matrix, (x[:, :6].detach().clone().requires_grad_(),))
+
+
+def _twist_matrix(xi):
+    M = torch.zeros(*xi.shape[:-1], 4, 4, dtype=xi.dtype)
+    M[..., :3, :3] = skew(xi[..., :3])
+    M[..., :3, 3] = xi[..., 3:]
+    return M
+
+
+@pytest.mark.parametrize("name", list(ANGLES))
+def test_se3_exp_log(name, dtype):
+    w = rotvec_with_angle(ANGLES[name], n=4, seed=6)
+    xi = torch.cat([w, torch.randn(4, 3, dtype=torch.float64)], -1)
+    T = G.se3_exp(xi.to(dtype))
+    ref = torch.linalg.matrix_exp(_twist_matrix(xi))[:, :3, :]
+    torch.testing.assert_close(T.double(), ref, rtol=tol(dtype)[0] * 10, atol=tol(dtype)[1] * 10)
+    if dtype == torch.float64:
+        torch.testing.assert_close(G.se3_log(T), xi, rtol=0, atol=1e-9)
+        torch.testing.assert_close(G.se3_log(ref), xi, rtol=0, atol=1e-9)
+        assert gradcheck(G.se3_exp, (xi.clone().requires_grad_(),))
+        assert gradcheck(G.se3_log, (T.clone().requires_grad_(),))
+
+
+def test_se3_log_accepts_4x4():
+    xi = torch.randn(3, 6, dtype=torch.float64) * 0.5
+    T = G.se3_exp(xi)
+    T44 = torch.cat([T, torch.tensor([0, 0, 0, 1.0], dtype=torch.float64).expand(3, 1, 4)], -2)
+    torch.testing.assert_close(G.se3_log(T44), xi)
+
+
+def test_batch_dims_and_empty():
+    w = torch.randn(2, 5, 3)
+    assert G.so3_exp(w).shape == (2, 5, 3, 3)
+    assert G.so3_exp(torch.zeros(0, 3)).shape == (0, 3, 3)
+    assert G.so3_exp(torch.zeros(3)).shape == (3, 3)
+    e = torch.zeros(0, 3, requires_grad=True)
+    G.so3_exp(e).sum().backward()
+    assert e.grad.shape == (0, 3)
