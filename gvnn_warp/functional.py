@@ -222,7 +222,6 @@ def transform_points(T: Tensor, points: Tensor) -> Tensor:
     chk = ArgCheck("transform_points")
     T34 = _pose34(chk, "T", T, "B 3|4 4")
     chk.tensor("points", points, "B ... 3")
-    B = points.shape[0]
     P = math.prod(points.shape[1:-1])
     out = _ops.transform_points(T34.contiguous(), _flat(points, 1), P)
     return out.reshape(points.shape)
