@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
 
     xi = torch.zeros(1, 6, requires_grad=True)
     optim = torch.optim.Adam([xi], lr=0.01)
-    bar = tqdm(total=args.levels * args.steps, desc="align", unit="step", mininterval=0.5)
+    bar = tqdm(total=args.levels * args.steps, desc="align", unit="step", mininterval=0.5, disable=None)
     for level in reversed(range(args.levels)):
         s = 2**level
         for group in optim.param_groups:  # finer levels refine: smaller steps
