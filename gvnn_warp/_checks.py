@@ -47,6 +47,8 @@ class ArgCheck:
                     f"argument '{name}' has dtype {t.dtype} but '{self.dtype[1]}' has {self.dtype[0]}; "
                     "all floating arguments must share one dtype",
                 )
+        if t.numel() >= 2**31:
+            self._fail(ValueError, f"argument '{name}' has {t.numel()} elements; kernels index with int32 (< 2**31)")
         alternatives = spec.split(" or ")
         if len(alternatives) > 1:  # pick the alternative of matching rank, for a specific message
             same_rank = [a for a in alternatives if len(a.split()) == t.dim()]

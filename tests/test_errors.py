@@ -40,6 +40,7 @@ CASES = [
     (lambda: G.warp_frame_depth(IMG.half(), DEPTH.half(), POSE.half(), K.half()), TypeError, r"'image' must be float32 or float64, got torch.float16"),
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE, K, min_depth=-1), ValueError, r"'min_depth' must be a positive"),
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE, K, padding_mode="bogus"), ValueError, r"warp_frame_depth: argument 'padding_mode'"),
+    (lambda: G.so3_exp(torch.zeros(1, 3).expand(2**31 // 3 + 1, 3)), ValueError, r"so3_exp: argument 'omega' has \d+ elements; kernels index with int32"),
 ]
 
 
