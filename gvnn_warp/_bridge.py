@@ -8,22 +8,31 @@ a second custom op that runs the *same kernel's Warp adjoint*. Tensors are wrapp
 Callers (``functional.py``) validate and flatten arguments first: every tensor handed to an op
 is contiguous, on the CPU, float32 or float64 (all the same), with shape ``(n, *element_shape)``
 for its kind.
+
+Launches go through :func:`gvnn_warp.kernels.launch.launch`, which splits them over threads; the
+thread count follows ``torch.get_num_threads()`` unless set with
+``gvnn_warp.kernels.launch.set_num_threads`` or ``GVNN_WARP_NUM_THREADS``.
 """
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
 import warp as wp
 
-from .kernels.launch import FloatKernel, element_shape, element_type, launch
+from .kernels.launch import FloatKernel, element_shape, element_type, launch, set_default_num_threads
+from .kernels.launch import zero as zero_arrays
 
-wp.config.quiet = True
 wp.init()
+set_default_num_threads(torch.get_num_threads)
 
 _FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}
+# Gradient buffers of at least this many elements are zeroed by Warp threads (smaller ones by torch,
+# which fills them on one thread: cheaper than a launch)
+_ZERO_WITH_WARP = 32768
 
 
 def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
@@ -34,6 +43,60 @@ def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
         dtype=element_type(kind, float_type),
         requires_grad=False,
     )
+
+
+# The type of Warp's bare array descriptors (what ``wp.from_torch(..., return_ctype=True)`` returns)
+_ARRAY_T = type(wp.from_torch(torch.zeros(1), dtype=wp.float32, return_ctype=True))
+
+
+def _descriptor(t: torch.Tensor, kind: str, float_type):
+    """Like :func:`to_warp` but returns a bare 1-D array descriptor (~1 us instead of ~9 us), which
+    :func:`~gvnn_warp.kernels.launch.launch` accepts. It holds no reference to ``t``: keep ``t``
+    alive while the descriptor is used. ``t`` is contiguous (or a 1-D stride-0 view)."""
+    if t.stride() == (0,):
+        return _ARRAY_T(t.data_ptr(), 0, 1, (t.shape[0],), (0,))
+    if not t.is_contiguous():
+        return to_warp(t, kind, float_type)  # a copy: the wp.array keeps it alive
+    inner = 1
+    for d in element_shape(kind):
+        inner *= d
+    n = t.numel() // inner
+    return _ARRAY_T(t.data_ptr(), 0, 1, (n,), (inner * t.element_size(),))
+
+
+def _skip_lazy_dynamo_import(op) -> None:
+    """Spare the first call of ``op`` the import of ``torch._dynamo`` (~2 s).
+
+    torch wraps custom-op implementations in ``torch._disable_dynamo``, which imports
+    ``torch._dynamo`` on the first call to build its wrapper. Until something else imports
+    ``torch._dynamo`` nothing can be tracing, so the wrapper can wait: this installs a
+    ``__dynamo_disable`` that calls the implementation directly and builds the real wrapper once
+    ``torch._dynamo`` is loaded. Same behaviour otherwise; a no-op if torch's internals differ.
+    """
+    for wrapper in getattr(op, "_backend_fns", {}).values():
+        impl = getattr(wrapper, "__wrapped__", None)
+        if impl is None or getattr(impl, "__dynamo_disable", None) is not None:
+            continue
+
+        def lazy(*args, _impl=impl, **kwargs):
+            dynamo = sys.modules.get("torch._dynamo")
+            if dynamo is None:
+                return _impl(*args, **kwargs)
+            real = dynamo.disable(_impl, recursive=True, wrapping=False)
+            _impl.__dynamo_disable = real
+            return real(*args, **kwargs)
+
+        impl.__dynamo_disable = lazy
+
+
+def _readable_grad(g: torch.Tensor, kind: str) -> torch.Tensor:
+    """An incoming gradient as a tensor :func:`_descriptor` can wrap: contiguous, or, for a
+    broadcast scalar-kind gradient (e.g. from ``out.sum().backward()``: all strides 0), a 1-D
+    stride-0 view read in place instead of being materialised. The caller keeps it alive while
+    the descriptor is in use (descriptors hold no reference)."""
+    if not g.is_contiguous() and kind == "scalar" and g.dim() > 0 and all(s == 0 for s in g.stride()):
+        return g.detach().as_strided((g.numel(),), (0,))
+    return g.contiguous()
 
 
 @dataclass(frozen=True)
@@ -83,8 +146,8 @@ def warp_op(
 
     def wrap(args, outs):
         ft = _FLOAT_TYPES[args[0].dtype]
-        arrays = [to_warp(t, k, ft) for t, k in zip(args[:n_in], in_kinds)]
-        out_arrays = [to_warp(t, o.kind, ft) for t, o in zip(outs, outputs)]
+        arrays = [_descriptor(t, k, ft) for t, k in zip(args[:n_in], in_kinds)]
+        out_arrays = [_descriptor(t, o.kind, ft) for t, o in zip(outs, outputs)]
         return ft, arrays, out_arrays
 
     def forward(*args):
@@ -103,23 +166,30 @@ def warp_op(
         f"gvnn_warp::{name}", forward, mutates_args=(), schema=f"({sig_in}) -> {ret}"
     )
     fwd.register_fake(forward_fake)
+    _skip_lazy_dynamo_import(fwd)
 
     # backward(*tensors, *params, *grads of differentiable outputs) -> grads of the tensors
     sig_grads = ", ".join(f"Tensor grad_{o.name}" for o in diff_outputs)
 
     def backward_impl(*args):
         fargs, grads = args[: n_in + len(params)], args[n_in + len(params) :]
-        in_grads = [torch.zeros_like(t) for t in fargs[:n_in]]
         n = n_threads(*fargs)
         if n == 0:
-            return in_grads
+            return [torch.zeros_like(t) for t in fargs[:n_in]]
+        in_grads = [torch.empty_like(t, memory_format=torch.contiguous_format) for t in fargs[:n_in]]
         scratch = alloc_outputs(fargs)  # the adjoint replays the forward's stores into these
         ft, arrays, out_arrays = wrap(fargs, scratch)
-        adj_in = [to_warp(g, k, ft) for g, k in zip(in_grads, in_kinds)]
+        adj_in = [_descriptor(g, k, ft) for g, k in zip(in_grads, in_kinds)]
+        # Large gradient buffers are zeroed by Warp on gvnn_warp's threads: torch's OpenMP fill
+        # would leave torch's worker threads spinning on the cores the launch below needs.
+        large = [k for k, g in enumerate(in_grads) if g.numel() >= _ZERO_WITH_WARP]
+        for k, g in enumerate(in_grads):
+            if k not in large:
+                g.zero_()
+        zero_arrays([adj_in[k] for k in large], [element_type(in_kinds[k], ft) for k in large])
         g_iter = iter(grads)
-        adj_out = [
-            to_warp(next(g_iter).contiguous(), o.kind, ft) if o.differentiable else None for o in outputs
-        ]
+        readable = [_readable_grad(next(g_iter), o.kind) if o.differentiable else None for o in outputs]
+        adj_out = [_descriptor(g, o.kind, ft) if g is not None else None for g, o in zip(readable, outputs)]
         launch(
             fk[ft],
             n,
@@ -141,6 +211,7 @@ def warp_op(
         schema=f"({sig_in}, {sig_grads}) -> Tensor[]",
     )
     bwd.register_fake(backward_fake)
+    _skip_lazy_dynamo_import(bwd)
 
     def setup_context(ctx, inputs, output):
         ctx.save_for_backward(*inputs[:n_in])

@@ -5,6 +5,11 @@ one (b, c) channel plane. Sample positions are in pixels, (x, y) = (column, row)
 at integer coordinates. Taps outside the image read as 0 (``PADDING_ZEROS``); with
 ``PADDING_BORDER`` the position is first clamped into [0, W-1] x [0, H-1] (zero gradient to
 the position when clamped), exactly as ``torch.nn.functional.grid_sample`` does.
+
+:func:`sample_channels` samples every channel of one position at once with a hand-shaped Warp
+adjoint (``@wp.func_grad``): the tap addresses and weights are computed once for all channels,
+the image gradient is scattered directly, and the forward replay in the backward pass is skipped.
+It is what the sampling kernels use; :func:`bilinear` remains the single-plane building block.
 """
 
 from typing import Any
@@ -81,3 +86,276 @@ def bilinear(img: wp.array(dtype=Any), plane: int, H: int, W: int, x: Any, y: An
         + tap(img, plane, H, W, x0, y0 + 1) * (wx0 * wy1)
         + tap(img, plane, H, W, x0 + 1, y0 + 1) * (wx1 * wy1)
     )
+
+
+# Channels sampled by straight-line code in sample_channels (the rest, if any, by a loop).
+UNROLLED_CHANNELS = 4
+
+
+@wp.func
+def sample_channels_values(
+    image: wp.array(dtype=Any),
+    out: wp.array(dtype=Any),
+    src: int,
+    dst: int,
+    C: int,
+    hw_in: int,
+    hw_out: int,
+    H: int,
+    W: int,
+    x: Any,
+    y: Any,
+):
+    """The forward of :func:`sample_channels` where active (see there)."""
+    zero = type(x)(0.0)
+    fx0 = wp.floor(x)
+    fy0 = wp.floor(y)
+    x0 = int(fx0)
+    y0 = int(fy0)
+    wx1 = x - fx0
+    wy1 = y - fy0
+    wx0 = type(x)(1.0) - wx1
+    wy0 = type(x)(1.0) - wy1
+    # taps outside the image read 0; their (clamped, valid) addresses are never used
+    kx0 = x0 >= 0
+    kx1 = x0 < W - 1
+    ky0 = y0 >= 0
+    ky1 = y0 < H - 1
+    ra = src + wp.max(y0, 0) * W
+    rb = src + wp.min(y0 + 1, H - 1) * W
+    xa = wp.max(x0, 0)
+    xb = wp.min(x0 + 1, W - 1)
+    # wp.max(..., 0): indices known non-negative spare Warp's negative-index wrap-around
+    p00 = wp.max(ra + xa, 0)
+    p10 = wp.max(ra + xb, 0)
+    p01 = wp.max(rb + xa, 0)
+    p11 = wp.max(rb + xb, 0)
+    k00 = ky0 and kx0
+    k10 = ky0 and kx1
+    k01 = ky1 and kx0
+    k11 = ky1 and kx1
+    w00 = wx0 * wy0
+    w10 = wx1 * wy0
+    w01 = wx0 * wy1
+    w11 = wx1 * wy1
+    if k00 and k11:
+        # all four taps inside (the common case): no per-tap tests
+        for c in range(wp.static(UNROLLED_CHANNELS)):
+            if c < C:
+                q = c * hw_in
+                out[wp.max(dst + c * hw_out, 0)] = (
+                    image[wp.max(p00 + q, 0)] * w00
+                    + image[wp.max(p10 + q, 0)] * w10
+                    + image[wp.max(p01 + q, 0)] * w01
+                    + image[wp.max(p11 + q, 0)] * w11
+                )
+    else:
+        for c in range(wp.static(UNROLLED_CHANNELS)):
+            if c < C:
+                q = c * hw_in
+                out[wp.max(dst + c * hw_out, 0)] = (
+                    wp.where(k00, image[wp.max(p00 + q, 0)], zero) * w00
+                    + wp.where(k10, image[wp.max(p10 + q, 0)], zero) * w10
+                    + wp.where(k01, image[wp.max(p01 + q, 0)], zero) * w01
+                    + wp.where(k11, image[wp.max(p11 + q, 0)], zero) * w11
+                )
+    for c in range(UNROLLED_CHANNELS, C):
+        q = c * hw_in
+        out[dst + c * hw_out] = (
+            wp.where(k00, image[p00 + q], zero) * w00
+            + wp.where(k10, image[p10 + q], zero) * w10
+            + wp.where(k01, image[p01 + q], zero) * w01
+            + wp.where(k11, image[p11 + q], zero) * w11
+        )
+
+
+@wp.func
+def sample_channels_grad(
+    image: wp.array(dtype=Any),
+    g_image: wp.array(dtype=Any),
+    g_out: wp.array(dtype=Any),
+    src: int,
+    dst: int,
+    C: int,
+    hw_in: int,
+    hw_out: int,
+    H: int,
+    W: int,
+    x: Any,
+    y: Any,
+):
+    """The adjoint of :func:`sample_channels` where active: adds d loss / d image into ``g_image``
+    given ``g_out`` = d loss / d out, and returns (d loss / dx, d loss / dy).
+
+    d out_c / d image[tap] = tap weight; d out_c / dx = (v10 - v00) wy0 + (v11 - v01) wy1, and
+    likewise for y (the derivative of the weights; floor() contributes nothing).
+    """
+    zero = type(x)(0.0)
+    fx0 = wp.floor(x)
+    fy0 = wp.floor(y)
+    x0 = int(fx0)
+    y0 = int(fy0)
+    wx1 = x - fx0
+    wy1 = y - fy0
+    wx0 = type(x)(1.0) - wx1
+    wy0 = type(x)(1.0) - wy1
+    kx0 = x0 >= 0
+    kx1 = x0 < W - 1
+    ky0 = y0 >= 0
+    ky1 = y0 < H - 1
+    ra = src + wp.max(y0, 0) * W
+    rb = src + wp.min(y0 + 1, H - 1) * W
+    xa = wp.max(x0, 0)
+    xb = wp.min(x0 + 1, W - 1)
+    p00 = wp.max(ra + xa, 0)
+    p10 = wp.max(ra + xb, 0)
+    p01 = wp.max(rb + xa, 0)
+    p11 = wp.max(rb + xb, 0)
+    k00 = ky0 and kx0
+    k10 = ky0 and kx1
+    k01 = ky1 and kx0
+    k11 = ky1 and kx1
+    w00 = wx0 * wy0
+    w10 = wx1 * wy0
+    w01 = wx0 * wy1
+    w11 = wx1 * wy1
+    gx = zero
+    gy = zero
+    inside = k00 and k11
+    for c in range(wp.static(UNROLLED_CHANNELS)):
+        if c < C:
+            q = c * hw_in
+            g = g_out[wp.max(dst + c * hw_out, 0)]
+            i00 = wp.max(p00 + q, 0)
+            i10 = wp.max(p10 + q, 0)
+            i01 = wp.max(p01 + q, 0)
+            i11 = wp.max(p11 + q, 0)
+            if inside:
+                # all four taps inside (the common case): no per-tap tests
+                v00 = image[i00]
+                v10 = image[i10]
+                v01 = image[i01]
+                v11 = image[i11]
+                g_image[i00] += g * w00
+                g_image[i10] += g * w10
+                g_image[i01] += g * w01
+                g_image[i11] += g * w11
+                gx += g * ((v10 - v00) * wy0 + (v11 - v01) * wy1)
+                gy += g * ((v01 - v00) * wx0 + (v11 - v10) * wx1)
+            else:
+                v00 = wp.where(k00, image[i00], zero)
+                v10 = wp.where(k10, image[i10], zero)
+                v01 = wp.where(k01, image[i01], zero)
+                v11 = wp.where(k11, image[i11], zero)
+                if k00:
+                    g_image[i00] += g * w00
+                if k10:
+                    g_image[i10] += g * w10
+                if k01:
+                    g_image[i01] += g * w01
+                if k11:
+                    g_image[i11] += g * w11
+                gx += g * ((v10 - v00) * wy0 + (v11 - v01) * wy1)
+                gy += g * ((v01 - v00) * wx0 + (v11 - v10) * wx1)
+    for c in range(UNROLLED_CHANNELS, C):
+        q = c * hw_in
+        g = g_out[dst + c * hw_out]
+        v00 = wp.where(k00, image[p00 + q], zero)
+        v10 = wp.where(k10, image[p10 + q], zero)
+        v01 = wp.where(k01, image[p01 + q], zero)
+        v11 = wp.where(k11, image[p11 + q], zero)
+        if k00:
+            g_image[p00 + q] += g * w00
+        if k10:
+            g_image[p10 + q] += g * w10
+        if k01:
+            g_image[p01 + q] += g * w01
+        if k11:
+            g_image[p11 + q] += g * w11
+        gx += g * ((v10 - v00) * wy0 + (v11 - v01) * wy1)
+        gy += g * ((v01 - v00) * wx0 + (v11 - v10) * wx1)
+    return gx, gy
+
+
+def _make_sample_channels(T, sample_channels=None):
+    """float type ``T`` overload of sample_channels (Warp custom adjoints need concrete types).
+
+    The parameter named like the function is the overload made before, so that Warp registers
+    this one next to it (overloads are found through the defining scope).
+    """
+
+    @wp.func
+    def sample_channels(
+        image: wp.array(dtype=T),
+        out: wp.array(dtype=T),
+        src: int,
+        dst: int,
+        C: int,
+        hw_in: int,
+        hw_out: int,
+        H: int,
+        W: int,
+        x: T,
+        y: T,
+        active: wp.bool,
+    ):
+        """out[dst + c hw_out] = bilinear sample of image plane ``src + c hw_in`` (H x W) at pixel
+        position (x, y), for c in [0, C); 0 where ``active`` is false.
+
+        Same values as :func:`bilinear` per plane (taps outside the image read 0). When active,
+        the caller guarantees -1 < x < W and -1 < y < H (see :func:`sample_position`).
+        Gradients: to the image (scattered to the four taps), to x and y; none to the rest.
+        """
+        if active:
+            sample_channels_values(image, out, src, dst, C, hw_in, hw_out, H, W, x, y)
+        else:
+            for c in range(wp.static(UNROLLED_CHANNELS)):
+                if c < C:
+                    out[wp.max(dst + c * hw_out, 0)] = T(0.0)
+            for c in range(UNROLLED_CHANNELS, C):
+                out[dst + c * hw_out] = T(0.0)
+
+    @wp.func_grad(sample_channels)
+    def adj_sample_channels(
+        image: wp.array(dtype=T),
+        out: wp.array(dtype=T),
+        src: int,
+        dst: int,
+        C: int,
+        hw_in: int,
+        hw_out: int,
+        H: int,
+        W: int,
+        x: T,
+        y: T,
+        active: wp.bool,
+    ):
+        if active:
+            gx, gy = sample_channels_grad(
+                image, wp.adjoint[image], wp.adjoint[out], src, dst, C, hw_in, hw_out, H, W, x, y
+            )
+            wp.adjoint[x] += gx
+            wp.adjoint[y] += gy
+
+    @wp.func_replay(sample_channels)
+    def replay_sample_channels(
+        image: wp.array(dtype=T),
+        out: wp.array(dtype=T),
+        src: int,
+        dst: int,
+        C: int,
+        hw_in: int,
+        hw_out: int,
+        H: int,
+        W: int,
+        x: T,
+        y: T,
+        active: wp.bool,
+    ):
+        # The backward pass needs nothing the forward stored: skip re-sampling every channel.
+        pass
+
+    return sample_channels
+
+
+sample_channels = _make_sample_channels(wp.float64, _make_sample_channels(wp.float32))

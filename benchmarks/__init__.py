@@ -1,0 +1,1 @@
+"""gvnn_warp benchmarks: ``python -m benchmarks.run`` (see run.py)."""

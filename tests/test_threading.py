@@ -1,0 +1,219 @@
+"""The multi-core launch path (gvnn_warp.kernels.launch): results are bitwise identical for every
+thread count, forward and all gradients, including odd sizes and batch size 1 (where backward
+reductions are cut into fixed pieces with partial buffers). No timing assertions here; see
+benchmarks/ for speed."""
+
+import os
+from typing import Any
+
+import pytest
+import torch
+import warp as wp
+from gvnn_warp.kernels import launch as L
+from gvnn_warp.kernels import lie_kernels, sampling_kernels
+
+import gvnn_warp as G
+
+THREADS = (2, 3, 4)
+
+
+@pytest.fixture(autouse=True)
+def restore_threads():
+    yield
+    L.set_num_threads(None)
+
+
+@pytest.fixture
+def count_chunks(monkeypatch):
+    """Counts the kernel launches (chunks) each op call makes."""
+    calls = []
+    real = L._launch_one
+
+    def counting(*args, **kwargs):
+        calls.append(args[0].key)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(L, "_launch_one", counting)
+    return calls
+
+
+def run_with_threads(n, fn, *inputs):
+    """fn(*leaves) -> tensors; returns the outputs and the gradients of every leaf, with n threads."""
+    L.set_num_threads(n)
+    leaves = [t.detach().clone().requires_grad_(t.is_floating_point()) for t in inputs]
+    outs = fn(*leaves)
+    outs = outs if isinstance(outs, tuple) else (outs,)
+    g = torch.Generator().manual_seed(123)
+    loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs if o.is_floating_point())
+    loss.backward()
+    return [o.detach() for o in outs], [t.grad for t in leaves if t.requires_grad]
+
+
+def assert_bitwise_equal_across_threads(fn, *inputs):
+    ref_out, ref_grads = run_with_threads(1, fn, *inputs)
+    assert all(torch.isfinite(g).all() for g in ref_grads)
+    for n in THREADS:
+        out, grads = run_with_threads(n, fn, *inputs)
+        for a, b in zip(out, ref_out):
+            assert torch.equal(a, b), f"output differs with {n} threads"
+        for k, (a, b) in enumerate(zip(grads, ref_grads)):
+            assert torch.equal(a, b), f"gradient {k} differs with {n} threads (max {(a - b).abs().max()})"
+
+
+def wfd_inputs(B, C, H, W, dtype, seed=0, motion=0.05):
+    g = torch.Generator().manual_seed(seed)
+    image = torch.rand(B, C, H, W, generator=g, dtype=dtype)
+    depth = torch.rand(B, 1, H, W, generator=g, dtype=dtype) * 2 + 1
+    depth[:, :, 0, :3] = torch.tensor([0.0, float("nan"), -1.0], dtype=dtype)  # some invalid depths
+    pose = G.se3_to_matrix(torch.randn(B, 6, generator=g, dtype=dtype) * motion)
+    K = torch.tensor([[0.9 * W, 0.0, (W - 1) / 2], [0.0, 0.9 * W, (H - 1) / 2], [0.0, 0.0, 1.0]], dtype=dtype)
+    return image, depth, pose, K.expand(B, 3, 3).contiguous()
+
+
+# B=1 and 3 cut batch items into pieces with partial gradient buffers; B=5 splits by batch item
+@pytest.mark.parametrize("B,C,H,W", [(1, 3, 193, 257), (3, 2, 61, 77), (5, 1, 53, 91), (1, 5, 9, 11)])
+@pytest.mark.parametrize("padding_mode", ["zeros", "border"])
+def test_warp_frame_depth_bitwise_equal(B, C, H, W, padding_mode, dtype):
+    def fn(image, depth, pose, K):
+        return G.warp_frame_depth(image, depth, pose, K, padding_mode=padding_mode)
+
+    assert_bitwise_equal_across_threads(fn, *wfd_inputs(B, C, H, W, dtype))
+
+
+@pytest.mark.parametrize("B,C,H,W,h,w", [(1, 3, 67, 89, 131, 151), (3, 2, 40, 50, 97, 101), (6, 1, 17, 19, 13, 29)])
+@pytest.mark.parametrize("align_corners", [False, True])
+@pytest.mark.parametrize("padding_mode", ["zeros", "border"])
+def test_bilinear_sample_bitwise_equal(B, C, H, W, h, w, align_corners, padding_mode, dtype):
+    g = torch.Generator().manual_seed(1)
+    image = torch.rand(B, C, H, W, generator=g, dtype=dtype)
+    grid = torch.rand(B, h, w, 2, generator=g, dtype=dtype) * 2.4 - 1.2
+
+    def fn(image, grid):
+        return G.bilinear_sample(image, grid, align_corners=align_corners, padding_mode=padding_mode)
+
+    assert_bitwise_equal_across_threads(fn, image, grid)
+
+
+@pytest.mark.parametrize("n", [1, 7, 40_001, 100_003])
+def test_so3_exp_bitwise_equal(n, dtype):
+    g = torch.Generator().manual_seed(2)
+    omega = torch.randn(n, 3, generator=g, dtype=dtype)
+    omega[: min(n, 3)] *= 1e-3  # small-angle branch too
+    assert_bitwise_equal_across_threads(G.so3_exp, omega)
+
+
+@pytest.mark.parametrize("B", [1, 3])
+def test_camera_layers_bitwise_equal(B, dtype):
+    # depth_to_points / project_points accumulate K gradients ("any" scope: partial buffers)
+    image, depth, pose, K = wfd_inputs(B, 1, 256, 256, dtype, seed=3)
+    depth = depth.nan_to_num(1.0).clamp(min=1.0)
+
+    def fn(depth, pose, K):
+        points = G.transform_points(pose, G.depth_to_points(depth, K))
+        return G.project_points(points, K)
+
+    assert_bitwise_equal_across_threads(fn, depth, pose, K)
+
+
+def test_large_launches_are_split(count_chunks):
+    L.set_num_threads(2)
+    image, depth, pose, K = wfd_inputs(1, 3, 193, 257, torch.float32)
+    leaves = [t.requires_grad_() for t in (image, depth, pose, K)]
+    out, _ = G.warp_frame_depth(*leaves)
+    assert len(count_chunks) > 1  # forward split over rows
+    count_chunks.clear()
+    out.sum().backward()
+    assert len(count_chunks) > 1  # backward cut into pieces (B = 1)
+    count_chunks.clear()
+    G.so3_exp(torch.randn(100_000, 3))
+    assert len(count_chunks) > 1
+    # small launches stay on one chunk
+    small = wfd_inputs(1, 1, 8, 8, torch.float32)
+    count_chunks.clear()
+    G.warp_frame_depth(*small)
+    assert len(count_chunks) == 1
+
+
+def test_fused_kernel_uses_row_blocks(count_chunks):
+    L.set_num_threads(1)
+    inputs = wfd_inputs(2, 1, 8, 8, torch.float32)
+    count_chunks.clear()
+    G.warp_frame_depth(*inputs)
+    assert count_chunks and all("rows" in k for k in count_chunks)
+
+
+def test_thread_count_precedence(monkeypatch):
+    monkeypatch.delenv(L.ENV_NUM_THREADS, raising=False)
+    L.set_num_threads(None)
+    torch.set_num_threads(1)
+    try:
+        assert L.get_num_threads() == 1  # follows torch once the bridge is loaded
+        torch.set_num_threads(2)
+        assert L.get_num_threads() == 2
+        monkeypatch.setenv(L.ENV_NUM_THREADS, "3")
+        assert L.get_num_threads() == 3
+        L.set_num_threads(5)
+        assert L.get_num_threads() == 5
+        with pytest.raises(ValueError):
+            L.set_num_threads(0)
+    finally:
+        torch.set_num_threads(2)
+
+
+def test_adjoint_scopes():
+    so3 = L._info(lie_kernels.so3_exp[wp.float32])
+    assert so3.scopes == {"omega": "element", "R": "element"} and so3.forward
+    wfd = L._info(sampling_kernels.warp_frame_depth[wp.float64])
+    assert wfd.scopes["image"] == "segment" and wfd.scopes["depth"] == "element" and wfd.blocked is not None
+
+
+@wp.kernel
+def _splat(offset: int, x: wp.array(dtype=Any), out: wp.array(dtype=Any)):
+    i = wp.tid() + offset
+    wp.atomic_add(out, 0, x[i])
+
+
+@wp.kernel
+def _gather(offset: int, x: wp.array(dtype=Any), idx: wp.array(dtype=wp.int32), out: wp.array(dtype=Any)):
+    i = wp.tid() + offset
+    out[i] = x[idx[i]] * x[i]
+
+
+def test_inferred_kernels_are_safe():
+    splat = L.FloatKernel(_splat, x="scalar", out="scalar")[wp.float64]
+    assert not L._info(splat).forward  # forward atomics: one thread
+    gather = L.FloatKernel(_gather, x="scalar", out="scalar")[wp.float64]
+    assert L._info(gather).scopes["x"] == "any"
+
+    n = 50_000
+    rng = torch.Generator().manual_seed(4)
+    x = torch.rand(n, dtype=torch.float64, generator=rng)
+    idx = torch.randint(0, n, (n,), generator=rng, dtype=torch.int32)
+    results = []
+    for threads in (1, 2, 4):
+        L.set_num_threads(threads)
+        total = torch.zeros(1, dtype=torch.float64)
+        L.launch(splat, n, [wp.from_torch(x)], [wp.from_torch(total)])
+        gx = torch.zeros(n, dtype=torch.float64)
+        out = torch.empty(n, dtype=torch.float64)
+        L.launch(
+            gather, n, [wp.from_torch(x), wp.from_torch(idx)], [wp.from_torch(out)], adjoint=True,
+            adj_inputs=[wp.from_torch(gx), None], adj_outputs=[wp.from_torch(torch.ones(n, dtype=torch.float64))],
+        )
+        results.append((total, gx))
+    assert torch.allclose(results[0][0], x.sum())
+    expected = x[idx.long()].clone()  # d out_i / d x_i = x[idx_i]; d out_i / d x[idx_i] = x_i
+    expected.index_add_(0, idx.long(), x)
+    assert torch.allclose(results[0][1], expected)
+    for total, gx in results[1:]:
+        assert torch.equal(total, results[0][0]) and torch.equal(gx, results[0][1])
+
+
+def test_env_var_in_subprocess(tmp_path):
+    import subprocess
+    import sys
+
+    code = "import gvnn_warp.kernels.launch as L; print(L.get_num_threads())"
+    env = dict(os.environ, **{L.ENV_NUM_THREADS: "3"})
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "3"
