@@ -8,7 +8,15 @@ from __future__ import annotations
 
 import importlib
 
+import warp as _wp
+
+# Warp logs a start-up banner and a line per module load at INFO level; gvnn_warp shows only
+# warnings. Set ``warp.config.log_level = warp.LOG_INFO`` after importing gvnn_warp to see them.
+_wp.config.log_level = max(_wp.config.log_level, _wp.LOG_WARNING)
+
 __version__ = "0.1.0"
+
+from .kernels.launch import get_num_threads, set_num_threads  # noqa: E402  (pure Warp, no torch)
 
 _FUNCTIONAL = (
     "MIN_DEPTH",
@@ -35,9 +43,48 @@ _LAYERS = (
     "BilinearSampler",
     "SpatialTransformer3D",
 )
-_LAZY = {**{n: "functional" for n in _FUNCTIONAL}, **{n: "layers" for n in _LAYERS}}
+_PERPIXEL = (
+    "affine_flow",
+    "affine_flow_warp",
+    "affine_grid",
+    "disparity_warp",
+    "flow_warp",
+    "homography_flow",
+    "pointwise_se3",
+    "pointwise_sim3",
+    "pointwise_transform10",
+    "robust_psi",
+    "robust_rho",
+    "se2_flow",
+    "slanted_plane_disparity",
+    "smoothness_loss",
+)
+_PERPIXEL_LAYERS = (
+    "AffineFlow",
+    "AffineFlowWarp",
+    "AffineGridGenerator",
+    "DisparityWarp",
+    "FlowWarp",
+    "HomographyFlow",
+    "PointwiseSE3",
+    "PointwiseSim3",
+    "PointwiseTransform10",
+    "RobustLoss",
+    "SE2Flow",
+    "SlantedPlaneDisparity",
+    "SmoothnessLoss",
+)
+_LAZY = {
+    **{n: "functional" for n in _FUNCTIONAL},
+    **{n: "layers" for n in _LAYERS},
+    **{n: "perpixel" for n in _PERPIXEL},
+    **{n: "perpixel_layers" for n in _PERPIXEL_LAYERS},
+}
+_SUBMODULES = ("functional", "layers", "perpixel", "perpixel_layers")
 
-__all__ = [*_FUNCTIONAL, *_LAYERS, "functional", "layers", "kernels"]
+__all__ = [
+    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_SUBMODULES, "kernels", "get_num_threads", "set_num_threads"
+]
 
 
 def __getattr__(name: str):
@@ -45,7 +92,7 @@ def __getattr__(name: str):
         value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
         globals()[name] = value
         return value
-    if name in ("functional", "layers"):
+    if name in _SUBMODULES:
         return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'gvnn_warp' has no attribute {name!r}")
 

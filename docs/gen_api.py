@@ -1,0 +1,48 @@
+"""Write docs/api.md, the API reference, from the public functions' and layers' docstrings.
+
+Run ``python docs/gen_api.py`` after changing a docstring; a test checks the file is current.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import sys
+from pathlib import Path
+
+SECTIONS = [
+    ("Global transformations and the 3D spatial transformer", "gvnn_warp.functional"),
+    ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.perpixel"),
+    ("Layers (nn.Module)", "gvnn_warp.layers"),
+    ("Per-pixel layers (nn.Module)", "gvnn_warp.perpixel_layers"),
+    ("Threads", "gvnn_warp.kernels.launch", ["get_num_threads", "set_num_threads"]),
+]
+
+
+def render() -> str:
+    out = [
+        "# API reference",
+        "",
+        "Generated from the docstrings by `docs/gen_api.py`. Conventions (pixel centres, (x, y) order,",
+        "`[omega, t]` order, quaternion order, units, valid masks, minimum depth):",
+        "[conventions.md](conventions.md). Everything below is importable from `gvnn_warp`.",
+        "",
+    ]
+    for title, modname, *names in SECTIONS:
+        mod = importlib.import_module(modname)
+        out += [f"## {title}", "", f"`{modname}`", ""]
+        for name in sorted(names[0] if names else mod.__all__):
+            obj = getattr(mod, name)
+            if not (inspect.isfunction(obj) or inspect.isclass(obj)):
+                continue
+            sig = str(inspect.signature(obj)).replace("torch.Tensor", "Tensor")
+            out += [f"### `{name}{sig}`", "", inspect.cleandoc(obj.__doc__ or "(undocumented)"), ""]
+            if inspect.isclass(obj) and obj.forward.__doc__:
+                out += [inspect.cleandoc(obj.forward.__doc__), ""]
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    path = Path(__file__).with_name("api.md")
+    path.write_text(render())
+    print(f"wrote {path}", file=sys.stderr)
