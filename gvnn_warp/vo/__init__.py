@@ -1,0 +1,28 @@
+"""End-to-end visual odometry through the 3D spatial transformer (the paper's application).
+
+- :mod:`.model`: the siamese pose-regression network (:class:`SiameseVO`);
+- :mod:`.data`: rendered synthetic RGB-D trajectories and frame pairs;
+- :mod:`.loss`: the photometric cost between the live image warped with the predicted and with the
+  ground-truth pose, and pose-error metrics;
+- :mod:`.train`: training (DDP-aware), checkpoints, evaluation, ``metrics.json``, figures.
+
+The command line is ``gvnn-warp vo`` (:mod:`gvnn_warp.demos.vo`).
+"""
+
+from __future__ import annotations
+
+from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors
+from .model import SiameseVO, pose_dim
+from .train import VOConfig, default_config, train
+
+__all__ = [
+    "DEFAULT_LOSS",
+    "LOSSES",
+    "SiameseVO",
+    "VOConfig",
+    "default_config",
+    "photometric_loss",
+    "pose_dim",
+    "pose_errors",
+    "train",
+]

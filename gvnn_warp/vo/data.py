@@ -1,0 +1,133 @@
+"""Synthetic RGB-D frame pairs for the visual-odometry demo, rendered once and kept in memory.
+
+A split is a set of camera trajectories in one room (``gvnn_warp.kernels.render``), each rendered
+into images and depths; a *pair* is (reference frame k, live frame k + g) for every gap g in
+``gaps``, in both temporal directions (k -> k + g and k + g -> k) when ``both_directions``. The
+ground-truth pose of a pair is ``T_live_ref = relative_pose(T_world_live, T_world_ref)``: it maps
+points of the reference camera frame into the live one, so ``warp_frame_depth(live, ref_depth,
+T_live_ref, K)`` reproduces the reference image wherever it is valid.
+
+Training and evaluation splits use different trajectory seeds (see :func:`split_seeds`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+__all__ = ["PairSet", "make_pairs", "render_split", "split_seeds"]
+
+
+@dataclass
+class PairSet:
+    """Rendered frames and the pairs drawn from them (all torch float32 tensors).
+
+    Attributes:
+        images: (F, 3, H, W) RGB in [0, 1].
+        depths: (F, 1, H, W) depth (camera z, metres).
+        ref, live: (N,) int64 frame indices of each pair.
+        pose: (N, 4, 4) ground truth ``T_live_ref``.
+        xi: (N, 6) the same as [omega, t] (omega = so3_log(R)), the regression targets.
+        K: (3, 3) intrinsics.
+    """
+
+    images: Tensor
+    depths: Tensor
+    ref: Tensor
+    live: Tensor
+    pose: Tensor
+    xi: Tensor
+    K: Tensor
+
+    def __len__(self) -> int:
+        return int(self.ref.shape[0])
+
+    def batch(self, idx: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """(ref image, live image, ref depth, live depth, T_live_ref (B, 4, 4), xi (B, 6)) of pairs ``idx``."""
+        r, lv = self.ref[idx], self.live[idx]
+        return self.images[r], self.images[lv], self.depths[r], self.depths[lv], self.pose[idx], self.xi[idx]
+
+
+def split_seeds(seed: int, split: str, n: int) -> list[int]:
+    """Trajectory seeds of a split: training and evaluation never share one."""
+    base = {"train": 0, "eval": 500}[split]
+    return [1000 * seed + base + i for i in range(n)]
+
+
+def _trajectory(motion: str, n_frames: int, seed: int) -> np.ndarray:
+    from gvnn_warp import synthetic
+
+    if motion == "so3":
+        return synthetic.rotation_trajectory(n_frames, seed)
+    if motion == "se3":
+        return synthetic.smooth_se3_trajectory(n_frames, seed)
+    raise ValueError(f"motion must be 'so3' or 'se3', got {motion!r}")
+
+
+def make_pairs(T_world_cam: np.ndarray, gaps: tuple[int, ...], both_directions: bool) -> tuple[np.ndarray, ...]:
+    """Index pairs (ref, live) within one trajectory and their poses ``T_live_ref`` (float64)."""
+    from gvnn_warp.synthetic import relative_pose
+
+    n = T_world_cam.shape[0]
+    ref, live = [], []
+    for g in gaps:
+        k = np.arange(n - g)
+        ref.append(k)
+        live.append(k + g)
+        if both_directions:
+            ref.append(k + g)
+            live.append(k)
+    ref_a, live_a = np.concatenate(ref), np.concatenate(live)
+    return ref_a, live_a, relative_pose(T_world_cam[live_a], T_world_cam[ref_a])
+
+
+def render_split(
+    motion: str,
+    seeds: list[int],
+    n_frames: int,
+    size: tuple[int, int],
+    gaps: tuple[int, ...] = (1,),
+    both_directions: bool = True,
+    scene_seed: int = 0,
+    supersample: int = 2,
+    n_threads: int = 2,
+) -> PairSet:
+    """Render ``len(seeds)`` trajectories of ``n_frames`` frames at ``size`` = (W, H) and pair them up.
+
+    ``motion`` picks the trajectory family: ``so3`` = ``rotation_trajectory`` (pure rotation,
+    several degrees per frame), ``se3`` = ``smooth_se3_trajectory`` (6-DoF, a few cm per frame).
+    """
+    from gvnn_warp import so3_log
+    from gvnn_warp.kernels.render import make_room_scene, render_rgbd
+    from gvnn_warp.synthetic import default_intrinsics
+
+    W, H = size
+    K = default_intrinsics(W, H)
+    scene = make_room_scene(seed=scene_seed)
+    images, depths, refs, lives, poses = [], [], [], [], []
+    offset = 0
+    for s in seeds:
+        T = _trajectory(motion, n_frames, s)
+        img, dep = render_rgbd(scene, T, K, W, H, supersample=supersample, n_threads=n_threads)
+        r, lv, P = make_pairs(T, gaps, both_directions)
+        images.append(img)
+        depths.append(dep)
+        refs.append(r + offset)
+        lives.append(lv + offset)
+        poses.append(P)
+        offset += T.shape[0]
+    pose = torch.from_numpy(np.concatenate(poses))
+    omega = so3_log(pose[:, :3, :3].contiguous())
+    xi = torch.cat([omega, pose[:, :3, 3]], dim=1)
+    return PairSet(
+        images=torch.from_numpy(np.concatenate(images)),
+        depths=torch.from_numpy(np.concatenate(depths)),
+        ref=torch.from_numpy(np.concatenate(refs)).long(),
+        live=torch.from_numpy(np.concatenate(lives)).long(),
+        pose=pose.float(),
+        xi=xi.float(),
+        K=torch.from_numpy(K).float(),
+    )

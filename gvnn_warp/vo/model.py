@@ -1,0 +1,163 @@
+"""The siamese pose-regression network of the paper's visual-odometry application (gvnn, section
+"Application: Training on RGB-D Visual Odometry"), scaled down to train on a 2-core CPU.
+
+As in the paper: VGG-style 3x3 convolutions, stride 2 for every downsampling and no pooling, a PReLU
+after every convolution except the last three, two heads with shared weights fused early (their
+feature maps are concatenated after ``n_head_layers`` convolutions), MSRA (kaiming) initialisation,
+and a last layer initialised to zero so the network starts at the identity pose.
+
+Each head sees one RGB-D frame: RGB minus 0.5 and, with ``depth_input`` (the default), the inverse
+depth ``1 / depth`` (1/m) as a 4th channel -- translation shows in the images as parallax
+proportional to inverse depth. Both frames of an RGB-D pair have a depth map, so the heads stay
+identical (shared weights); the loss only ever uses the reference depth.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["MOTIONS", "SiameseVO", "pose_dim"]
+
+MOTIONS = {"so3": 3, "se3": 6}
+
+
+def pose_dim(motion: str) -> int:
+    """Length of the pose vector the network predicts: 3 (``so3``: omega) or 6 (``se3``: [omega, t])."""
+    if motion not in MOTIONS:
+        raise ValueError(f"motion must be one of {sorted(MOTIONS)}, got {motion!r}")
+    return MOTIONS[motion]
+
+
+def _conv(c_in: int, c_out: int, stride: int = 2, act: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = [nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1)]
+    if act:
+        layers.append(nn.PReLU(c_out))
+    return nn.Sequential(*layers)
+
+
+def median_depth(depth: Tensor) -> Tensor:
+    """(B,) median of the valid (finite, > 1e-3 m) depths of each (B, 1, H, W) map (1 if none)."""
+    d = depth.flatten(1)
+    d = torch.where(torch.isfinite(d) & (d > 1e-3), d, torch.full_like(d, float("nan")))
+    med = d.nanmedian(dim=1).values
+    return torch.nan_to_num(med, nan=1.0)
+
+
+class SiameseVO(nn.Module):
+    """Siamese network regressing the relative pose ``T_live_ref`` of an RGB(-D) frame pair.
+
+    Layout for ``widths = (16, 32, 64, 128)``, input 128x96 (every convolution 3x3, stride 2):
+
+    - per head (shared weights): 4 -> 16 -> 32 channels (64x48, 32x24), PReLU after each;
+    - fused: concatenation (64 channels), then 64 -> 64 -> 128 -> 128 (16x12, 8x6, 4x3), PReLU;
+    - the last three layers, linear: a convolution over the whole remaining map (the paper's
+      2x1 / 2x2 convolutions that absorb the input size; here it is adaptive), then two 1x1
+      convolutions 128 -> 128 -> ``pose_dim``; the last one is initialised to zero.
+
+    The output is scaled per component (``omega_scale`` radians, ``t_scale`` metres per unit) so
+    the raw regression targets are of order one.
+
+    Args:
+        motion: ``"so3"`` (3 outputs, omega) or ``"se3"`` (6 outputs, [omega, t]).
+        size: input (width, height); the images must have this size.
+        widths: channel widths; heads use the first two, the fused trunk the rest.
+        depth_input: append inverse depth as a 4th input channel of each head.
+        n_head_layers: convolutions per head before fusion.
+    """
+
+    def __init__(
+        self,
+        motion: str,
+        size: tuple[int, int] = (128, 96),
+        widths: tuple[int, ...] = (16, 32, 64, 128),
+        depth_input: bool = True,
+        n_head_layers: int = 2,
+        omega_scale: float = 0.1,
+        t_scale: float = 0.05,
+        depth_normalised_t: bool = True,
+    ):
+        super().__init__()
+        self.motion = motion
+        self.out_dim = pose_dim(motion)
+        self.size = tuple(size)
+        self.depth_input = bool(depth_input)
+        self.depth_normalised_t = bool(depth_normalised_t)
+        c_in = 4 if depth_input else 3
+        widths = tuple(widths)
+        if len(widths) <= n_head_layers:
+            raise ValueError("need more widths than head layers")
+
+        head: list[nn.Module] = []
+        c = c_in
+        for w in widths[:n_head_layers]:
+            head.append(_conv(c, w))
+            c = w
+        self.head = nn.Sequential(*head)
+
+        trunk: list[nn.Module] = []
+        c = 2 * c
+        trunk_widths = [2 * widths[n_head_layers - 1], *widths[n_head_layers:], widths[-1]]
+        for w in trunk_widths:
+            trunk.append(_conv(c, w))
+            c = w
+        self.trunk = nn.Sequential(*trunk)
+
+        # spatial size after all the stride-2 convolutions (kernel 3, padding 1)
+        W, H = self.size
+        for _ in range(n_head_layers + len(trunk_widths)):
+            W, H = (W + 1) // 2, (H + 1) // 2
+        self.feature_hw = (H, W)
+        self.tail = nn.Sequential(
+            nn.Conv2d(c, c, (H, W)),  # linear from here on: the last three convolutions
+            nn.Conv2d(c, c, 1),
+            nn.Conv2d(c, self.out_dim, 1),
+        )
+        scale = [omega_scale] * 3 + [t_scale] * (self.out_dim - 3)
+        self.register_buffer("out_scale", torch.tensor(scale, dtype=torch.float32), persistent=False)
+        self.reset_parameters()
+        # channels-last convolutions were ~1.5x faster (forward + backward) on this CPU
+        self.to(memory_format=torch.channels_last)
+
+    def reset_parameters(self) -> None:
+        """MSRA init for every convolution (PReLU slope 0.25), zero for the last layer."""
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d):
+                nn.init.kaiming_normal_(m.weight, a=0.25, mode="fan_in", nonlinearity="leaky_relu")
+                nn.init.zeros_(m.bias)
+        last = self.tail[-1]
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+
+    def encode(self, image: Tensor, depth: Tensor | None) -> Tensor:
+        """One head's input: (B, 3|4, H, W), RGB - 0.5 and inverse depth."""
+        x = image - 0.5
+        if self.depth_input:
+            if depth is None:
+                raise ValueError("this network takes depth as input")
+            inv = torch.where(depth > 1e-3, 1.0 / depth.clamp_min(1e-3), torch.zeros_like(depth))
+            x = torch.cat([x, inv], dim=1)
+        return x
+
+    def forward(
+        self, ref: Tensor, live: Tensor, ref_depth: Tensor | None = None, live_depth: Tensor | None = None
+    ) -> Tensor:
+        """Pose vectors (B, 3) omega or (B, 6) [omega, t] of ``T_live_ref``.
+
+        Args:
+            ref, live: (B, 3, H, W) images in [0, 1] at the network's ``size``.
+            ref_depth, live_depth: (B, 1, H, W) depths (m), needed with ``depth_input``.
+        """
+        B, _, H, W = ref.shape
+        if (W, H) != self.size:
+            raise ValueError(f"network built for {self.size[0]}x{self.size[1]} inputs, got {W}x{H}")
+        both = torch.cat([self.encode(ref, ref_depth), self.encode(live, live_depth)], dim=0)
+        both = both.contiguous(memory_format=torch.channels_last)
+        f = self.head(both)  # shared weights: both heads in one batch
+        f = torch.cat([f[:B], f[B:]], dim=1)
+        out = self.tail(self.trunk(f)).flatten(1) * self.out_scale
+        if self.out_dim == 6 and self.depth_normalised_t:
+            if ref_depth is None:
+                raise ValueError("depth_normalised_t needs the reference depth")
+            out = torch.cat([out[:, :3], out[:, 3:] * median_depth(ref_depth)[:, None]], dim=1)
+        return out

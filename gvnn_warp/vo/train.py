@@ -1,0 +1,456 @@
+"""Training of the siamese VO network through the 3D spatial transformer (the paper's application).
+
+:func:`train` renders the data once (:mod:`.data`), precomputes the ground-truth warps, trains with
+Adam on the photometric cost (:mod:`.loss`), checkpoints atomically and resumes, evaluates on
+held-out trajectories against the identity (zero-motion) prediction, and writes ``metrics.json``
+and figures into the output directory. Launched by ``torchrun`` (``RANK``/``WORLD_SIZE`` set) it
+trains with DistributedDataParallel over gloo; only rank 0 writes files and progress.
+
+Determinism: the pairs of step ``s`` are drawn from ``numpy.random.default_rng([seed, s])``, so a
+resumed run draws exactly the batches the uninterrupted run would have; the global batch is split
+between the ranks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import random
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import Tensor
+
+from .data import PairSet, render_split, split_seeds
+from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, warp_live
+from .model import SiameseVO
+from .progress import Progress
+
+__all__ = ["CHECKPOINT", "METRICS", "VOConfig", "default_config", "evaluate", "train"]
+
+CHECKPOINT = "checkpoint.pt"
+METRICS = "metrics.json"
+
+
+@dataclass
+class VOConfig:
+    """Everything a run depends on (saved in the checkpoint and in ``metrics.json``)."""
+
+    motion: str
+    out: str
+    steps: int = 600
+    size: tuple[int, int] = (128, 96)
+    seed: int = 0
+    loss: str = DEFAULT_LOSS
+    loss_scale: float = 0.1  # M-estimator epsilon / c (intensity units)
+    loss_levels: int = 1  # >1: also compare 2x2, 4x4, ... means of the two warps
+    batch_size: int = 16  # global batch (split between DDP ranks)
+    lr: float = 1e-3
+    warmup: int = 20  # linear lr warm-up steps, then cosine decay to lr_final_frac * lr
+    lr_final_frac: float = 0.02
+    weight_decay: float = 0.0
+    n_train_traj: int = 8
+    n_eval_traj: int = 2
+    n_frames: int = 80
+    gaps: tuple[int, ...] = (1,)
+    both_directions: bool = True
+    flip_augment: bool = True  # random left-right / up-down mirroring of training pairs
+    scene_seed: int = 0
+    supersample: int = 2
+    widths: tuple[int, ...] = (16, 32, 64, 128)
+    depth_input: bool = True
+    n_head_layers: int = 2  # convolutions per siamese head before the features are concatenated
+    omega_scale: float = 0.1  # network output units: radians ...
+    t_scale: float = 0.05  # ... and metres per unit of the raw regression output ...
+    depth_normalised_t: bool = True  # ... times the median reference depth (m) for translations
+    n_eval: int = 128  # held-out pairs evaluated
+    n_panel: int = 3  # held-out pairs shown in the registration panel
+    checkpoint_every: int = 50  # steps
+    checkpoint_seconds: float = 30.0
+    resume: bool = False
+    progress: bool = True
+    threads: int = 0  # torch threads (and render threads) per process; 0: cores / ranks
+    extra: dict = field(default_factory=dict)
+
+
+def default_config(motion: str, out: str, **overrides) -> VOConfig:
+    """The tuned defaults for ``motion`` (``so3`` or ``se3``), with ``overrides`` (None = keep)."""
+    per_motion: dict[str, dict] = {
+        # steps: as many as fit well inside 5 minutes on 2 cores (so3 ~3 min, se3 ~4 min)
+        "so3": dict(gaps=(1,), steps=2800),
+        "se3": dict(gaps=(1, 2, 3), steps=2400),
+    }
+    if motion not in per_motion:
+        raise ValueError(f"motion must be one of {sorted(per_motion)}, got {motion!r}")
+    kw = {**per_motion[motion], **{k: v for k, v in overrides.items() if v is not None}}
+    cfg = VOConfig(motion=motion, out=out, **kw)
+    if cfg.loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {cfg.loss!r}")
+    return cfg
+
+
+# ----------------------------------------------------------------------------- distributed
+
+
+def _dist_setup() -> tuple[int, int]:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("gloo")
+    if dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def _log(rank: int, msg: str) -> None:
+    if rank == 0:
+        print(msg, file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+
+def _atomic_save(obj, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _atomic_write_text(text: str, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _rng_state() -> dict:
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def _set_rng_state(state: dict) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _lr_at(cfg: VOConfig, step: int) -> float:
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    p = min(1.0, (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup))
+    return cfg.lr * (cfg.lr_final_frac + (1 - cfg.lr_final_frac) * 0.5 * (1 + math.cos(math.pi * p)))
+
+
+def _gt_warps(ps: PairSet, chunk: int = 64) -> tuple[Tensor, Tensor]:
+    """Live images warped with the ground-truth poses (and valid masks) for every pair."""
+    warps, valids = [], []
+    with torch.no_grad():
+        for i in range(0, len(ps), chunk):
+            idx = torch.arange(i, min(i + chunk, len(ps)))
+            _, live, ref_d, _, pose, _ = ps.batch(idx)
+            w, v = warp_live(live, ref_d, pose, ps.K)
+            warps.append(w)
+            valids.append(v)
+    return torch.cat(warps), torch.cat(valids)
+
+
+def _symmetric_intrinsics(K: Tensor, W: int, H: int) -> bool:
+    """Mirroring the images is a valid augmentation only if the principal point is the image centre."""
+    return abs(float(K[0, 2]) - (W - 1) / 2) < 1e-4 and abs(float(K[1, 2]) - (H - 1) / 2) < 1e-4 and float(K[0, 1]) == 0
+
+
+def _flip(f: Tensor, *images: Tensor) -> list[Tensor]:
+    """Mirror batch items left-right where ``f[:, 0]`` and upside-down where ``f[:, 1]``.
+
+    With the principal point at the image centre, mirroring every image and depth of a pair is the
+    same as mirroring the world: the pair stays consistent, its pose becomes M T M (M = diag(-1, 1, 1)
+    or diag(1, -1, 1)), and the mirrored ground-truth warp is the warp with that pose.
+    """
+    out = []
+    for x in images:
+        x = torch.where(f[:, 0].view(-1, 1, 1, 1), x.flip(-1), x)
+        out.append(torch.where(f[:, 1].view(-1, 1, 1, 1), x.flip(-2), x))
+    return out
+
+
+def _even_subset(n_total: int, n: int) -> Tensor:
+    return torch.from_numpy(np.unique(np.linspace(0, n_total - 1, min(n, n_total)).round().astype(np.int64)))
+
+
+def _predict(model: SiameseVO, ps: PairSet, idx: Tensor, chunk: int = 64) -> Tensor:
+    out = []
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        for i in range(0, len(idx), chunk):
+            ref, live, ref_d, live_d, _, _ = ps.batch(idx[i : i + chunk])
+            out.append(model(ref, live, ref_d, live_d))
+    model.train(was_training)
+    return torch.cat(out) if out else torch.zeros(0, model.out_dim)
+
+
+def evaluate(pred: Tensor, ps: PairSet, gt_warp: Tensor, gt_valid: Tensor, idx: Tensor) -> dict:
+    """Mean rotation (deg) / translation (m) errors and mean photometric residual (mean |r| over the
+    channels of the pixels valid in both warps, per pair, then averaged) of predictions on pairs ``idx``."""
+    _, live, ref_d, _, pose, _ = ps.batch(idx)
+    rot, trans = pose_errors(pred, pose)
+    with torch.no_grad():
+        photo, _, _ = photometric_loss(pred, live, ref_d, gt_warp[idx], gt_valid[idx], ps.K, "l1")
+    return {
+        "rot_deg": float(rot.mean()),
+        "trans_m": float(trans.mean()),
+        "photometric": float(photo.mean()),
+        "rot_deg_median": float(rot.median()),
+        "trans_m_median": float(trans.median()),
+        "n_pairs": int(len(idx)),
+    }
+
+
+def _stage_steps(total: int) -> list[int]:
+    return sorted({0, total // 10, total // 2, total})
+
+
+# ----------------------------------------------------------------------------- training
+
+
+class _StopFlag:
+    """SIGINT / SIGTERM set a flag; the loop checks it between steps (all ranks agree on it)."""
+
+    def __init__(self):
+        self.stop = False
+        self._old: dict = {}
+
+    def _handler(self, signum, frame):
+        if self.stop and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.stop = True
+
+    def __enter__(self):
+        for s in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[s] = signal.signal(s, self._handler)
+            except ValueError:  # not in the main thread
+                pass
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self._old.items():
+            signal.signal(s, h)
+        return False
+
+
+def train(cfg: VOConfig) -> dict:
+    """Run (or resume) training and evaluation; returns the metrics dict (rank 0; others get {})."""
+    t_start = time.perf_counter()
+    rank, world = _dist_setup()
+    out = Path(cfg.out)
+    threads = cfg.threads or max(1, (os.cpu_count() or 2) // world)
+    torch.set_num_threads(threads)
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+
+    if cfg.batch_size % world:
+        raise ValueError(f"--batch-size {cfg.batch_size} must be divisible by the {world} ranks")
+    local_batch = cfg.batch_size // world
+    W, H = cfg.size
+
+    # ---- data, rendered once
+    t0 = time.perf_counter()
+    common = dict(
+        n_frames=cfg.n_frames, size=cfg.size, gaps=tuple(cfg.gaps), both_directions=cfg.both_directions,
+        scene_seed=cfg.scene_seed, supersample=cfg.supersample, n_threads=threads,
+    )
+    train_set = render_split(cfg.motion, split_seeds(cfg.seed, "train", cfg.n_train_traj), **common)
+    eval_set = render_split(cfg.motion, split_seeds(cfg.seed, "eval", cfg.n_eval_traj), **common)
+    train_gt, train_valid = _gt_warps(train_set)
+    eval_gt, eval_valid = _gt_warps(eval_set)
+    t_data = time.perf_counter() - t0
+    _log(rank, f"vo {cfg.motion}: {len(train_set)} training pairs, {len(eval_set)} held-out pairs at "
+         f"{W}x{H}, rendered in {t_data:.1f} s")
+    eval_idx = _even_subset(len(eval_set), cfg.n_eval)
+    panel_idx = eval_idx[_even_subset(len(eval_idx), cfg.n_panel + 2)[1:-1]][: cfg.n_panel]
+
+    # ---- model and optimiser (identical initial weights on every rank)
+    torch.manual_seed(cfg.seed)
+    model = SiameseVO(
+        cfg.motion, size=cfg.size, widths=tuple(cfg.widths), depth_input=cfg.depth_input,
+        n_head_layers=cfg.n_head_layers, omega_scale=cfg.omega_scale, t_scale=cfg.t_scale,
+        depth_normalised_t=cfg.depth_normalised_t,
+    )
+    net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+    step, history, snapshots, elapsed_before = 0, [], {}, 0.0
+    ckpt_path = out / CHECKPOINT
+    if cfg.resume and ckpt_path.exists():
+        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        for key in ("motion", "size", "depth_input", "widths", "n_head_layers", "depth_normalised_t"):
+            if tuple(np.atleast_1d(ck["config"][key])) != tuple(np.atleast_1d(getattr(cfg, key))):
+                raise ValueError(f"cannot resume: checkpoint has {key}={ck['config'][key]!r}, "
+                                 f"this run {getattr(cfg, key)!r}")
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        step, history, snapshots = ck["step"], list(ck["train_loss"]), dict(ck["snapshots"])
+        elapsed_before = ck.get("train_seconds", 0.0)
+        if rank == 0:
+            _set_rng_state(ck["rng"])
+        _log(rank, f"resumed from {ckpt_path} at step {step}")
+    elif cfg.resume:
+        _log(rank, f"no checkpoint in {out}, starting from scratch")
+
+    def save_checkpoint(train_seconds: float) -> None:
+        if rank != 0:
+            return
+        _atomic_save(
+            {
+                "config": dataclasses.asdict(cfg),
+                "model": model.state_dict(),
+                "optimizer": opt.state_dict(),
+                "step": step,
+                "train_loss": history,
+                "snapshots": snapshots,
+                "rng": _rng_state(),
+                "train_seconds": train_seconds,
+            },
+            ckpt_path,
+        )
+
+    def snapshot() -> None:
+        if rank == 0 and step not in snapshots:
+            snapshots[step] = _predict(model, eval_set, panel_idx)
+
+    flips = cfg.flip_augment and _symmetric_intrinsics(train_set.K, W, H)
+    stages = _stage_steps(cfg.steps)
+    bar = Progress(cfg.steps, initial=step, desc=f"vo {cfg.motion}", enabled=cfg.progress and rank == 0)
+    t_train0 = time.perf_counter()
+    last_ckpt_t, last_ckpt_step = t_train0, step
+    interrupted = False
+    net.train()
+    with _StopFlag() as flag:
+        while step < cfg.steps:
+            if step in stages:
+                snapshot()
+            rng = np.random.default_rng([cfg.seed, step])
+            gidx = torch.from_numpy(rng.choice(len(train_set), size=cfg.batch_size, replace=False))
+            idx = gidx[rank * local_batch : (rank + 1) * local_batch]
+            for g in opt.param_groups:
+                g["lr"] = _lr_at(cfg, step)
+            ref, live, ref_d, live_d, _, _ = train_set.batch(idx)
+            gt_w, gt_v = train_gt[idx], train_valid[idx]
+            if flips:
+                f = torch.from_numpy(rng.random((cfg.batch_size, 2)) < 0.5)[rank * local_batch :][:local_batch]
+                ref, live, ref_d, live_d, gt_w, gt_v = _flip(f, ref, live, ref_d, live_d, gt_w, gt_v)
+            pred = net(ref, live, ref_d, live_d)
+            loss, _, _ = photometric_loss(
+                pred, live, ref_d, gt_w, gt_v, train_set.K, cfg.loss, cfg.loss_scale, cfg.loss_levels
+            )
+            loss = loss.mean()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            stat = torch.tensor([loss.item(), float(flag.stop)], dtype=torch.float64)
+            if world > 1:
+                dist.all_reduce(stat)
+                stat[0] /= world
+            history.append(float(stat[0]))
+            step += 1
+            bar.update(step, history[-1])
+            now = time.perf_counter()
+            stop = bool(stat[1] > 0)
+            if stop or step == cfg.steps or step - last_ckpt_step >= cfg.checkpoint_every or (
+                now - last_ckpt_t >= cfg.checkpoint_seconds
+            ):
+                if step == cfg.steps and step in stages:
+                    snapshot()
+                save_checkpoint(elapsed_before + now - t_train0)
+                last_ckpt_t, last_ckpt_step = now, step
+            if stop:
+                interrupted = True
+                break
+    bar.close()
+    train_seconds = elapsed_before + time.perf_counter() - t_train0
+    if step >= cfg.steps and cfg.steps not in snapshots:
+        snapshot()
+        save_checkpoint(train_seconds)
+    if interrupted:
+        _log(rank, f"interrupted at step {step}; checkpoint saved in {ckpt_path} (continue with --resume)")
+        _finish_dist(world)
+        return {"interrupted": True, "step": step}
+
+    ddp = {"world_size": world}
+    if world > 1:  # sanity check: DDP must leave every rank with the same weights
+        flat = torch.cat([p.detach().flatten() for p in model.parameters()])
+        gathered = [torch.empty_like(flat) for _ in range(world)]
+        dist.all_gather(gathered, flat)
+        ddp["max_param_diff_between_ranks"] = max(float((g - flat).abs().max()) for g in gathered)
+    metrics: dict = {}
+    if rank == 0:
+        metrics = _evaluate_and_report(
+            cfg, model, history, snapshots, train_set, train_gt, train_valid, eval_set, eval_gt, eval_valid,
+            eval_idx, panel_idx, t_data, train_seconds, time.perf_counter() - t_start, step, ddp,
+        )
+    _finish_dist(world)
+    return metrics
+
+
+def _finish_dist(world: int) -> None:
+    if world > 1 and dist.is_initialized():
+        dist.barrier()
+        dist.destroy_process_group()
+
+
+def _evaluate_and_report(
+    cfg, model, history, snapshots, train_set, train_gt, train_valid, eval_set, eval_gt, eval_valid,
+    eval_idx, panel_idx, t_data, train_seconds, t_so_far, step, ddp,
+) -> dict:
+    from .plots import plot_panel, plot_training_curve
+
+    t0 = time.perf_counter()
+    zero = torch.zeros(len(eval_idx), model.out_dim)
+    trained = _predict(model, eval_set, eval_idx)
+    train_idx = _even_subset(len(train_set), cfg.n_eval)
+    ev = {
+        "identity": evaluate(zero, eval_set, eval_gt, eval_valid, eval_idx),
+        "trained": evaluate(trained, eval_set, eval_gt, eval_valid, eval_idx),
+    }
+    ev_train = {
+        "identity": evaluate(torch.zeros(len(train_idx), model.out_dim), train_set, train_gt, train_valid, train_idx),
+        "trained": evaluate(_predict(model, train_set, train_idx), train_set, train_gt, train_valid, train_idx),
+    }
+    n = max(1, min(20, len(history) // 10))
+    out = Path(cfg.out)
+    metrics = {
+        "motion": cfg.motion,
+        "steps": step,
+        "train_loss": history,
+        "train_loss_first": float(np.mean(history[:n])) if history else None,
+        "train_loss_last": float(np.mean(history[-n:])) if history else None,
+        "eval": ev,
+        "eval_train_pairs": ev_train,
+        "ratios": {
+            "rot_deg": ev["trained"]["rot_deg"] / max(ev["identity"]["rot_deg"], 1e-12),
+            "trans_m": ev["trained"]["trans_m"] / max(ev["identity"]["trans_m"], 1e-12),
+            "photometric": ev["trained"]["photometric"] / max(ev["identity"]["photometric"], 1e-12),
+        },
+        "distributed": ddp,
+        "n_train_pairs": len(train_set),
+        "n_eval_pairs_total": len(eval_set),
+        "seconds": {"data": t_data, "train": train_seconds},
+        "config": {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("extra",)},
+    }
+    stages = {int(k): v for k, v in snapshots.items()}
+    plot_training_curve(history, out / "training_curve.png", title=f"VO {cfg.motion}: training loss ({cfg.loss})")
+    plot_panel(eval_set, eval_gt, eval_valid, panel_idx, stages, out / "registration.png", motion=cfg.motion)
+    metrics["seconds"]["eval"] = time.perf_counter() - t0
+    metrics["seconds"]["total_this_process"] = t_so_far + metrics["seconds"]["eval"]
+    _atomic_write_text(json.dumps(metrics, indent=1), out / METRICS)
+    return metrics
+

@@ -1,0 +1,244 @@
+"""Tests of the visual-odometry application (gvnn_warp.vo, gvnn-warp vo)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gvnn_warp.vo import SiameseVO, default_config, photometric_loss, pose_errors, train
+from gvnn_warp.vo.data import render_split
+from gvnn_warp.vo.loss import warp_live
+
+TINY = (64, 48)
+
+
+def _tiny_config(out: Path, **kw):
+    base = dict(
+        steps=30, size=TINY, batch_size=8, lr=2e-3, warmup=5, n_train_traj=2, n_eval_traj=1, n_frames=16,
+        n_eval=16, n_panel=2, checkpoint_every=10, progress=False,
+    )
+    base.update(kw)
+    return default_config("so3", str(out), **base)
+
+
+def _env():
+    env = dict(os.environ)
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    return env
+
+
+@pytest.fixture(scope="module")
+def tiny_pairs():
+    return render_split("so3", [7], 6, TINY)
+
+
+# ----------------------------------------------------------------------------- network
+
+
+@pytest.mark.parametrize("motion,dim", [("so3", 3), ("se3", 6)])
+@pytest.mark.parametrize("depth_input", [True, False])
+def test_network_shape_and_identity_init(motion, dim, depth_input):
+    torch.manual_seed(0)
+    net = SiameseVO(motion, size=(96, 64), depth_input=depth_input)
+    ref, live = torch.rand(3, 3, 64, 96), torch.rand(3, 3, 64, 96)
+    depth = 1.0 + torch.rand(3, 1, 64, 96)
+    out = net(ref, live, depth, depth)
+    assert out.shape == (3, dim)
+    assert torch.equal(out, torch.zeros(3, dim))  # last layer initialised to zero: identity pose
+    # but the network is not dead: the last layer receives a gradient
+    loss = (net(ref, live, depth, depth) - torch.ones(dim)).square().sum()
+    loss.backward()
+    assert net.tail[-1].weight.grad.abs().sum() > 0
+    # PReLU after every convolution but the last three
+    convs = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+    prelus = [m for m in net.modules() if isinstance(m, torch.nn.PReLU)]
+    assert len(prelus) == len(convs) - 3
+    assert all(c.stride == (2, 2) for c in convs[:-3])
+    assert not any(isinstance(m, (torch.nn.MaxPool2d, torch.nn.AvgPool2d)) for m in net.modules())
+
+
+def test_network_rejects_wrong_size():
+    net = SiameseVO("so3", size=(64, 48))
+    with pytest.raises(ValueError, match="64x48"):
+        net(torch.rand(1, 3, 48, 80), torch.rand(1, 3, 48, 80), torch.ones(1, 1, 48, 80), torch.ones(1, 1, 48, 80))
+
+
+# ----------------------------------------------------------------------------- data and loss
+
+
+def test_gt_pose_reproduces_reference(tiny_pairs):
+    ps = tiny_pairs
+    idx = torch.arange(len(ps))
+    ref, live, ref_d, _, pose, xi = ps.batch(idx)
+    warped, valid = warp_live(live, ref_d, pose, ps.K)
+    m = valid.expand_as(warped)
+    assert valid.float().mean() > 0.6
+    err = (warped - ref).abs()[m].mean()
+    ident = (live - ref).abs().mean()
+    assert err < 0.01, err
+    assert ident > 5 * err
+    # the stored regression target [omega, t] gives the same pose through the SE3 layer
+    from gvnn_warp import se3_to_matrix
+
+    assert torch.allclose(se3_to_matrix(xi), pose[:, :3, :], atol=1e-5)
+    # so3 trajectories are pure rotations
+    assert xi[:, 3:].abs().max() < 1e-5
+
+
+def test_loss_zero_at_gt_and_pose_errors(tiny_pairs):
+    ps = tiny_pairs
+    idx = torch.arange(len(ps))
+    _, live, ref_d, _, pose, xi = ps.batch(idx)
+    gt_w, gt_v = warp_live(live, ref_d, pose, ps.K)
+    at_gt, _, _ = photometric_loss(xi[:, :3], live, ref_d, gt_w, gt_v, ps.K, "l1")
+    at_id, _, _ = photometric_loss(torch.zeros(len(ps), 3), live, ref_d, gt_w, gt_v, ps.K, "l1")
+    assert at_gt.max() < 1e-4
+    assert (at_id > 10 * at_gt + 1e-3).all()
+    rot, trans = pose_errors(xi[:, :3], pose)
+    assert rot.max() < 1e-3 and trans.max() < 1e-6
+    rot0, _ = pose_errors(torch.zeros(len(ps), 3), pose)
+    assert rot0.min() > 1.0  # several degrees per frame
+    # gradients reach the pose vector through the 3D spatial transformer
+    p = torch.zeros(len(ps), 3, requires_grad=True)
+    photometric_loss(p, live, ref_d, gt_w, gt_v, ps.K, "l2")[0].sum().backward()
+    assert p.grad.abs().sum() > 0
+
+
+def test_flip_augmentation_is_consistent(tiny_pairs):
+    """Mirroring a pair (images, depths, GT warp) equals warping the mirrored pair with the mirrored pose."""
+    from gvnn_warp.vo.train import _flip, _symmetric_intrinsics
+
+    ps = tiny_pairs
+    idx = torch.arange(4)
+    _, live, ref_d, _, pose, _ = ps.batch(idx)
+    assert _symmetric_intrinsics(ps.K, *TINY)
+    gt_w, gt_v = warp_live(live, ref_d, pose, ps.K)
+    f = torch.tensor([[True, False], [False, True], [True, True], [False, False]])
+    live_f, ref_d_f, gt_w_f, gt_v_f = _flip(f, live, ref_d, gt_w, gt_v.float())
+    M = torch.eye(4).repeat(4, 1, 1)
+    M[f[:, 0], 0, 0] = -1.0
+    M[f[:, 1], 1, 1] = -1.0
+    warped, valid = warp_live(live_f, ref_d_f, M @ pose @ M, ps.K)
+    both = (valid & (gt_v_f > 0.5)).expand_as(warped)
+    assert (valid == (gt_v_f > 0.5)).float().mean() > 0.99
+    assert (warped - gt_w_f).abs()[both].max() < 1e-4
+
+
+def test_robust_loss_option(tiny_pairs):
+    ps = tiny_pairs
+    _, live, ref_d, _, pose, _ = ps.batch(torch.arange(2))
+    gt_w, gt_v = warp_live(live, ref_d, pose, ps.K)
+    try:
+        import gvnn_warp.perpixel  # noqa: F401
+    except ImportError:
+        with pytest.raises(RuntimeError, match="robust_rho"):
+            photometric_loss(torch.zeros(2, 3), live, ref_d, gt_w, gt_v, ps.K, "huber")
+        return
+    for kind in ("huber", "cauchy", "geman_mcclure", "tukey"):
+        loss, _, _ = photometric_loss(torch.zeros(2, 3), live, ref_d, gt_w, gt_v, ps.K, kind)
+        assert torch.isfinite(loss).all() and (loss > 0).all()
+
+
+# ----------------------------------------------------------------------------- training, resume
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("vo_full")
+    metrics = train(_tiny_config(out))
+    return out, metrics
+
+
+def test_run_writes_metrics_figures_and_checkpoint(tiny_run):
+    out, metrics = tiny_run
+    assert len(metrics["train_loss"]) == 30 and metrics["steps"] == 30
+    on_disk = json.loads((out / "metrics.json").read_text())
+    for which in ("identity", "trained"):
+        assert set(on_disk["eval"][which]) >= {"rot_deg", "trans_m", "photometric"}
+    assert on_disk["motion"] == "so3"
+    assert on_disk["eval"]["identity"]["rot_deg"] > 1.0
+    for name in ("training_curve.png", "registration.png", "checkpoint.pt"):
+        assert (out / name).stat().st_size > 0
+    assert not list(out.glob(".*tmp*"))  # atomic writes leave no temporaries behind
+
+
+def test_short_training_reduces_loss(tmp_path):
+    # a handful of pairs seen again and again: the photometric loss on them must fall clearly
+    metrics = train(_tiny_config(tmp_path, steps=60, n_train_traj=1, n_frames=5, lr=3e-3))
+    fixed = metrics["eval_train_pairs"]
+    assert fixed["trained"]["photometric"] < 0.7 * fixed["identity"]["photometric"]
+    h = metrics["train_loss"]
+    assert np.mean(h[-10:]) < 0.7 * np.mean(h[:10])
+
+
+def test_resume_continues_exactly(tiny_run, tmp_path):
+    _, full = tiny_run
+    first = train(_tiny_config(tmp_path, steps=20))
+    ck = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert ck["step"] == 20 and len(ck["train_loss"]) == 20
+    resumed = train(_tiny_config(tmp_path, steps=30, resume=True))
+    assert resumed["steps"] == 30
+    assert resumed["train_loss"][:20] == first["train_loss"]
+    # batches are drawn per step and the optimiser state is restored: same as never stopping
+    np.testing.assert_allclose(resumed["train_loss"], full["train_loss"], rtol=1e-5, atol=1e-7)
+
+
+def test_cli_interrupt_and_resume(tmp_path):
+    """SIGINT mid-run saves a checkpoint and exits 130; --resume continues from its step."""
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "gvnn_warp.demos.vo", "--motion", "se3", "--out", str(out), "--size", "64x48",
+           "--batch-size", "4", "--frames", "12", "--trajectories", "1", "--no-progress"]
+    proc = subprocess.Popen([*cmd, "--steps", "100000"], env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    ck_path = out / "checkpoint.pt"
+    try:
+        deadline = time.time() + 60
+        while not ck_path.exists() and time.time() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        assert ck_path.exists(), proc.communicate(timeout=5)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    ck = torch.load(ck_path, weights_only=False)
+    n = ck["step"]
+    assert n >= 50 and len(ck["train_loss"]) == n
+    res = subprocess.run([*cmd, "--steps", str(n + 3), "--resume"], env=_env(), capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == n + 3
+    assert metrics["train_loss"][:n] == ck["train_loss"]
+    assert len(metrics["eval"]["trained"]) and metrics["eval"]["identity"]["trans_m"] > 0
+
+
+# ----------------------------------------------------------------------------- DDP
+
+
+@pytest.mark.skipif(shutil.which("torchrun", path=str(Path(sys.executable).parent)) is None,
+                    reason="torchrun not installed")
+def test_ddp_two_ranks(tmp_path):
+    torchrun = shutil.which("torchrun", path=str(Path(sys.executable).parent))
+    out = tmp_path / "ddp"
+    cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.demos.vo", "--motion", "so3",
+           "--out", str(out), "--size", "64x48", "--batch-size", "8", "--frames", "12", "--trajectories", "1",
+           "--steps", "6", "--no-progress"]
+    res = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["distributed"]["world_size"] == 2
+    assert metrics["distributed"]["max_param_diff_between_ranks"] == 0.0
+    assert len(metrics["train_loss"]) == 6
+    assert metrics["steps"] == 6
