@@ -181,16 +181,37 @@ def test_short_training_reduces_loss(tmp_path):
     assert np.mean(h[-10:]) < 0.7 * np.mean(h[:10])
 
 
-def test_resume_continues_exactly(tiny_run, tmp_path):
+def test_resume_continues_exactly(tiny_run, tmp_path, monkeypatch):
+    import importlib
+
+    train_module = importlib.import_module("gvnn_warp.vo.train")  # the module, not the function
     _, full = tiny_run
-    first = train(_tiny_config(tmp_path, steps=20))
+
+    class StopAfter20(train_module._StopFlag):
+        """An interruption (as by Ctrl-C) seen after step 20: the loop reads ``stop`` once a step."""
+
+        reads = 0
+
+        @property
+        def stop(self):
+            StopAfter20.reads += 1
+            return StopAfter20.reads >= 20
+
+        @stop.setter
+        def stop(self, value):
+            pass
+
+    monkeypatch.setattr(train_module, "_StopFlag", StopAfter20)
+    first = train(_tiny_config(tmp_path, steps=30))  # the same run as tiny_run, interrupted
+    monkeypatch.undo()
     ck = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
     assert ck["step"] == 20 and len(ck["train_loss"]) == 20
     resumed = train(_tiny_config(tmp_path, steps=30, resume=True))
     assert resumed["steps"] == 30
-    assert resumed["train_loss"][:20] == first["train_loss"]
+    assert resumed["train_loss"][:20] == ck["train_loss"]
     # batches are drawn per step and the optimiser state is restored: same as never stopping
     np.testing.assert_allclose(resumed["train_loss"], full["train_loss"], rtol=1e-5, atol=1e-7)
+    del first
 
 
 def test_cli_interrupt_and_resume(tmp_path):
