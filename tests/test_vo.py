@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from gvnn_warp.vo import SiameseVO, default_config, photometric_loss, pose_errors, train
+from gvnn_warp.vo import CascadeVO, SiameseVO, compose_pose, default_config, photometric_loss, pose_errors, train
 from gvnn_warp.vo.data import render_split
 from gvnn_warp.vo.loss import warp_live
 
@@ -71,6 +71,64 @@ def test_network_rejects_wrong_size():
     net = SiameseVO("so3", size=(64, 48))
     with pytest.raises(ValueError, match="64x48"):
         net(torch.rand(1, 3, 48, 80), torch.rand(1, 3, 48, 80), torch.ones(1, 1, 48, 80), torch.ones(1, 1, 48, 80))
+
+
+@pytest.mark.parametrize("dim", [3, 6])
+def test_compose_pose_matches_matrix_product(dim):
+    """compose_pose(d, xi) is the pose vector of T(d) T(xi), including near-pi and zero rotations."""
+    from gvnn_warp import se3_to_matrix
+
+    g = torch.Generator().manual_seed(3)
+    d = torch.randn(6, 6, generator=g, dtype=torch.float64) * 0.3
+    xi = torch.randn(6, 6, generator=g, dtype=torch.float64) * 0.5
+    d[0], xi[0] = 0.0, 0.0  # identity
+    xi[1, :3] = torch.tensor([0.0, 0.0, np.pi - 1e-3], dtype=torch.float64)  # near pi
+    d[1, :3] = 0.0
+    d, xi = d[:, :dim], xi[:, :dim]
+    full = lambda v: v if v.shape[1] == 6 else torch.cat([v, torch.zeros_like(v)], 1)  # noqa: E731
+
+    def mat(v):
+        T = torch.eye(4, dtype=torch.float64).repeat(len(v), 1, 1)
+        T[:, :3] = se3_to_matrix(full(v))
+        return T
+
+    out = compose_pose(d, xi)
+    assert out.shape == (6, dim)
+    torch.testing.assert_close(mat(out), mat(d) @ mat(xi), atol=1e-9, rtol=0)
+    # differentiable in both arguments (Warp adjoints of so3_exp / so3_log)
+    dd, xx = d[2:].clone().requires_grad_(), xi[2:].clone().requires_grad_()
+    assert torch.autograd.gradcheck(compose_pose, (dd, xx))
+
+
+def test_cascade_identity_at_init_and_refines_on_the_warped_image(tiny_pairs):
+    ps = tiny_pairs
+    idx = torch.arange(len(ps))
+    ref, live, ref_d, live_d, pose, xi = ps.batch(idx)
+    torch.manual_seed(0)
+    net = CascadeVO("se3", scales=(2, 1), size=TINY)
+    assert [s.size for s in net.stages] == [(32, 24), TINY]
+    outs = net(ref, live, ref_d, live_d, ps.K, all_stages=True)
+    assert len(outs) == 2 and all(torch.equal(o, torch.zeros(len(ps), 6)) for o in outs)
+    # the second stage's input is the live image warped with the first stage's pose: give stage 1 the
+    # ground truth (its bias), and stage 2 then sees an aligned pair
+    seen = {}
+    net.stages[1].register_forward_pre_hook(lambda m, args: seen.update(live=args[1]))
+    with torch.no_grad():
+        net.stages[0].tail[-1].bias.copy_(xi[0] / net.stages[0].out_scale)
+        net.stages[0].depth_normalised_t = False
+    out = net(ref[:1], live[:1], ref_d[:1], live_d[:1], ps.K)
+    torch.testing.assert_close(out, xi[:1], atol=1e-5, rtol=0)  # stage 2 adds the identity
+    warped, valid = warp_live(live[:1], ref_d[:1], pose[:1], ps.K)
+    torch.testing.assert_close(seen["live"], torch.where(valid, warped, torch.full_like(warped, 0.5)))
+    # gradients reach both stages
+    net.zero_grad()
+    o1, o2 = net(ref, live, ref_d, live_d, ps.K, all_stages=True)
+    (o2 - xi).square().sum().backward()
+    assert all(s.tail[-1].weight.grad.abs().sum() > 0 for s in net.stages)
+    with pytest.raises(ValueError, match="scales"):
+        CascadeVO("se3", scales=(3, 1), size=TINY)
+    with pytest.raises(ValueError, match="need K"):
+        net(ref, live, ref_d, live_d)
 
 
 # ----------------------------------------------------------------------------- data and loss
@@ -253,7 +311,7 @@ def test_cli_interrupt_and_resume(tmp_path):
 def test_ddp_two_ranks(tmp_path):
     torchrun = shutil.which("torchrun", path=str(Path(sys.executable).parent))
     out = tmp_path / "ddp"
-    cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.demos.vo", "--motion", "so3",
+    cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.demos.vo", "--motion", "se3",
            "--out", str(out), "--size", "64x48", "--batch-size", "8", "--frames", "12", "--trajectories", "1",
            "--steps", "6", "--no-progress"]
     res = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=120)

@@ -62,6 +62,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trajectories", type=_positive_int, default=None,
                    help="training trajectories to render (default 8; held-out: 2 others)")
     p.add_argument("--frames", type=_positive_int, default=None, help="frames per trajectory (default 80)")
+    p.add_argument("--stages", type=_positive_int, default=None,
+                   help="networks in the cascade; each later one refines the pose on the live image warped by "
+                        "the pose so far (default: 1 for so3, 2 for se3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -91,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         lr=args.lr,
         n_train_traj=getattr(args, "trajectories", None),
         n_frames=getattr(args, "frames", None),
+        stage_scales=(1,) * args.stages if getattr(args, "stages", None) else None,
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )

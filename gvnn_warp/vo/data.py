@@ -57,13 +57,13 @@ def split_seeds(seed: int, split: str, n: int) -> list[int]:
     return [1000 * seed + base + i for i in range(n)]
 
 
-def _trajectory(motion: str, n_frames: int, seed: int) -> np.ndarray:
+def _trajectory(motion: str, n_frames: int, seed: int, **kwargs) -> np.ndarray:
     from gvnn_warp import synthetic
 
     if motion == "so3":
-        return synthetic.rotation_trajectory(n_frames, seed)
+        return synthetic.rotation_trajectory(n_frames, seed, **kwargs)
     if motion == "se3":
-        return synthetic.smooth_se3_trajectory(n_frames, seed)
+        return synthetic.smooth_se3_trajectory(n_frames, seed, **kwargs)
     raise ValueError(f"motion must be 'so3' or 'se3', got {motion!r}")
 
 
@@ -94,6 +94,8 @@ def render_split(
     scene_seed: int = 0,
     supersample: int = 2,
     n_threads: int = 2,
+    n_boxes: int = 6,
+    trajectory_kwargs: dict | None = None,
 ) -> PairSet:
     """Render ``len(seeds)`` trajectories of ``n_frames`` frames at ``size`` = (W, H) and pair them up.
 
@@ -106,11 +108,11 @@ def render_split(
 
     W, H = size
     K = default_intrinsics(W, H)
-    scene = make_room_scene(seed=scene_seed)
+    scene = make_room_scene(seed=scene_seed, n_boxes=n_boxes)
     images, depths, refs, lives, poses = [], [], [], [], []
     offset = 0
     for s in seeds:
-        T = _trajectory(motion, n_frames, s)
+        T = _trajectory(motion, n_frames, s, **(trajectory_kwargs or {}))
         img, dep = render_rgbd(scene, T, K, W, H, supersample=supersample, n_threads=n_threads)
         r, lv, P = make_pairs(T, gaps, both_directions)
         images.append(img)

@@ -15,9 +15,10 @@ identical (shared weights); the loss only ever uses the reference depth.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
-__all__ = ["MOTIONS", "SiameseVO", "pose_dim"]
+__all__ = ["MOTIONS", "CascadeVO", "SiameseVO", "compose_pose", "pose_dim"]
 
 MOTIONS = {"so3": 3, "se3": 6}
 
@@ -161,3 +162,92 @@ class SiameseVO(nn.Module):
                 raise ValueError("depth_normalised_t needs the reference depth")
             out = torch.cat([out[:, :3], out[:, 3:] * median_depth(ref_depth)[:, None]], dim=1)
         return out
+
+
+def compose_pose(d: Tensor, xi: Tensor) -> Tensor:
+    """Pose vector of ``T(d) T(xi)``: the correction ``d`` applied after ``xi`` (both (B, 3) omega or
+    (B, 6) [omega, t], as :func:`gvnn_warp.se3_to_matrix` reads them: ``R = exp(omega)``, ``t = t``).
+
+    ``omega = so3_log(exp(d_omega) exp(xi_omega))`` and ``t = exp(d_omega) xi_t + d_t``; differentiable
+    in both (gvnn_warp's Warp ops)."""
+    from gvnn_warp import so3_exp, so3_log
+
+    R_d = so3_exp(d[:, :3])
+    omega = so3_log((R_d @ so3_exp(xi[:, :3])).contiguous())
+    if d.shape[1] == 3:
+        return omega
+    t = (R_d @ xi[:, 3:, None])[:, :, 0] + d[:, 3:]
+    return torch.cat([omega, t], dim=1)
+
+
+class CascadeVO(nn.Module):
+    """:class:`SiameseVO` networks refining one pose coarse to fine (iterative alignment through the
+    3D spatial transformer).
+
+    Stage 1 sees the (reference, live) pair, downsampled by ``scales[0]``. Every later stage sees the reference frame and the live
+    image warped into it with the pose so far (``warp_frame_depth`` with the reference depth;
+    pixels with no source are mid-grey), so its input is what is *left* to explain - after a good
+    rotation estimate mostly the depth-dependent parallax of the translation - and predicts a
+    correction ``d`` composed as ``T(d) T(xi)`` (:func:`compose_pose`). The warp that builds the
+    next stage's input is not differentiated (the pose it used reaches the output through the
+    composition). Every stage starts at the identity (zero last layer), so the cascade does too.
+
+    Args:
+        motion: ``"so3"`` or ``"se3"``.
+        scales: one entry per stage, its input downsampling factor (2x2 means for a factor 2, ...):
+            ``(2, 1)`` is a coarse network at half resolution refined by one at full resolution;
+            ``(1,)`` a plain :class:`SiameseVO`.
+        size: full input (width, height).
+        **kwargs: passed to every :class:`SiameseVO`.
+    """
+
+    def __init__(self, motion: str, scales: tuple[int, ...] = (1,), size: tuple[int, int] = (128, 96), **kwargs):
+        super().__init__()
+        scales = tuple(int(s) for s in scales)
+        W, H = size
+        if not scales or any(s < 1 or W % s or H % s for s in scales):
+            raise ValueError(f"CascadeVO: scales must be positive divisors of the size {W}x{H}, got {scales!r}")
+        self.scales = scales
+        self.stages = nn.ModuleList(SiameseVO(motion, size=(W // s, H // s), **kwargs) for s in scales)
+        self.motion = motion
+        self.out_dim = self.stages[0].out_dim
+        self.size = (W, H)
+
+    def forward(
+        self,
+        ref: Tensor,
+        live: Tensor,
+        ref_depth: Tensor | None = None,
+        live_depth: Tensor | None = None,
+        K: Tensor | None = None,
+        all_stages: bool = False,
+    ) -> Tensor | list[Tensor]:
+        """Pose vectors of ``T_live_ref`` ((B, 3) or (B, 6)); with ``all_stages`` the list of every
+        stage's estimate (the last is the output). ``K`` ((3, 3) or (B, 3, 3)) and ``ref_depth`` are
+        needed from the second stage on."""
+        from gvnn_warp import se3_to_matrix, warp_frame_depth
+
+        xi = self._stage(0, ref, live, ref_depth, live_depth)
+        out = [xi]
+        for k in range(1, len(self.stages)):
+            if K is None or ref_depth is None:
+                raise ValueError("CascadeVO: stages after the first need K and ref_depth")
+            with torch.no_grad():
+                pose = se3_to_matrix(_full(xi.detach()))
+                warped, valid = warp_frame_depth(live, ref_depth, pose, K)
+                warped = torch.where(valid, warped, torch.full_like(warped, 0.5))
+            xi = compose_pose(self._stage(k, ref, warped, ref_depth, ref_depth), xi)
+            out.append(xi)
+        return out if all_stages else xi
+
+    def _stage(self, k: int, ref: Tensor, live: Tensor, ref_depth: Tensor | None, live_depth: Tensor | None) -> Tensor:
+        s = self.scales[k]
+        if s > 1:
+            ref, live = F.avg_pool2d(ref, s), F.avg_pool2d(live, s)
+            ref_depth = None if ref_depth is None else F.avg_pool2d(ref_depth, s)
+            live_depth = None if live_depth is None else F.avg_pool2d(live_depth, s)
+        return self.stages[k](ref, live, ref_depth, live_depth)
+
+
+def _full(xi: Tensor) -> Tensor:
+    return xi if xi.shape[1] == 6 else torch.cat([xi, torch.zeros_like(xi)], dim=1)
