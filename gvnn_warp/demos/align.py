@@ -16,27 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
+from ._args import image_size, positive_int
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("align", help="align two rendered RGB-D views by photometric gradient descent")
     p.add_argument("--out", type=Path, required=True, help="directory for the figure")
-    p.add_argument("--size", default="160x120", help="image size WxH (default 160x120)")
-    p.add_argument("--steps", type=int, default=60, help="Adam steps per pyramid level (default 60)")
-    p.add_argument("--levels", type=int, default=3, help="pyramid levels (default 3)")
+    p.add_argument("--size", type=image_size(16), default=(160, 120), help="image size WxH (default 160x120)")
+    p.add_argument("--steps", type=positive_int, default=60, help="Adam steps per pyramid level (default 60)")
+    p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels (default 3)")
     p.add_argument("--rotation-deg", type=float, default=4.0, help="true rotation between the views")
     p.add_argument("--translation-cm", type=float, default=8.0, help="true translation between the views")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=run)
-
-
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SystemExit(f"gvnn-warp: --size must look like 160x120, got {text!r}") from None
-    if w < 16 or h < 16:
-        raise SystemExit(f"gvnn-warp: --size must be at least 16x16, got {text!r}")
-    return w, h
 
 
 def make_views(width: int, height: int, rotation_deg: float, translation_cm: float, seed: int):
@@ -76,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import functional as G
 
-    width, height = _parse_size(args.size)
+    width, height = args.size
     args.out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(args.seed)
     t0 = time.perf_counter()

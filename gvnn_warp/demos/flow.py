@@ -24,27 +24,14 @@ import sys
 import time
 from pathlib import Path
 
+from ._args import image_size, positive_int
+
+_SIZE = image_size(32)
+
 __all__ = ["add_parser", "run"]
 
 DEFAULT_SIZE = (160, 120)
 DEFAULT_STEPS = 300
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 160x120, got {text!r}") from None
-    if w < 32 or h < 32:
-        raise argparse.ArgumentTypeError(f"size must be at least 32x32, got {text!r}")
-    return w, h
-
-
-def _positive_int(text: str) -> int:
-    v = int(text)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -54,9 +41,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("--out", required=True, help="output directory for flow.png")
-    p.add_argument("--steps", type=_positive_int, default=DEFAULT_STEPS, help=f"Adam steps (default {DEFAULT_STEPS})")
+    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS, help=f"Adam steps (default {DEFAULT_STEPS})")
     p.add_argument(
-        "--size", type=_size, default=DEFAULT_SIZE, help=f"image size WxH (default {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})"
+        "--size", type=_SIZE, default=DEFAULT_SIZE, help=f"image size WxH (default {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the texture and the true flow (default 0)")
     p.set_defaults(func=run)

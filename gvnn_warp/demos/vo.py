@@ -24,24 +24,11 @@ import sys
 # is first imported (this module does not import torch at import time).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from ._args import image_size, positive_int
+
+_SIZE = image_size(32)
+
 __all__ = ["add_parser", "run"]
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 160x120, got {text!r}") from None
-    if w < 32 or h < 32:
-        raise argparse.ArgumentTypeError("size must be at least 32x32")
-    return w, h
-
-
-def _positive_int(text: str) -> int:
-    v = int(text)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,19 +37,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--motion", required=True, choices=("so3", "se3"),
                    help="so3: pure rotation (3 outputs); se3: rotation and translation (6 outputs)")
     p.add_argument("--out", required=True, help="output directory (checkpoint, metrics.json, figures)")
-    p.add_argument("--steps", type=_positive_int, default=None, help="total training steps (default per motion)")
-    p.add_argument("--size", type=_size, default=None, help="image size WxH (default 128x96; e.g. 320x240)")
+    p.add_argument("--steps", type=positive_int, default=None, help="total training steps (default per motion)")
+    p.add_argument("--size", type=_SIZE, default=None, help="image size WxH (default 128x96; e.g. 320x240)")
     p.add_argument("--seed", type=int, default=None, help="seed of weights, trajectories and batches (default 0)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.pt")
     p.add_argument("--loss", choices=LOSSES, default=None,
                    help="per-pixel penalty: l1 (default), l2, or an M-estimator (gvnn_warp.perpixel)")
     p.add_argument("--loss-scale", type=float, default=None, help="M-estimator scale (default 0.1)")
-    p.add_argument("--batch-size", type=_positive_int, default=None, help="global batch size (default 16)")
+    p.add_argument("--batch-size", type=positive_int, default=None, help="global batch size (default 16)")
     p.add_argument("--lr", type=float, default=None, help="peak Adam learning rate (default 1e-3)")
-    p.add_argument("--trajectories", type=_positive_int, default=None,
+    p.add_argument("--trajectories", type=positive_int, default=None,
                    help="training trajectories to render (default 8; held-out: 2 others)")
-    p.add_argument("--frames", type=_positive_int, default=None, help="frames per trajectory (default 80)")
-    p.add_argument("--stages", type=_positive_int, default=None,
+    p.add_argument("--frames", type=positive_int, default=None, help="frames per trajectory (default 80)")
+    p.add_argument("--stages", type=positive_int, default=None,
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
                         "the pose so far (default: 1 for so3, 2 for se3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

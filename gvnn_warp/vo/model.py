@@ -184,13 +184,15 @@ class CascadeVO(nn.Module):
     """:class:`SiameseVO` networks refining one pose coarse to fine (iterative alignment through the
     3D spatial transformer).
 
-    Stage 1 sees the (reference, live) pair, downsampled by ``scales[0]``. Every later stage sees the reference frame and the live
-    image warped into it with the pose so far (``warp_frame_depth`` with the reference depth;
-    pixels with no source are mid-grey), so its input is what is *left* to explain - after a good
-    rotation estimate mostly the depth-dependent parallax of the translation - and predicts a
-    correction ``d`` composed as ``T(d) T(xi)`` (:func:`compose_pose`). The warp that builds the
-    next stage's input is not differentiated (the pose it used reaches the output through the
-    composition). Every stage starts at the identity (zero last layer), so the cascade does too.
+    Stage 1 sees the (reference, live) pair, downsampled by ``scales[0]``. Every later stage sees
+    the reference frame and the live image warped into it with the pose so far
+    (``warp_frame_depth`` with the reference depth; pixels with no source are mid-grey), so its
+    input is what is *left* to explain - after a good rotation estimate, mostly the
+    depth-dependent parallax of the translation - and it predicts a correction ``d`` composed as
+    ``T(d) T(xi)`` (:func:`compose_pose`). The warp that builds the next stage's input is not
+    differentiated (the pose it used reaches the output through the composition). Every stage
+    starts at the identity (zero last layer), so the cascade does too. Training scores every
+    stage's estimate (:func:`gvnn_warp.vo.train.train`).
 
     Args:
         motion: ``"so3"`` or ``"se3"``.

@@ -287,7 +287,8 @@ def train(cfg: VOConfig) -> dict:
     # ---- model and optimiser (identical initial weights on every rank)
     torch.manual_seed(cfg.seed)
     model = CascadeVO(
-        cfg.motion, scales=tuple(cfg.stage_scales), size=cfg.size, widths=tuple(cfg.widths), depth_input=cfg.depth_input,
+        cfg.motion, scales=tuple(cfg.stage_scales), size=cfg.size, widths=tuple(cfg.widths),
+        depth_input=cfg.depth_input,
         n_head_layers=cfg.n_head_layers, omega_scale=cfg.omega_scale, t_scale=cfg.t_scale,
         depth_normalised_t=cfg.depth_normalised_t,
     )
