@@ -19,6 +19,17 @@ HOMOGRAPHY_MIN_DEN = 1.0e-6
 
 
 @wp.func
+def pixel_index(i: int, H: int, W: int):
+    """Flat index ``i`` of a (B, H, W) grid -> (b, j, x, y): batch item, index ``j = y W + x``
+    within the item, column and row."""
+    hw = H * W
+    b = i // hw
+    j = i - b * hw
+    py = j // W
+    return b, j, j - py * W, py
+
+
+@wp.func
 def channel(a: wp.array(dtype=Any), b: int, k: int, K: int, hw: int, j: int):
     """Element ``(b, k, j)`` of a flat channel-first ``(B, K, H*W)`` array."""
     return a[(b * K + k) * hw + j]

@@ -38,10 +38,7 @@ def _flow_warp(
 ):
     i = wp.tid() + offset  # flat (b, y, x)
     hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     fx = channel(flow, b, 0, 2, hw, j)
     fy = channel(flow, b, 1, 2, hw, j)
     perpixel.sample_pixel(image, out, b, C, H, W, j, type(fx)(px) + fx, type(fx)(py) + fy, padding)
@@ -59,11 +56,7 @@ def _disparity_warp(
     out: wp.array(dtype=Any),
 ):
     i = wp.tid() + offset  # flat (b, y, x); disparity is (B, 1, H, W), i.e. indexed by i
-    hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     d = disparity[i]
     perpixel.sample_pixel(image, out, b, C, H, W, j, type(d)(px) - d, type(d)(py), padding)
 
@@ -72,10 +65,7 @@ def _disparity_warp(
 def _affine_flow(offset: int, params: wp.array(dtype=Any), H: int, W: int, flow: wp.array(dtype=Any)):
     i = wp.tid() + offset
     hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     a0 = channel(params, b, 0, 6, hw, j)
     x = type(a0)(px)
     y = type(a0)(py)
@@ -97,10 +87,7 @@ def _affine_flow(offset: int, params: wp.array(dtype=Any), H: int, W: int, flow:
 def _se2_flow(offset: int, params: wp.array(dtype=Any), H: int, W: int, flow: wp.array(dtype=Any)):
     i = wp.tid() + offset
     hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     theta = channel(params, b, 0, 3, hw, j)
     x = type(theta)(px)
     y = type(theta)(py)
@@ -113,10 +100,7 @@ def _se2_flow(offset: int, params: wp.array(dtype=Any), H: int, W: int, flow: wp
 def _homography_flow(offset: int, params: wp.array(dtype=Any), H: int, W: int, flow: wp.array(dtype=Any)):
     i = wp.tid() + offset
     hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     h0 = channel(params, b, 0, 9, hw, j)
     x = type(h0)(px)
     y = type(h0)(py)
@@ -141,10 +125,7 @@ def _homography_flow(offset: int, params: wp.array(dtype=Any), H: int, W: int, f
 def _plane_disparity(offset: int, params: wp.array(dtype=Any), H: int, W: int, disparity: wp.array(dtype=Any)):
     i = wp.tid() + offset
     hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     a = channel(params, b, 0, 3, hw, j)
     disparity[i] = perpixel.plane_disparity(
         type(a)(px), type(a)(py), a, channel(params, b, 1, 3, hw, j), channel(params, b, 2, 3, hw, j)
@@ -164,10 +145,7 @@ def _affine_flow_warp(
 ):
     i = wp.tid() + offset  # fused affine_flow + flow_warp: no flow intermediate
     hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     a0 = channel(params, b, 0, 6, hw, j)
     xp, yp = perpixel.affine_point(
         type(a0)(px),
@@ -228,11 +206,7 @@ def _affine_grid(
     offset: int, theta: wp.array(dtype=Any), H: int, W: int, align_corners: int, grid: wp.array(dtype=Any)
 ):
     i = wp.tid() + offset  # flat (b, y, x); theta holds the two rows of batch item b at 2b, 2b + 1
-    hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
+    b, j, px, py = perpixel.pixel_index(i, H, W)
     r0 = theta[2 * b]
     r1 = theta[2 * b + 1]
     gx = perpixel.grid_coordinate(type(r0[0])(px), W, align_corners)

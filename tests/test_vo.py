@@ -131,6 +131,37 @@ def test_cascade_identity_at_init_and_refines_on_the_warped_image(tiny_pairs):
         net(ref, live, ref_d, live_d)
 
 
+def test_cascade_refine_reapplies_the_last_stage(tiny_pairs):
+    """refine=n runs the last network n more times, each on the live image re-warped with the latest
+    estimate, and composes its corrections."""
+    ps = tiny_pairs
+    ref, live, ref_d, live_d, _, _ = ps.batch(torch.arange(3))
+    torch.manual_seed(0)
+    net = CascadeVO("se3", scales=(1, 1), size=TINY)
+    with torch.no_grad():  # non-zero corrections, so that every application shows
+        net.stages[1].tail[-1].bias.copy_(torch.tensor([0.1, -0.2, 0.05, 0.3, 0.1, -0.2]))
+    seen = []
+    net.stages[1].register_forward_hook(lambda m, args, out: seen.append((args[1], out)))
+    with torch.no_grad():
+        outs = net(ref, live, ref_d, live_d, ps.K, all_stages=True, refine=2)
+    assert len(outs) == 4 and len(seen) == 3
+    for k in range(1, 4):
+        # estimate k = correction of application k composed with estimate k - 1 ...
+        torch.testing.assert_close(outs[k], compose_pose(seen[k - 1][1], outs[k - 1]), atol=1e-5, rtol=0)
+    # ... and application k saw the live image warped with estimate k - 1
+    from gvnn_warp import se3_to_matrix
+
+    warped, valid = warp_live(live, ref_d, se3_to_matrix(outs[2]), ps.K)
+    torch.testing.assert_close(seen[2][0], torch.where(valid, warped, torch.full_like(warped, 0.5)))
+    with pytest.raises(ValueError, match="refine"):
+        CascadeVO("se3", size=TINY)(ref, live, ref_d, live_d, ps.K, refine=1)
+    # configuration: a single stage drops the per-motion refine default, an explicit one is an error
+    assert default_config("se3", "x", stage_scales=(1,)).refine == 0
+    assert default_config("se3", "x").refine > 0
+    with pytest.raises(ValueError, match="refine"):
+        default_config("se3", "x", stage_scales=(1,), refine=2)
+
+
 # ----------------------------------------------------------------------------- data and loss
 
 

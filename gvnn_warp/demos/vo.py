@@ -52,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stages", type=positive_int, default=None,
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
                         "the pose so far (default: 1 for so3, 2 for se3)")
+    p.add_argument("--refine", type=int, default=None,
+                   help="when predicting, apply the last stage this many more times to the re-warped live image "
+                        "(default: 0 for so3, 2 for se3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -82,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         n_train_traj=getattr(args, "trajectories", None),
         n_frames=getattr(args, "frames", None),
         stage_scales=(1,) * args.stages if getattr(args, "stages", None) else None,
+        refine=getattr(args, "refine", None),
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )

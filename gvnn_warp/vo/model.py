@@ -223,15 +223,23 @@ class CascadeVO(nn.Module):
         live_depth: Tensor | None = None,
         K: Tensor | None = None,
         all_stages: bool = False,
+        refine: int = 0,
     ) -> Tensor | list[Tensor]:
         """Pose vectors of ``T_live_ref`` ((B, 3) or (B, 6)); with ``all_stages`` the list of every
         stage's estimate (the last is the output). ``K`` ((3, 3) or (B, 3, 3)) and ``ref_depth`` are
-        needed from the second stage on."""
+        needed from the second stage on.
+
+        ``refine``: apply the last stage this many more times, each time to the live image warped
+        with the estimate so far (test-time iterative refinement: the last network was trained to
+        correct an estimate from the pair it leaves; training itself uses ``refine=0``).
+        """
         from gvnn_warp import se3_to_matrix, warp_frame_depth
 
         xi = self._stage(0, ref, live, ref_depth, live_depth)
         out = [xi]
-        for k in range(1, len(self.stages)):
+        if refine < 0 or (refine and len(self.stages) < 2):
+            raise ValueError(f"CascadeVO: refine must be >= 0 and needs at least 2 stages, got {refine!r}")
+        for k in [*range(1, len(self.stages)), *([len(self.stages) - 1] * int(refine))]:
             if K is None or ref_depth is None:
                 raise ValueError("CascadeVO: stages after the first need K and ref_depth")
             with torch.no_grad():

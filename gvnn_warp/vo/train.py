@@ -71,6 +71,7 @@ class VOConfig:
     depth_input: bool = True
     n_head_layers: int = 2  # convolutions per siamese head before the features are concatenated
     stage_scales: tuple[int, ...] = (1,)  # CascadeVO: per network its downsampling; later ones refine the pose
+    refine: int = 0  # predictions (evaluation, panel) apply the last stage this many more times
     omega_scale: float = 0.1  # network output units: radians ...
     t_scale: float = 0.05  # ... and metres per unit of the raw regression output ...
     depth_normalised_t: bool = True  # ... times the median reference depth (m) for translations
@@ -91,7 +92,7 @@ def default_config(motion: str, out: str, **overrides) -> VOConfig:
         # se3: a second network refines the pose on the warped live image (CascadeVO); a single
         # network learned the rotation but left the translation error at the identity's.
         "so3": dict(gaps=(1,), steps=2800),
-        "se3": dict(gaps=(1, 2, 3), steps=1800, stage_scales=(1, 1), n_train_traj=16),
+        "se3": dict(gaps=(1, 2, 3), steps=1800, stage_scales=(1, 1), n_train_traj=16, refine=2),
     }
     if motion not in per_motion:
         raise ValueError(f"motion must be one of {sorted(per_motion)}, got {motion!r}")
@@ -99,6 +100,11 @@ def default_config(motion: str, out: str, **overrides) -> VOConfig:
     cfg = VOConfig(motion=motion, out=out, **kw)
     if cfg.loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {cfg.loss!r}")
+    if len(cfg.stage_scales) < 2 and overrides.get("refine") is None:
+        cfg.refine = 0  # the per-motion default refines with a second stage; a single network cannot
+    if cfg.refine < 0 or (cfg.refine and len(cfg.stage_scales) < 2):
+        raise ValueError(f"refine must be >= 0 and needs at least 2 stages, got refine={cfg.refine!r} "
+                         f"with {len(cfg.stage_scales)} stage(s)")
     return cfg
 
 
@@ -190,14 +196,14 @@ def _even_subset(n_total: int, n: int) -> Tensor:
     return torch.from_numpy(np.unique(np.linspace(0, n_total - 1, min(n, n_total)).round().astype(np.int64)))
 
 
-def _predict(model: CascadeVO, ps: PairSet, idx: Tensor, chunk: int = 64) -> Tensor:
+def _predict(model: CascadeVO, ps: PairSet, idx: Tensor, refine: int = 0, chunk: int = 64) -> Tensor:
     out = []
     was_training = model.training
     model.eval()
     with torch.no_grad():
         for i in range(0, len(idx), chunk):
             ref, live, ref_d, live_d, _, _ = ps.batch(idx[i : i + chunk])
-            out.append(model(ref, live, ref_d, live_d, ps.K))
+            out.append(model(ref, live, ref_d, live_d, ps.K, refine=refine))
     model.train(was_training)
     return torch.cat(out) if out else torch.zeros(0, model.out_dim)
 
@@ -332,7 +338,7 @@ def train(cfg: VOConfig) -> dict:
 
     def snapshot() -> None:
         if rank == 0 and step not in snapshots:
-            snapshots[step] = _predict(model, eval_set, panel_idx)
+            snapshots[step] = _predict(model, eval_set, panel_idx, cfg.refine)
 
     flips = cfg.flip_augment and _symmetric_intrinsics(train_set.K, W, H)
     stages = _stage_steps(cfg.steps)
@@ -423,7 +429,7 @@ def _evaluate_and_report(
 
     t0 = time.perf_counter()
     zero = torch.zeros(len(eval_idx), model.out_dim)
-    trained = _predict(model, eval_set, eval_idx)
+    trained = _predict(model, eval_set, eval_idx, cfg.refine)
     train_idx = _even_subset(len(train_set), cfg.n_eval)
     ev = {
         "identity": evaluate(zero, eval_set, eval_gt, eval_valid, eval_idx),
@@ -431,7 +437,9 @@ def _evaluate_and_report(
     }
     ev_train = {
         "identity": evaluate(torch.zeros(len(train_idx), model.out_dim), train_set, train_gt, train_valid, train_idx),
-        "trained": evaluate(_predict(model, train_set, train_idx), train_set, train_gt, train_valid, train_idx),
+        "trained": evaluate(
+            _predict(model, train_set, train_idx, cfg.refine), train_set, train_gt, train_valid, train_idx
+        ),
     }
     n = max(1, min(20, len(history) // 10))
     out = Path(cfg.out)
