@@ -18,6 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .loss import full_xi
+
 __all__ = ["MOTIONS", "CascadeVO", "SiameseVO", "compose_pose", "pose_dim"]
 
 MOTIONS = {"so3": 3, "se3": 6}
@@ -235,15 +237,15 @@ class CascadeVO(nn.Module):
         """
         from gvnn_warp import se3_to_matrix, warp_frame_depth
 
-        xi = self._stage(0, ref, live, ref_depth, live_depth)
-        out = [xi]
         if refine < 0 or (refine and len(self.stages) < 2):
             raise ValueError(f"CascadeVO: refine must be >= 0 and needs at least 2 stages, got {refine!r}")
+        xi = self._stage(0, ref, live, ref_depth, live_depth)
+        out = [xi]
         for k in [*range(1, len(self.stages)), *([len(self.stages) - 1] * int(refine))]:
             if K is None or ref_depth is None:
                 raise ValueError("CascadeVO: stages after the first need K and ref_depth")
             with torch.no_grad():
-                pose = se3_to_matrix(_full(xi.detach()))
+                pose = se3_to_matrix(full_xi(xi.detach()))
                 warped, valid = warp_frame_depth(live, ref_depth, pose, K)
                 warped = torch.where(valid, warped, torch.full_like(warped, 0.5))
             xi = compose_pose(self._stage(k, ref, warped, ref_depth, ref_depth), xi)
@@ -257,7 +259,3 @@ class CascadeVO(nn.Module):
             ref_depth = None if ref_depth is None else F.avg_pool2d(ref_depth, s)
             live_depth = None if live_depth is None else F.avg_pool2d(live_depth, s)
         return self.stages[k](ref, live, ref_depth, live_depth)
-
-
-def _full(xi: Tensor) -> Tensor:
-    return xi if xi.shape[1] == 6 else torch.cat([xi, torch.zeros_like(xi)], dim=1)
