@@ -75,7 +75,7 @@ def test_network_rejects_wrong_size():
 
 @pytest.mark.parametrize("dim", [3, 6])
 def test_compose_pose_matches_matrix_product(dim):
-    """compose_pose(d, xi) is the pose vector of T(d) T(xi), including near-pi and zero rotations."""
+    """compose_pose(d, xi) is the pose vector of the product T(d) T(xi), including near-pi and zero rotations."""
     from gvnn_warp import se3_to_matrix
 
     g = torch.Generator().manual_seed(3)
@@ -146,8 +146,8 @@ def test_cascade_refine_reapplies_the_last_stage(tiny_pairs):
         outs = net(ref, live, ref_d, live_d, ps.K, all_stages=True, refine=2)
     assert len(outs) == 4 and len(seen) == 3
     for k in range(1, 4):
-        # estimate k = correction of application k composed with estimate k - 1 ...
-        torch.testing.assert_close(outs[k], compose_pose(seen[k - 1][1], outs[k - 1]), atol=1e-5, rtol=0)
+        # estimate k = estimate k - 1 composed with the correction of application k, T(xi) T(d) ...
+        torch.testing.assert_close(outs[k], compose_pose(outs[k - 1], seen[k - 1][1]), atol=1e-5, rtol=0)
     # ... and application k saw the live image warped with estimate k - 1
     from gvnn_warp import se3_to_matrix
 

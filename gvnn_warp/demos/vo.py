@@ -24,7 +24,7 @@ import sys
 # is first imported (this module does not import torch at import time).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from ._args import image_size, positive_int
+from ._args import image_size, nonnegative_int, positive_int
 
 _SIZE = image_size(32)
 
@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stages", type=positive_int, default=None,
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
                         "the pose so far (default: 1 for so3, 2 for se3)")
-    p.add_argument("--refine", type=int, default=None,
+    p.add_argument("--refine", type=nonnegative_int, default=None,
                    help="when predicting, apply the last stage this many more times to the re-warped live image "
                         "(default: 0 for so3, 2 for se3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -69,10 +69,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def run(args: argparse.Namespace) -> int:
-    from gvnn_warp.vo.train import default_config, train
+def _config(args: argparse.Namespace):
+    from gvnn_warp.vo.train import default_config
 
-    cfg = default_config(
+    return default_config(
         args.motion,
         args.out,
         steps=args.steps,
@@ -89,6 +89,15 @@ def run(args: argparse.Namespace) -> int:
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    from gvnn_warp.vo.train import train
+
+    try:
+        cfg = _config(args)
+    except ValueError as e:  # inconsistent options, e.g. --refine with a single stage
+        raise SystemExit(f"gvnn-warp vo: error: {e}") from None
     metrics = train(cfg)
     if metrics.get("interrupted"):
         return 130

@@ -166,19 +166,19 @@ class SiameseVO(nn.Module):
         return out
 
 
-def compose_pose(d: Tensor, xi: Tensor) -> Tensor:
-    """Pose vector of ``T(d) T(xi)``: the correction ``d`` applied after ``xi`` (both (B, 3) omega or
-    (B, 6) [omega, t], as :func:`gvnn_warp.se3_to_matrix` reads them: ``R = exp(omega)``, ``t = t``).
+def compose_pose(a: Tensor, b: Tensor) -> Tensor:
+    """Pose vector of the product ``T(a) T(b)`` (both (B, 3) omega or (B, 6) [omega, t], as
+    :func:`gvnn_warp.se3_to_matrix` reads them: ``R = exp(omega)``, ``t = t``).
 
-    ``omega = so3_log(exp(d_omega) exp(xi_omega))`` and ``t = exp(d_omega) xi_t + d_t``; differentiable
+    ``omega = so3_log(exp(a_omega) exp(b_omega))`` and ``t = exp(a_omega) b_t + a_t``; differentiable
     in both (gvnn_warp's Warp ops)."""
     from gvnn_warp import so3_exp, so3_log
 
-    R_d = so3_exp(d[:, :3])
-    omega = so3_log((R_d @ so3_exp(xi[:, :3])).contiguous())
-    if d.shape[1] == 3:
+    R_a = so3_exp(a[:, :3])
+    omega = so3_log((R_a @ so3_exp(b[:, :3])).contiguous())
+    if a.shape[1] == 3:
         return omega
-    t = (R_d @ xi[:, 3:, None])[:, :, 0] + d[:, 3:]
+    t = (R_a @ b[:, 3:, None])[:, :, 0] + a[:, 3:]
     return torch.cat([omega, t], dim=1)
 
 
@@ -191,10 +191,12 @@ class CascadeVO(nn.Module):
     (``warp_frame_depth`` with the reference depth; pixels with no source are mid-grey), so its
     input is what is *left* to explain - after a good rotation estimate, mostly the
     depth-dependent parallax of the translation - and it predicts a correction ``d`` composed as
-    ``T(d) T(xi)`` (:func:`compose_pose`). The warp that builds the next stage's input is not
-    differentiated (the pose it used reaches the output through the composition). Every stage
-    starts at the identity (zero last layer), so the cascade does too. Training scores every
-    stage's estimate (:func:`gvnn_warp.vo.train.train`).
+    ``T(xi) T(d)`` (:func:`compose_pose`): the warped image samples the live one at ``T(xi) X``,
+    so warping it again by ``T(d)`` samples at ``T(xi) T(d) X`` (up to the reference depth being
+    read at the moved pixel), i.e. ``d`` is the pose still between the pair it sees. The warp that
+    builds the next stage's input is not differentiated (the pose it used reaches the output
+    through the composition). Every stage starts at the identity (zero last layer), so the cascade
+    does too. Training scores every stage's estimate (:func:`gvnn_warp.vo.train.train`).
 
     Args:
         motion: ``"so3"`` or ``"se3"``.
@@ -248,7 +250,7 @@ class CascadeVO(nn.Module):
                 pose = se3_to_matrix(full_xi(xi.detach()))
                 warped, valid = warp_frame_depth(live, ref_depth, pose, K)
                 warped = torch.where(valid, warped, torch.full_like(warped, 0.5))
-            xi = compose_pose(self._stage(k, ref, warped, ref_depth, ref_depth), xi)
+            xi = compose_pose(xi, self._stage(k, ref, warped, ref_depth, ref_depth))
             out.append(xi)
         return out if all_stages else xi
 

@@ -305,6 +305,9 @@ def train(cfg: VOConfig) -> dict:
     ckpt_path = out / CHECKPOINT
     if cfg.resume and ckpt_path.exists():
         ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        if "stage_scales" not in ck["config"]:
+            raise ValueError(f"cannot resume: {ckpt_path} was written by an older gvnn_warp (no CascadeVO); "
+                             "start a new run in another directory")
         for key in ("motion", "size", "depth_input", "widths", "n_head_layers", "depth_normalised_t", "stage_scales"):
             if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
                 raise ValueError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "
