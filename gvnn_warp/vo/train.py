@@ -88,7 +88,7 @@ class VOConfig:
 def default_config(motion: str, out: str, **overrides) -> VOConfig:
     """The tuned defaults for ``motion`` (``so3`` or ``se3``), with ``overrides`` (None = keep)."""
     per_motion: dict[str, dict] = {
-        # steps: fit well inside 5 minutes on 2 cores (measured: so3 196 s, se3 221 s wall).
+        # steps: fit well inside 5 minutes on 2 cores (measured: so3 167 s, se3 199 s wall).
         # se3: a second network refines the pose on the warped live image (CascadeVO); a single
         # network learned the rotation but left the translation error at the identity's.
         "so3": dict(gaps=(1,), steps=2800),
