@@ -100,6 +100,33 @@ def test_compose_pose_matches_matrix_product(dim):
     assert torch.autograd.gradcheck(compose_pose, (dd, xx))
 
 
+def test_cascade_composition_order_matches_the_warp():
+    """A later stage sees the live image warped by T(xi); warping that again by the stage's correction
+    T(d) samples the live image at T(xi) T(d) X, so the estimate is compose_pose(xi, d), not
+    compose_pose(d, xi). Exact for pure rotations (the warp is then independent of depth, even a random
+    one), checked on a coordinate image, whose warps are the sample positions themselves."""
+    from gvnn_warp import se3_to_matrix, warp_frame_depth
+
+    H, W = 48, 64
+    K = torch.tensor([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]], dtype=torch.float64)
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
+    coords = torch.stack([xs, ys])[None]  # (1, 2, H, W): every pixel holds its own (x, y)
+    depth = 1.0 + 2.0 * torch.rand(1, 1, H, W, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    no_t = torch.zeros(1, 3, dtype=torch.float64)
+    xi = torch.cat([torch.tensor([[0.06, -0.08, 0.03]], dtype=torch.float64), no_t], 1)
+    d = torch.cat([torch.tensor([[-0.05, 0.02, 0.09]], dtype=torch.float64), no_t], 1)
+
+    def warp(image, pose_vec):
+        return warp_frame_depth(image, depth, se3_to_matrix(pose_vec), K)[0]
+
+    twice = warp(warp(coords, xi), d)  # what the stage after xi sees, warped by its correction
+    inner = (0, slice(None), slice(10, -10), slice(12, -12))  # away from the border: every sample valid
+    right = (twice - warp(coords, compose_pose(xi, d)))[inner].abs().max()
+    wrong = (twice - warp(coords, compose_pose(d, xi)))[inner].abs().max()
+    assert right < 2e-3, right  # bilinear interpolation of a smooth map: ~5e-4 px
+    assert wrong > 0.2, wrong  # the rotations do not commute: ~0.5 px
+
+
 def test_cascade_identity_at_init_and_refines_on_the_warped_image(tiny_pairs):
     ps = tiny_pairs
     idx = torch.arange(len(ps))
@@ -138,7 +165,9 @@ def test_cascade_refine_reapplies_the_last_stage(tiny_pairs):
     ref, live, ref_d, live_d, _, _ = ps.batch(torch.arange(3))
     torch.manual_seed(0)
     net = CascadeVO("se3", scales=(1, 1), size=TINY)
-    with torch.no_grad():  # non-zero corrections, so that every application shows
+    with torch.no_grad():  # non-zero corrections, so that every application shows, and a first estimate
+        # rotating about another axis, so that the order of composition shows too
+        net.stages[0].tail[-1].bias.copy_(torch.tensor([-0.3, 0.2, 0.4, -0.1, 0.2, 0.1]))
         net.stages[1].tail[-1].bias.copy_(torch.tensor([0.1, -0.2, 0.05, 0.3, 0.1, -0.2]))
     seen = []
     net.stages[1].register_forward_hook(lambda m, args, out: seen.append((args[1], out)))
