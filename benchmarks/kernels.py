@@ -21,8 +21,10 @@ from gvnn_warp._bridge import _descriptor
 F32 = wp.float32
 
 
-def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=()):
-    """(forward, adjoint) callables launching fk over n elements on float32 tensors."""
+def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=(), launches=None):
+    """(forward, adjoint) callables launching fk on float32 tensors over ``launches`` threads
+    (default ``n``, the elements reported)."""
+    launches = n if launches is None else launches
     k = fk[F32]
     grads = [torch.zeros_like(t) for t in ins]
     adj_outs = [torch.ones_like(t) if kd != "bool" else None for t, kd in zip(outs, out_kinds)]
@@ -34,18 +36,18 @@ def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=()):
     d_adj_out = [_descriptor(g, kd, F32) if g is not None else None for g, kd in zip(adj_outs, out_kinds)]
 
     def fwd(keep=keep):
-        launch.launch(k, n, [*d_in, *params], d_out)
+        launch.launch(k, launches, [*d_in, *params], d_out)
 
     def adj(keep=keep):
         launch.launch(
-            k, n, [*d_in, *params], d_out, adjoint=True, adj_inputs=[*d_grads, *params], adj_outputs=d_adj_out
+            k, launches, [*d_in, *params], d_out, adjoint=True, adj_inputs=[*d_grads, *params], adj_outputs=d_adj_out
         )
 
     return fwd, adj
 
 
 def kernel_cases(quick: bool) -> dict:
-    """name -> (elements, forward, adjoint)."""
+    """name -> (elements, forward, adjoint or None)."""
     B, C, H, W = (2, 3, 120, 160) if quick else (8, 3, 240, 320)
     n_rot = 100_000 if quick else 1_000_000
     image, depth, pose, _, K = wfd_scene(B, C, H, W)
@@ -85,6 +87,12 @@ def kernel_cases(quick: bool) -> dict:
             (C, H, W, H * W, 0, 0),
         ),
     )
+    # the same samples, 8 output locations per thread (forward only: its backward is the above's adjoint)
+    fwd_lanes, _ = _launch_case(
+        sampling_kernels.bilinear_sample_lanes, n_pix, [image, grid], ["scalar", "vec16"], [out], ["vec8"],
+        (C, H, W, H * W, 0, 0), launches=n_pix // 8,
+    )
+    cases["bilinear_sample_lanes"] = (n_pix, fwd_lanes, None)
     warped = torch.empty_like(image)
     valid = torch.empty(B, 1, H, W, dtype=torch.bool)
     cases["warp_frame_depth"] = (
@@ -101,6 +109,8 @@ def run(threads: int, quick: bool, repeats: int) -> list[dict]:
     rows = []
     for name, (n, fwd, adj) in kernel_cases(quick).items():
         for direction, fn in (("forward", fwd), ("adjoint", adj)):
+            if fn is None:
+                continue
             def one(fn=fn):
                 launch.set_num_threads(1)
                 fn()

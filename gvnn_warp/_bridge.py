@@ -124,12 +124,17 @@ def warp_op(
     params: Sequence[Param],
     outputs: Sequence[Output],
     n_threads: Callable[..., int],
+    backward_from: Callable | None = None,
 ) -> Callable:
     """Register ``gvnn_warp::<name>`` (forward) and ``gvnn_warp::<name>_backward``.
 
     ``inputs`` are the kernel's tensor arguments in order (their kinds come from ``fk``),
     ``params`` its scalar arguments (after the tensors), ``outputs`` its output arrays (last).
     ``n_threads(*tensors, *params)`` is the launch size. Returns the forward op.
+
+    ``backward_from``: an op made by this function with the same arguments and outputs whose
+    kernel computes the same values; its backward (its kernel's Warp adjoint) is used, and none
+    is registered for this one (whose kernel may then be forward-only).
     """
     in_kinds = [fk.array_kinds[n] for n in inputs]
     n_in = len(inputs)
@@ -167,6 +172,10 @@ def warp_op(
     )
     fwd.register_fake(forward_fake)
     _skip_lazy_dynamo_import(fwd)
+
+    if backward_from is not None:
+        fwd.register_autograd(backward_from._gvnn_autograd, setup_context=backward_from._gvnn_setup_context)
+        return fwd
 
     # backward(*tensors, *params, *grads of differentiable outputs) -> grads of the tensors
     sig_grads = ", ".join(f"Tensor grad_{o.name}" for o in diff_outputs)
@@ -227,4 +236,6 @@ def warp_op(
         return (*in_grads, *([None] * len(params)))
 
     fwd.register_autograd(autograd_backward, setup_context=setup_context)
+    fwd._gvnn_autograd = autograd_backward
+    fwd._gvnn_setup_context = setup_context
     return fwd

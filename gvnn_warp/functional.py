@@ -15,6 +15,7 @@ from torch import Tensor
 
 from . import _ops
 from ._checks import ArgCheck
+from .kernels import sampler
 from .kernels.camera import MIN_DEPTH
 from .kernels.sampler import PADDING_BORDER, PADDING_ZEROS
 
@@ -278,7 +279,10 @@ def bilinear_sample(
     pad = _PADDING[chk.option("padding_mode", padding_mode, tuple(_PADDING))]
     B, C, H, W = image.shape
     h, w = grid.shape[1:3]
-    out = _ops.bilinear_sample(image.contiguous(), _flat(grid, 1), C, H, W, h * w, int(bool(align_corners)), pad)
+    # 8 output locations per thread where they tile the output (SIMD weights; same results)
+    lanes = (h * w) % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
+    op = _ops.bilinear_sample_lanes if lanes else _ops.bilinear_sample
+    out = op(image.contiguous(), _flat(grid, 1), C, H, W, h * w, int(bool(align_corners)), pad)
     return out.reshape(B, C, h, w)
 
 

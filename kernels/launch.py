@@ -63,6 +63,10 @@ wp.set_module_options({"enable_backward": False})  # only the helper kernels (_a
 
 mat34f = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 mat34d = wp.types.matrix(shape=(3, 4), dtype=wp.float64)
+vec8f = wp.types.vector(length=8, dtype=wp.float32)  # 8 lanes of a SIMD-friendly kernel
+vec8d = wp.types.vector(length=8, dtype=wp.float64)
+vec16f = wp.types.vector(length=16, dtype=wp.float32)  # 8 (x, y) pairs
+vec16d = wp.types.vector(length=16, dtype=wp.float64)
 
 # kind -> (element shape, {float type: Warp element type})
 KINDS: dict[str, tuple[tuple[int, ...], dict]] = {
@@ -70,6 +74,8 @@ KINDS: dict[str, tuple[tuple[int, ...], dict]] = {
     "vec2": ((2,), {wp.float32: wp.vec2f, wp.float64: wp.vec2d}),
     "vec3": ((3,), {wp.float32: wp.vec3f, wp.float64: wp.vec3d}),
     "vec4": ((4,), {wp.float32: wp.vec4f, wp.float64: wp.vec4d}),
+    "vec8": ((8,), {wp.float32: vec8f, wp.float64: vec8d}),
+    "vec16": ((16,), {wp.float32: vec16f, wp.float64: vec16d}),
     "mat33": ((3, 3), {wp.float32: wp.mat33f, wp.float64: wp.mat33d}),
     "mat34": ((3, 4), {wp.float32: mat34f, wp.float64: mat34d}),
     "bool": ((), {wp.float32: wp.bool, wp.float64: wp.bool}),

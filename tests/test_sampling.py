@@ -8,12 +8,18 @@ from torch.autograd import gradcheck
 import gvnn_warp as G
 
 
+# Output sizes: 5 x 6 takes the one-location-per-thread kernel, 4 x 6 (a multiple of 8) the
+# 8-lane forward kernel (see bilinear_sample)
+SIZES = [(5, 6), (4, 6)]
+
+
+@pytest.mark.parametrize("h,w", SIZES)
 @pytest.mark.parametrize("align_corners", [False, True])
 @pytest.mark.parametrize("padding_mode", ["zeros", "border"])
-def test_bilinear_sample_matches_grid_sample(align_corners, padding_mode, dtype):
+def test_bilinear_sample_matches_grid_sample(h, w, align_corners, padding_mode, dtype):
     g = torch.Generator().manual_seed(0)
     image = torch.rand(2, 3, 7, 9, generator=g, dtype=dtype)
-    grid = (torch.rand(2, 5, 6, 2, generator=g, dtype=dtype) * 2.6 - 1.3)  # ~20% outside
+    grid = (torch.rand(2, h, w, 2, generator=g, dtype=dtype) * 2.6 - 1.3)  # ~20% outside
     grid[0, 0, 0] = torch.tensor([-1.0, 1.0])  # exact corners
     kw = dict(align_corners=align_corners, padding_mode=padding_mode)
     i1, g1 = image.clone().requires_grad_(), grid.clone().requires_grad_()
@@ -29,12 +35,13 @@ def test_bilinear_sample_matches_grid_sample(align_corners, padding_mode, dtype)
     torch.testing.assert_close(g1.grad, g2.grad, rtol=1e-4 if dtype == torch.float32 else 1e-10, atol=atol * 100)
 
 
+@pytest.mark.parametrize("h,w", [(3, 3), (2, 4)])
 @pytest.mark.parametrize("align_corners", [False, True])
 @pytest.mark.parametrize("padding_mode", ["zeros", "border"])
-def test_bilinear_sample_gradcheck(align_corners, padding_mode):
+def test_bilinear_sample_gradcheck(h, w, align_corners, padding_mode):
     g = torch.Generator().manual_seed(1)
     image = torch.rand(1, 2, 4, 5, generator=g, dtype=torch.float64, requires_grad=True)
-    grid = (torch.rand(1, 3, 3, 2, generator=g, dtype=torch.float64) * 2.4 - 1.2).requires_grad_()
+    grid = (torch.rand(1, h, w, 2, generator=g, dtype=torch.float64) * 2.4 - 1.2).requires_grad_()
     assert gradcheck(
         lambda i, q: G.bilinear_sample(i, q, align_corners=align_corners, padding_mode=padding_mode), (image, grid)
     )
@@ -52,9 +59,11 @@ def test_worked_example_align_corners():
     torch.testing.assert_close(G.bilinear_sample(image, grid, align_corners=True), torch.tensor([[[[7.5]]]]))
 
 
-def test_non_finite_grid_gives_defined_values_and_finite_gradient():
+@pytest.mark.parametrize("extra", [0, 5])  # 3 locations: one per thread; 8: the 8-lane kernel
+def test_non_finite_grid_gives_defined_values_and_finite_gradient(extra):
     image = torch.rand(1, 1, 4, 4, dtype=torch.float64, requires_grad=True)
     grid = torch.tensor([[[[float("nan"), 0.0], [float("inf"), 0.0], [0.1, -float("inf")]]]], dtype=torch.float64)
+    grid = torch.cat([grid, torch.full((1, 1, extra, 2), float("nan"), dtype=torch.float64)], dim=2)
     grid.requires_grad_()
     out = G.bilinear_sample(image, grid, padding_mode="zeros")
     assert (out == 0).all()
@@ -64,8 +73,44 @@ def test_non_finite_grid_gives_defined_values_and_finite_gradient():
     grid.grad = None
     out = G.bilinear_sample(image, grid, padding_mode="border")
     assert out[0, 0, 0, 0] == 0
-    ref = F.grid_sample(image, grid[:, :, 1:], padding_mode="border", align_corners=False)
-    torch.testing.assert_close(out[:, :, :, 1:], ref)
+    assert (out[..., 3:] == 0).all()
+    ref = F.grid_sample(image, grid[:, :, 1:3], padding_mode="border", align_corners=False)
+    torch.testing.assert_close(out[:, :, :, 1:3], ref)
     out.sum().backward()
     assert torch.isfinite(grid.grad).all()
     assert grid.grad[0, 0, 0, 0] == 0 and grid.grad[0, 0, 1, 0] == 0 and grid.grad[0, 0, 2, 1] == 0  # clamped
+
+
+@pytest.mark.parametrize("C", [1, 3, 5])  # 5: more channels than the kernels unroll
+@pytest.mark.parametrize("align_corners", [0, 1])
+@pytest.mark.parametrize("padding", [0, 1])
+def test_lanes_kernel_equals_scalar_kernel(C, align_corners, padding, dtype):
+    """The 8-lane forward kernel gives bitwise the values of the one-location-per-thread kernel
+    (whose adjoint it shares), inside, outside, on the edges and for non-finite positions."""
+    from gvnn_warp import _ops
+
+    g = torch.Generator().manual_seed(3)
+    B, H, W, hw = 2, 6, 7, 40
+    image = torch.rand(B, C, H, W, generator=g, dtype=dtype)
+    grid = torch.rand(B * hw, 2, generator=g, dtype=dtype) * 2.8 - 1.4
+    grid[:12] = torch.tensor(
+        [[-1.0, -1.0], [1.0, 1.0], [-1.0, 1.0], [1.0, -1.0], [0.0, 1.0 + 1e-7], [-1.0 - 1e-7, 0.0],
+         [float("nan"), 0.0], [0.0, float("nan")], [float("inf"), 0.5], [-float("inf"), 0.5],
+         [0.5, float("inf")], [0.5, -float("inf")]],
+        dtype=dtype,
+    )
+    args = (C, H, W, hw, align_corners, padding)
+    assert torch.equal(_ops.bilinear_sample_lanes(image, grid, *args), _ops.bilinear_sample(image, grid, *args))
+
+
+def test_bilinear_sample_takes_the_lanes_kernel_where_it_applies(monkeypatch):
+    from gvnn_warp import _ops
+
+    calls = []
+    lanes = _ops.bilinear_sample_lanes
+    monkeypatch.setattr(_ops, "bilinear_sample_lanes", lambda *a: calls.append(a) or lanes(*a))
+    image = torch.rand(1, 1, 5, 5)
+    G.bilinear_sample(image, torch.zeros(1, 3, 3, 2))
+    assert not calls
+    G.bilinear_sample(image, torch.zeros(1, 2, 4, 2))
+    assert len(calls) == 1

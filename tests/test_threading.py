@@ -80,7 +80,12 @@ def test_warp_frame_depth_bitwise_equal(B, C, H, W, padding_mode, dtype):
     assert_bitwise_equal_across_threads(fn, *wfd_inputs(B, C, H, W, dtype))
 
 
-@pytest.mark.parametrize("B,C,H,W,h,w", [(1, 3, 67, 89, 131, 151), (3, 2, 40, 50, 97, 101), (6, 1, 17, 19, 13, 29)])
+# the last two have h w % 8 == 0: the 8-lane forward kernel
+@pytest.mark.parametrize(
+    "B,C,H,W,h,w",
+    [(1, 3, 67, 89, 131, 151), (3, 2, 40, 50, 97, 101), (6, 1, 17, 19, 13, 29), (1, 5, 61, 83, 96, 152),
+     (3, 3, 40, 50, 88, 104)],
+)
 @pytest.mark.parametrize("align_corners", [False, True])
 @pytest.mark.parametrize("padding_mode", ["zeros", "border"])
 def test_bilinear_sample_bitwise_equal(B, C, H, W, h, w, align_corners, padding_mode, dtype):
