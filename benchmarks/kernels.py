@@ -89,7 +89,7 @@ def kernel_cases(quick: bool) -> dict:
     )
     # the same samples, 8 output locations per thread (forward only: its backward is the above's adjoint)
     fwd_lanes, _ = _launch_case(
-        sampling_kernels.bilinear_sample_lanes, n_pix, [image, grid], ["scalar", "vec16"], [out], ["vec8"],
+        sampling_kernels.bilinear_sample_lanes(C, 0, 0), n_pix, [image, grid], ["scalar", "vec16"], [out], ["vec8"],
         (C, H, W, H * W, 0, 0), launches=n_pix // 8,
     )
     cases["bilinear_sample_lanes"] = (n_pix, fwd_lanes, None)

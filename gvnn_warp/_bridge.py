@@ -125,6 +125,7 @@ def warp_op(
     outputs: Sequence[Output],
     n_threads: Callable[..., int],
     backward_from: Callable | None = None,
+    select: Callable[..., FloatKernel] | None = None,
 ) -> Callable:
     """Register ``gvnn_warp::<name>`` (forward) and ``gvnn_warp::<name>_backward``.
 
@@ -135,6 +136,9 @@ def warp_op(
     ``backward_from``: an op made by this function with the same arguments and outputs whose
     kernel computes the same values; its backward (its kernel's Warp adjoint) is used, and none
     is registered for this one (whose kernel may then be forward-only).
+
+    ``select(*params) -> FloatKernel``: the forward kernel for these scalar arguments (a variant
+    compiled for them, with ``fk``'s arguments and kinds), instead of ``fk``.
     """
     in_kinds = [fk.array_kinds[n] for n in inputs]
     n_in = len(inputs)
@@ -160,7 +164,8 @@ def warp_op(
         n = n_threads(*args)
         if n > 0:
             ft, arrays, out_arrays = wrap(args, outs)
-            launch(fk[ft], n, [*arrays, *args[n_in:]], out_arrays)
+            kernel = select(*args[n_in:]) if select is not None else fk
+            launch(kernel[ft], n, [*arrays, *args[n_in:]], out_arrays)
         return outs[0] if len(outs) == 1 else tuple(outs)
 
     def forward_fake(*args):

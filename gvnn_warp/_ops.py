@@ -80,12 +80,13 @@ warp_frame_depth = warp_op(
     lambda img, d, *_: d.numel(),
 )
 # the same values, 8 output locations per thread (h*w % 8 == 0, H*W <= 2^24; SIMD arithmetic),
-# forward only: its backward is bilinear_sample's (that kernel's adjoint)
+# a kernel compiled per (C, align_corners, padding); forward only: the backward is bilinear_sample's
 bilinear_sample_lanes = warp_op(
-    "bilinear_sample_lanes", sampling_kernels.bilinear_sample_lanes, ["image", "grid"],
+    "bilinear_sample_lanes", sampling_kernels.bilinear_sample_lanes(3, 0, 0), ["image", "grid"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("hw", "int"),
      Param("align_corners", "int"), Param("padding", "int")],
     [Output("out", "vec8", lambda img, g, C, H, W, hw, a, p: (img.shape[0], C, hw))],
     lambda img, g, *_: g.shape[0] // sampling_kernels.sampler.LANES,
     backward_from=bilinear_sample,
+    select=lambda C, H, W, hw, align, padding: sampling_kernels.bilinear_sample_lanes(C, align, padding),
 )

@@ -13,6 +13,7 @@ are summed in registers before one write; :func:`.launch.launch` uses it automat
 launches over threads by batch item (see :meth:`.launch.FloatKernel.set_parallel`).
 """
 
+import functools
 from typing import Any
 
 import warp as wp
@@ -53,33 +54,53 @@ def _bilinear_sample(
     sampler.sample_channels(image, out, b * C * H * W, b * C * hw + j, C, H * W, hw, H, W, xs, ys, inside)
 
 
-@wp.kernel(module="unique", enable_backward=False)
-def _bilinear_sample_lanes(
-    offset: int,
-    image: wp.array(dtype=Any),
-    grid: wp.array(dtype=Any),
-    C: int,
-    H: int,
-    W: int,
-    hw: int,
-    align_corners: int,
-    padding: int,
-    out: wp.array(dtype=Any),
-):
-    # The forward of _bilinear_sample, 8 output locations per thread, same values (see
-    # sampler.sample_lanes); for hw % 8 == 0 and H W <= 2^24. ``grid`` holds 8 (x, y) pairs per
-    # element, ``out`` 8 lanes per element: flat (b, c, block of 8 locations). No adjoint: the
-    # op's backward is _bilinear_sample's.
-    t = wp.tid() + offset  # flat (b, block of 8 output locations)
-    hw8 = hw // wp.static(sampler.LANES)
-    b = t // hw8
-    g = grid[t]  # the 8 (x, y) pairs
-    gx = out.dtype(g[0], g[2], g[4], g[6], g[8], g[10], g[12], g[14])
-    gy = out.dtype(g[1], g[3], g[5], g[7], g[9], g[11], g[13], g[15])
-    x = sampler.normalized_to_pixel_lanes(gx, W, align_corners)
-    y = sampler.normalized_to_pixel_lanes(gy, H, align_corners)
-    xs, ys = sampler.sample_position_lanes(x, y, H, W, padding)
-    sampler.sample_lanes(image, out, b * C * H * W, b * C * hw8 + t - b * hw8, C, H * W, hw8, H, W, xs, ys)
+@functools.cache
+def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKernel:
+    """The forward of :data:`bilinear_sample` with 8 output locations per thread, compiled for
+    these channel count (when at most ``sampler.UNROLLED_CHANNELS``; else read at run time),
+    ``align_corners`` and ``padding`` (constants fold the branches away, which the vectorised code
+    needs to be fast). Same arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16")
+    and ``out`` written as 8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For
+    hw % 8 == 0 and H W <= ``sampler.MAX_LANES_PLANE``. It computes bitwise the values of
+    :data:`bilinear_sample` (see :func:`.sampler.sample_lanes`) and has no adjoint of its own:
+    use that kernel's.
+    """
+    # compile-time constants (named apart from the kernel's arguments)
+    static_c = C if 0 < C <= sampler.UNROLLED_CHANNELS else 0
+    static_align = int(align_corners)
+    static_padding = int(padding)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def _bilinear_sample_lanes(
+        offset: int,
+        image: wp.array(dtype=Any),
+        grid: wp.array(dtype=Any),
+        C: int,
+        H: int,
+        W: int,
+        hw: int,
+        align_corners: int,
+        padding: int,
+        out: wp.array(dtype=Any),
+    ):
+        t = wp.tid() + offset  # flat (b, block of 8 output locations)
+        hw8 = hw // wp.static(sampler.LANES)
+        b = t // hw8
+        g = grid[t]  # the 8 (x, y) pairs
+        gx = out.dtype(g[0], g[2], g[4], g[6], g[8], g[10], g[12], g[14])
+        gy = out.dtype(g[1], g[3], g[5], g[7], g[9], g[11], g[13], g[15])
+        x = sampler.normalized_to_pixel_lanes(gx, W, wp.static(static_align))
+        y = sampler.normalized_to_pixel_lanes(gy, H, wp.static(static_align))
+        xs, ys = sampler.sample_position_lanes(x, y, H, W, wp.static(static_padding))
+        if wp.static(static_c > 0):
+            nc = wp.static(static_c)
+            sampler.sample_lanes(image, out, b * nc * H * W, b * nc * hw8 + t - b * hw8, nc, H * W, hw8, H, W, xs, ys)
+        else:
+            sampler.sample_lanes(image, out, b * C * H * W, b * C * hw8 + t - b * hw8, C, H * W, hw8, H, W, xs, ys)
+
+    return FloatKernel(_bilinear_sample_lanes, image="scalar", grid="vec16", out="vec8").set_parallel(
+        grain=_GRAIN_PIXELS // sampler.LANES
+    )
 
 
 @wp.kernel(module="unique")
@@ -172,9 +193,6 @@ bilinear_sample = FloatKernel(_bilinear_sample, image="scalar", grid="vec2", out
     scopes={"image": "segment", "grid": "element"},
     grain=_GRAIN_PIXELS,
 )
-bilinear_sample_lanes = FloatKernel(
-    _bilinear_sample_lanes, image="scalar", grid="vec16", out="vec8"
-).set_parallel(grain=_GRAIN_PIXELS // sampler.LANES)
 _warp_frame_depth_rows_fk = FloatKernel(
     _warp_frame_depth_rows, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
 ).set_parallel(

@@ -7,7 +7,6 @@ from torch.autograd import gradcheck
 
 import gvnn_warp as G
 
-
 # Output sizes: 5 x 6 takes the one-location-per-thread kernel, 4 x 6 (a multiple of 8) the
 # 8-lane forward kernel (see bilinear_sample)
 SIZES = [(5, 6), (4, 6)]
