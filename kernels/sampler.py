@@ -10,6 +10,8 @@ the position when clamped), exactly as ``torch.nn.functional.grid_sample`` does.
 adjoint (``@wp.func_grad``): the tap addresses and weights are computed once for all channels,
 the image gradient is scattered directly, and the forward replay in the backward pass is skipped.
 It is what the sampling kernels use; :func:`bilinear` remains the single-plane building block.
+:func:`sample_lanes` (with :func:`sample_position_lanes`, :func:`normalized_to_pixel_lanes`) does
+the same for 8 positions at once, as length-8 vectors (forward only; see the section below).
 """
 
 from typing import Any

@@ -11,9 +11,12 @@ the image. ``warp_frame_depth`` has a row-blocked twin, ``_warp_frame_depth_rows
 image row): per-row quantities are computed once, and the pose and intrinsics gradients of a row
 are summed in registers before one write; :func:`.launch.launch` uses it automatically, and splits
 launches over threads by batch item (see :meth:`.launch.FloatKernel.set_parallel`).
+:func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
+thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
+scalar); it gives the same values and shares the sampler's adjoint.
 """
 
-import functools
+import threading
 from typing import Any
 
 import warp as wp
@@ -54,21 +57,32 @@ def _bilinear_sample(
     sampler.sample_channels(image, out, b * C * H * W, b * C * hw + j, C, H * W, hw, H, W, xs, ys, inside)
 
 
-@functools.cache
+_LANES_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
+_LANES_LOCK = threading.Lock()
+
+
 def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKernel:
-    """The forward of :data:`bilinear_sample` with 8 output locations per thread, compiled for
-    these channel count (when at most ``sampler.UNROLLED_CHANNELS``; else read at run time),
-    ``align_corners`` and ``padding`` (constants fold the branches away, which the vectorised code
-    needs to be fast). Same arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16")
-    and ``out`` written as 8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For
-    hw % 8 == 0 and H W <= ``sampler.MAX_LANES_PLANE``. It computes bitwise the values of
+    """The forward of :data:`bilinear_sample` with 8 output locations per thread.
+
+    Compiled for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else read at run
+    time), ``align_corners`` and ``padding``: constants fold the branches away, which the
+    vectorised code needs to be fast (made on first use, one kernel per combination). Same
+    arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16") and ``out`` written as
+    8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For hw % 8 == 0 and
+    H W <= ``sampler.MAX_LANES_PLANE``. It computes bitwise the values of
     :data:`bilinear_sample` (see :func:`.sampler.sample_lanes`) and has no adjoint of its own:
     use that kernel's.
     """
     # compile-time constants (named apart from the kernel's arguments)
-    static_c = C if 0 < C <= sampler.UNROLLED_CHANNELS else 0
-    static_align = int(align_corners)
-    static_padding = int(padding)
+    key = (C if 0 < C <= sampler.UNROLLED_CHANNELS else 0, int(align_corners), int(padding))
+    with _LANES_LOCK:  # one kernel per key, also when threads ask at once
+        if key not in _LANES_KERNELS:
+            _LANES_KERNELS[key] = _make_bilinear_sample_lanes(*key)
+        return _LANES_KERNELS[key]
+
+
+def _make_bilinear_sample_lanes(static_c: int, static_align: int, static_padding: int) -> FloatKernel:
+    """The kernel of :func:`bilinear_sample_lanes` for one combination (static_c 0: C at run time)."""
 
     @wp.kernel(module="unique", enable_backward=False)
     def _bilinear_sample_lanes(

@@ -31,6 +31,7 @@ def _samples():
         "transform_points": (pose, r(B * 4, 3), 4),
         "project_points": (r(B * 4, 3) + 1, K, 4, 1e-3),
         "bilinear_sample": (r(B, C, H, W), r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
+        "bilinear_sample_lanes": (r(B, C, H, W), r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
         "warp_frame_depth": (r(B, C, H, W), r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
     }
 
