@@ -79,6 +79,14 @@ warp_frame_depth = warp_op(
     ],
     lambda img, d, *_: d.numel(),
 )
+
+
+def _lanes_kernel(C, H, W, hw, align_corners, padding):
+    if hw % sampling_kernels.sampler.LANES or H * W > sampling_kernels.sampler.MAX_LANES_PLANE:
+        raise ValueError(f"bilinear_sample_lanes: needs hw % 8 == 0 and H*W <= 2^24, got hw={hw}, H*W={H * W}")
+    return sampling_kernels.bilinear_sample_lanes(C, align_corners, padding)
+
+
 # the same values, 8 output locations per thread (h*w % 8 == 0, H*W <= 2^24; SIMD arithmetic),
 # a kernel compiled per (C, align_corners, padding); forward only: the backward is bilinear_sample's
 bilinear_sample_lanes = warp_op(
@@ -88,5 +96,5 @@ bilinear_sample_lanes = warp_op(
     [Output("out", "vec8", lambda img, g, C, H, W, hw, a, p: (img.shape[0], C, hw))],
     lambda img, g, *_: g.shape[0] // sampling_kernels.sampler.LANES,
     backward_from=bilinear_sample,
-    select=lambda C, H, W, hw, align, padding: sampling_kernels.bilinear_sample_lanes(C, align, padding),
+    select=_lanes_kernel,
 )

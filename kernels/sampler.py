@@ -370,10 +370,10 @@ sample_channels = _make_sample_channels(wp.float64, _make_sample_channels(wp.flo
 # The functions below take 8 consecutive sample positions as one length-8 vector per coordinate
 # (``vec8f`` / ``vec8d``): weights and tap addresses are computed 8 at a time in SIMD registers,
 # only the image reads are per lane. They give the same values, operation for operation, as
-# :func:`sample_position` + :func:`sample_channels` (the tests check it), so the forward-only
-# kernel built on them shares the scalar kernel's adjoint. Addresses are carried as floats: exact
-# while an image plane has at most 2^24 pixels (:data:`MAX_LANES_PLANE`; larger planes take the
-# scalar kernel).
+# :func:`sample_position` + :func:`sample_channels` (the tests check it bitwise, for any image
+# values, NaN and inf included, and any positions), so the forward-only kernel built on them
+# shares the scalar kernel's adjoint. Addresses are carried as floats: exact while an image plane
+# has at most 2^24 pixels (:data:`MAX_LANES_PLANE`; larger planes take the scalar kernel).
 
 LANES = 8
 MAX_LANES_PLANE = 1 << 24
@@ -395,26 +395,27 @@ def clamp_lanes(v: Any, lo: Any, hi: Any):
 
 
 @wp.func
-def nan_to(v: Any, x: Any, y: Any, value: Any):
-    """``v`` with the lanes where ``x`` or ``y`` is NaN set to ``value``."""
-    return type(v)(
-        wp.where(wp.isnan(x[0]) or wp.isnan(y[0]), value, v[0]),
-        wp.where(wp.isnan(x[1]) or wp.isnan(y[1]), value, v[1]),
-        wp.where(wp.isnan(x[2]) or wp.isnan(y[2]), value, v[2]),
-        wp.where(wp.isnan(x[3]) or wp.isnan(y[3]), value, v[3]),
-        wp.where(wp.isnan(x[4]) or wp.isnan(y[4]), value, v[4]),
-        wp.where(wp.isnan(x[5]) or wp.isnan(y[5]), value, v[5]),
-        wp.where(wp.isnan(x[6]) or wp.isnan(y[6]), value, v[6]),
-        wp.where(wp.isnan(x[7]) or wp.isnan(y[7]), value, v[7]),
-    )
+def inside_flag(x: Any, y: Any, H: int, W: int, padding: int):
+    """1 where :func:`sample_position` calls the position (x, y) inside, else 0 (as a float)."""
+    xs, ys, inside = sample_position(x, y, H, W, padding)
+    return wp.where(inside, type(x)(1.0), type(x)(0.0))
 
 
 @wp.func
-def gather_lanes(a: wp.array(dtype=Any), base: int, idx: Any):
-    """(a[base + idx[0]], ..., a[base + idx[7]]) for float-valued indices ``idx``."""
+def gather_lanes(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
+    """(a[base + idx[k]] where mask[k] != 0, else 0) for the 8 lanes; ``idx`` holds float-valued
+    indices (valid addresses also where masked). A select, not a product with the mask, so a
+    NaN or inf pixel behind a masked tap gives 0, like :func:`sample_channels`'s ``wp.where``."""
+    zero = type(idx[0])(0.0)
     return type(idx)(
-        a[base + int(idx[0])], a[base + int(idx[1])], a[base + int(idx[2])], a[base + int(idx[3])],
-        a[base + int(idx[4])], a[base + int(idx[5])], a[base + int(idx[6])], a[base + int(idx[7])],
+        wp.where(mask[0] != zero, a[base + int(idx[0])], zero),
+        wp.where(mask[1] != zero, a[base + int(idx[1])], zero),
+        wp.where(mask[2] != zero, a[base + int(idx[2])], zero),
+        wp.where(mask[3] != zero, a[base + int(idx[3])], zero),
+        wp.where(mask[4] != zero, a[base + int(idx[4])], zero),
+        wp.where(mask[5] != zero, a[base + int(idx[5])], zero),
+        wp.where(mask[6] != zero, a[base + int(idx[6])], zero),
+        wp.where(mask[7] != zero, a[base + int(idx[7])], zero),
     )
 
 
@@ -433,18 +434,40 @@ def normalized_to_pixel_lanes(g: Any, size: int, align_corners: int):
 
 @wp.func
 def sample_position_lanes(x: Any, y: Any, H: int, W: int, padding: int):
-    """:func:`sample_position` on 8 lanes, without the ``inside`` flag: positions are clamped into
-    [-1, W] x [-1, H] instead, where a position outside the image has only taps of weight 0 (see
-    :func:`sample_lanes`). NaN positions go to x = -1."""
+    """:func:`sample_position` on 8 lanes: returns (xs, ys, inside) with ``inside`` 1 or 0 per
+    lane exactly where :func:`sample_position` says inside or not (NaN: 0). The positions are
+    also clamped into [-1, W] x [-1, H] (NaN to -1), which keeps the tap arithmetic finite for
+    the lanes that are not inside."""
     zero = type(x[0])(0.0)
     one = type(x[0])(1.0)
     xs = x
     ys = y
     if padding == PADDING_BORDER:
-        # clamping would move NaN into the image: such lanes go to x = -1 (no tap) instead
-        xs = nan_to(clamp_lanes(x, zero, type(zero)(W - 1)), x, y, -one)
+        xs = clamp_lanes(x, zero, type(zero)(W - 1))
         ys = clamp_lanes(y, zero, type(zero)(H - 1))
-    return clamp_lanes(xs, -one, type(zero)(W)), clamp_lanes(ys, -one, type(zero)(H))
+    inside = type(x)(
+        inside_flag(x[0], y[0], H, W, padding), inside_flag(x[1], y[1], H, W, padding),
+        inside_flag(x[2], y[2], H, W, padding), inside_flag(x[3], y[3], H, W, padding),
+        inside_flag(x[4], y[4], H, W, padding), inside_flag(x[5], y[5], H, W, padding),
+        inside_flag(x[6], y[6], H, W, padding), inside_flag(x[7], y[7], H, W, padding),
+    )
+    return clamp_lanes(xs, -one, type(zero)(W)), clamp_lanes(ys, -one, type(zero)(H)), inside
+
+
+@wp.func
+def blend_lanes(
+    image: wp.array(dtype=Any), q: int,
+    a00: Any, a10: Any, a01: Any, a11: Any, m00: Any, m10: Any, m01: Any, m11: Any,
+    w00: Any, w10: Any, w01: Any, w11: Any,
+):
+    """One channel plane (at ``q``) of :func:`sample_lanes`: the weighted sum of the four masked
+    taps, in :func:`sample_channels_values`'s order."""
+    return (
+        wp.cw_mul(gather_lanes(image, q, a00, m00), w00)
+        + wp.cw_mul(gather_lanes(image, q, a10, m10), w10)
+        + wp.cw_mul(gather_lanes(image, q, a01, m01), w01)
+        + wp.cw_mul(gather_lanes(image, q, a11, m11), w11)
+    )
 
 
 @wp.func
@@ -460,9 +483,11 @@ def sample_lanes(
     W: int,
     x: Any,
     y: Any,
+    inside: Any,
 ):
     """out[dst + c hw_out] (8 lanes) = bilinear samples of image plane ``src + c hw_in`` (H x W)
-    at the 8 positions (x, y) in [-1, W] x [-1, H], for c in [0, C); taps outside read 0.
+    at the 8 positions (x, y) in [-1, W] x [-1, H], for c in [0, C); taps outside the image read
+    0, and so do whole lanes where ``inside`` is 0 (see :func:`sample_position_lanes`).
     Forward only (no custom adjoint: kernels using it borrow the scalar kernel's)."""
     one = type(x[0])(1.0)
     zero = type(one)(0.0)
@@ -476,7 +501,7 @@ def sample_lanes(
     wx0 = ones - wx1
     wy0 = ones - wy1
     # 0/1 masks: tap column x0 is inside iff 0 <= x0 <= W - 1, x0 + 1 iff -1 <= x0 <= W - 2
-    # (x0 is integral), likewise rows; outside taps are read at clamped addresses and weighted 0
+    # (x0 is integral), likewise rows; a masked tap reads 0 (gather_lanes); addresses are clamped
     mx0 = wp.cw_mul(clamp_lanes(fx0 + ones, zero, one), clamp_lanes(type(x)(fW) - fx0, zero, one))
     mx1 = wp.cw_mul(clamp_lanes(fx0 + ones + ones, zero, one), clamp_lanes(type(x)(fW - one) - fx0, zero, one))
     my0 = wp.cw_mul(clamp_lanes(fy0 + ones, zero, one), clamp_lanes(type(x)(fH) - fy0, zero, one))
@@ -489,24 +514,18 @@ def sample_lanes(
     a10 = ra + xb
     a01 = rb + xa
     a11 = rb + xb
-    w00 = wp.cw_mul(wp.cw_mul(mx0, my0), wp.cw_mul(wx0, wy0))
-    w10 = wp.cw_mul(wp.cw_mul(mx1, my0), wp.cw_mul(wx1, wy0))
-    w01 = wp.cw_mul(wp.cw_mul(mx0, my1), wp.cw_mul(wx0, wy1))
-    w11 = wp.cw_mul(wp.cw_mul(mx1, my1), wp.cw_mul(wx1, wy1))
+    m00 = wp.cw_mul(inside, wp.cw_mul(mx0, my0))
+    m10 = wp.cw_mul(inside, wp.cw_mul(mx1, my0))
+    m01 = wp.cw_mul(inside, wp.cw_mul(mx0, my1))
+    m11 = wp.cw_mul(inside, wp.cw_mul(mx1, my1))
+    w00 = wp.cw_mul(wx0, wy0)
+    w10 = wp.cw_mul(wx1, wy0)
+    w01 = wp.cw_mul(wx0, wy1)
+    w11 = wp.cw_mul(wx1, wy1)
     for c in range(wp.static(UNROLLED_CHANNELS)):
         if c < C:
             q = src + c * hw_in
-            out[dst + c * hw_out] = (
-                wp.cw_mul(gather_lanes(image, q, a00), w00)
-                + wp.cw_mul(gather_lanes(image, q, a10), w10)
-                + wp.cw_mul(gather_lanes(image, q, a01), w01)
-                + wp.cw_mul(gather_lanes(image, q, a11), w11)
-            )
+            out[dst + c * hw_out] = blend_lanes(image, q, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
     for c in range(UNROLLED_CHANNELS, C):
         q = src + c * hw_in
-        out[dst + c * hw_out] = (
-            wp.cw_mul(gather_lanes(image, q, a00), w00)
-            + wp.cw_mul(gather_lanes(image, q, a10), w10)
-            + wp.cw_mul(gather_lanes(image, q, a01), w01)
-            + wp.cw_mul(gather_lanes(image, q, a11), w11)
-        )
+        out[dst + c * hw_out] = blend_lanes(image, q, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)

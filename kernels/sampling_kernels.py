@@ -105,12 +105,12 @@ def _make_bilinear_sample_lanes(static_c: int, static_align: int, static_padding
         gy = out.dtype(g[1], g[3], g[5], g[7], g[9], g[11], g[13], g[15])
         x = sampler.normalized_to_pixel_lanes(gx, W, wp.static(static_align))
         y = sampler.normalized_to_pixel_lanes(gy, H, wp.static(static_align))
-        xs, ys = sampler.sample_position_lanes(x, y, H, W, wp.static(static_padding))
+        xs, ys, inside = sampler.sample_position_lanes(x, y, H, W, wp.static(static_padding))
+        nc = C
         if wp.static(static_c > 0):
-            nc = wp.static(static_c)
-            sampler.sample_lanes(image, out, b * nc * H * W, b * nc * hw8 + t - b * hw8, nc, H * W, hw8, H, W, xs, ys)
-        else:
-            sampler.sample_lanes(image, out, b * C * H * W, b * C * hw8 + t - b * hw8, C, H * W, hw8, H, W, xs, ys)
+            nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
+        dst = b * nc * hw8 + t - b * hw8
+        sampler.sample_lanes(image, out, b * nc * H * W, dst, nc, H * W, hw8, H, W, xs, ys, inside)
 
     return FloatKernel(_bilinear_sample_lanes, image="scalar", grid="vec16", out="vec8").set_parallel(
         grain=_GRAIN_PIXELS // sampler.LANES

@@ -80,26 +80,44 @@ def test_non_finite_grid_gives_defined_values_and_finite_gradient(extra):
     assert grid.grad[0, 0, 0, 0] == 0 and grid.grad[0, 0, 1, 0] == 0 and grid.grad[0, 0, 2, 1] == 0  # clamped
 
 
-@pytest.mark.parametrize("C", [1, 3, 5])  # 5: more channels than the kernels unroll
+def _bits(t):
+    """The raw bits of a float tensor: equal bits also means equal signs of zero and equal NaNs."""
+    return t.view(torch.int32 if t.dtype == torch.float32 else torch.int64)
+
+
+@pytest.mark.parametrize("C", [1, 2, 4, 6])  # 4 = the channels the kernels unroll; 6: more
+@pytest.mark.parametrize("H,W", [(6, 7), (1, 5), (5, 1), (1, 1)])
 @pytest.mark.parametrize("align_corners", [0, 1])
 @pytest.mark.parametrize("padding", [0, 1])
-def test_lanes_kernel_equals_scalar_kernel(C, align_corners, padding, dtype):
+def test_lanes_kernel_equals_scalar_kernel(C, H, W, align_corners, padding, dtype):
     """The 8-lane forward kernel gives bitwise the values of the one-location-per-thread kernel
-    (whose adjoint it shares), inside, outside, on the edges and for non-finite positions."""
+    (whose adjoint it shares): inside, outside, on the edges, for non-finite positions and for
+    NaN/inf pixels next to the samples."""
     from gvnn_warp import _ops
 
     g = torch.Generator().manual_seed(3)
-    B, H, W, hw = 2, 6, 7, 40
-    image = torch.rand(B, C, H, W, generator=g, dtype=dtype)
+    B, hw = 2, 64
+    image = torch.randn(B, C, H, W, generator=g, dtype=dtype)  # negative values: signs of zero
+    image[0, 0, 0, 0] = float("nan")
+    image[0, -1, -1, -1] = float("inf")
+    image[1, 0, H - 1, 0] = -float("inf")
     grid = torch.rand(B * hw, 2, generator=g, dtype=dtype) * 2.8 - 1.4
-    grid[:12] = torch.tensor(
-        [[-1.0, -1.0], [1.0, 1.0], [-1.0, 1.0], [1.0, -1.0], [0.0, 1.0 + 1e-7], [-1.0 - 1e-7, 0.0],
-         [float("nan"), 0.0], [0.0, float("nan")], [float("inf"), 0.5], [-float("inf"), 0.5],
-         [0.5, float("inf")], [0.5, -float("inf")]],
-        dtype=dtype,
-    )
+    # pixel x = W - 1 and x = W exactly (and likewise y) for both conventions
+    ex = (2 * (W - 1) / (W - 1 if align_corners else W)) - 1 if W > 1 else 0.0
+    fx = (2 * W / (W - 1 if align_corners else W)) - 1 if W > 1 else 2.0
+    ey = (2 * (H - 1) / (H - 1 if align_corners else H)) - 1 if H > 1 else 0.0
+    special = [
+        [-1.0, -1.0], [1.0, 1.0], [-1.0, 1.0], [1.0, -1.0], [0.0, 1.0 + 1e-7], [-1.0 - 1e-7, 0.0],
+        [float("nan"), 0.0], [0.0, float("nan")], [float("inf"), 0.5], [-float("inf"), 0.5],
+        [0.5, float("inf")], [0.5, -float("inf")], [ex, 0.0], [fx, 0.0], [0.0, ey], [-5.0, -5.0],
+        [5.0, 5.0], [ex, ey], [-0.0, -0.0], [1e30, 0.0],
+    ]
+    grid[: len(special)] = torch.tensor(special, dtype=dtype)
+    grid[hw : hw + len(special)] = torch.tensor(special, dtype=dtype)
     args = (C, H, W, hw, align_corners, padding)
-    assert torch.equal(_ops.bilinear_sample_lanes(image, grid, *args), _ops.bilinear_sample(image, grid, *args))
+    lanes = _ops.bilinear_sample_lanes(image, grid, *args)
+    scalar = _ops.bilinear_sample(image, grid, *args)
+    assert torch.equal(_bits(lanes), _bits(scalar))
 
 
 def test_bilinear_sample_takes_the_lanes_kernel_where_it_applies(monkeypatch):
