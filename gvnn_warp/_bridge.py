@@ -119,13 +119,14 @@ class Output:
 
 def warp_op(
     name: str,
-    fk: FloatKernel,
+    fk: FloatKernel | None,
     inputs: Sequence[str],
     params: Sequence[Param],
     outputs: Sequence[Output],
     n_threads: Callable[..., int],
     backward_from: Callable | None = None,
     select: Callable[..., FloatKernel] | None = None,
+    array_kinds: dict[str, str] | None = None,
 ) -> Callable:
     """Register ``gvnn_warp::<name>`` (forward) and ``gvnn_warp::<name>_backward``.
 
@@ -138,9 +139,10 @@ def warp_op(
     is registered for this one (whose kernel may then be forward-only).
 
     ``select(*params) -> FloatKernel``: the forward kernel for these scalar arguments (a variant
-    compiled for them, with ``fk``'s arguments and kinds), instead of ``fk``.
+    compiled for them), instead of ``fk``. With ``select`` and ``backward_from``, ``fk`` may be
+    None and ``array_kinds`` name the kinds of the kernels' arrays (none is built up front).
     """
-    in_kinds = [fk.array_kinds[n] for n in inputs]
+    in_kinds = [(fk.array_kinds if fk is not None else array_kinds)[n] for n in inputs]
     n_in = len(inputs)
     sig_in = ", ".join([f"Tensor {n}" for n in inputs] + [f"{p.type} {p.name}" for p in params])
     ret = "Tensor" if len(outputs) == 1 else "(" + ", ".join("Tensor" for _ in outputs) + ")"

@@ -82,7 +82,7 @@ warp_frame_depth = warp_op(
 
 
 def _lanes_kernel(C, H, W, hw, align_corners, padding):
-    if hw % sampling_kernels.sampler.LANES or H * W > sampling_kernels.sampler.MAX_LANES_PLANE:
+    if not sampling_kernels.fits_lanes(hw, H, W):
         raise ValueError(f"bilinear_sample_lanes: needs hw % 8 == 0 and H*W <= 2^24, got hw={hw}, H*W={H * W}")
     return sampling_kernels.bilinear_sample_lanes(C, align_corners, padding)
 
@@ -90,11 +90,12 @@ def _lanes_kernel(C, H, W, hw, align_corners, padding):
 # the same values, 8 output locations per thread (h*w % 8 == 0, H*W <= 2^24; SIMD arithmetic),
 # a kernel compiled per (C, align_corners, padding); forward only: the backward is bilinear_sample's
 bilinear_sample_lanes = warp_op(
-    "bilinear_sample_lanes", sampling_kernels.bilinear_sample_lanes(3, 0, 0), ["image", "grid"],
+    "bilinear_sample_lanes", None, ["image", "grid"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("hw", "int"),
      Param("align_corners", "int"), Param("padding", "int")],
     [Output("out", "vec8", lambda img, g, C, H, W, hw, a, p: (img.shape[0], C, hw))],
     lambda img, g, *_: g.shape[0] // sampling_kernels.sampler.LANES,
     backward_from=bilinear_sample,
     select=_lanes_kernel,
+    array_kinds=sampling_kernels.LANES_ARRAY_KINDS,
 )

@@ -15,7 +15,7 @@ from torch import Tensor
 
 from . import _ops
 from ._checks import ArgCheck
-from .kernels import sampler
+from .kernels import sampling_kernels
 from .kernels.camera import MIN_DEPTH
 from .kernels.sampler import PADDING_BORDER, PADDING_ZEROS
 
@@ -280,8 +280,7 @@ def bilinear_sample(
     B, C, H, W = image.shape
     h, w = grid.shape[1:3]
     # 8 output locations per thread where they tile the output (SIMD weights; same results)
-    lanes = (h * w) % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
-    op = _ops.bilinear_sample_lanes if lanes else _ops.bilinear_sample
+    op = _ops.bilinear_sample_lanes if sampling_kernels.fits_lanes(h * w, H, W) else _ops.bilinear_sample
     out = op(image.contiguous(), _flat(grid, 1), C, H, W, h * w, int(bool(align_corners)), pad)
     return out.reshape(B, C, h, w)
 

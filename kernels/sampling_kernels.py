@@ -59,6 +59,14 @@ def _bilinear_sample(
 
 _LANES_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
 _LANES_LOCK = threading.Lock()
+# the array kinds of every bilinear_sample_lanes kernel
+LANES_ARRAY_KINDS = {"image": "scalar", "grid": "vec16", "out": "vec8"}
+
+
+def fits_lanes(n_out: int, H: int, W: int) -> bool:
+    """Whether :func:`bilinear_sample_lanes` applies: ``n_out`` output locations per batch item
+    fill whole 8-lane blocks and an H x W plane's addresses are exact as float32."""
+    return n_out % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
 
 
 def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKernel:
@@ -68,8 +76,8 @@ def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKern
     time), ``align_corners`` and ``padding``: constants fold the branches away, which the
     vectorised code needs to be fast (made on first use, one kernel per combination). Same
     arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16") and ``out`` written as
-    8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For hw % 8 == 0 and
-    H W <= ``sampler.MAX_LANES_PLANE``. It computes bitwise the values of
+    8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For :func:`fits_lanes`
+    sizes. It computes bitwise the values of
     :data:`bilinear_sample` (see :func:`.sampler.sample_lanes`) and has no adjoint of its own:
     use that kernel's.
     """
@@ -112,7 +120,7 @@ def _make_bilinear_sample_lanes(static_c: int, static_align: int, static_padding
         dst = b * nc * hw8 + t - b * hw8
         sampler.sample_lanes(image, out, b * nc * H * W, dst, nc, H * W, hw8, H, W, xs, ys, inside)
 
-    return FloatKernel(_bilinear_sample_lanes, image="scalar", grid="vec16", out="vec8").set_parallel(
+    return FloatKernel(_bilinear_sample_lanes, **LANES_ARRAY_KINDS).set_parallel(
         grain=_GRAIN_PIXELS // sampler.LANES
     )
 
