@@ -45,13 +45,19 @@ from benchmarks.common import (  # noqa: E402
 # ----------------------------------------------------------------------------- cases
 
 
-def wfd_cases(B, C, H, W, forward_only=False, peers=("grid_sample", "kornia")) -> list[Case]:
-    """Ours, grid_sample (image + grid grads) and kornia's warp_frame_depth, forward+backward."""
+def wfd_cases(B, C, H, W, forward_only=False, peers=("grid_sample", "kornia"), image_grad=True) -> list[Case]:
+    """Ours, grid_sample (image + grid grads) and kornia's warp_frame_depth, forward+backward.
+    ``image_grad=False``: the image is data (no gradient for it, nor for grid_sample's image)."""
     image, depth, pose, pose44, K = wfd_scene(B, C, H, W)
     grid = affine_grid(B, H, W)
-    ours = leaves(image, depth, pose)
-    kor = leaves(image, depth, pose44)
-    gs = leaves(image, grid)
+    if image_grad:
+        ours = leaves(image, depth, pose)
+        kor = leaves(image, depth, pose44)
+        gs = leaves(image, grid)
+    else:
+        ours = [image, *leaves(depth, pose)]
+        kor = [image, *leaves(depth, pose44)]
+        gs = [image, *leaves(grid)]
     cases = []
     if forward_only:
         def ours_f():
@@ -144,6 +150,11 @@ def targets(args, R: int) -> list[dict]:
     row("1. warp_frame_depth fwd+bwd vs grid_sample fwd+bwd", res["ours"], "grid_sample", res["grid_sample"], 1.0,
         "B=8 C=3 240x320; grads: image, depth, pose vs image, grid")
     row("1. warp_frame_depth fwd+bwd vs kornia warp_frame_depth fwd+bwd", res["ours"], "kornia", res["kornia"], 0.25)
+    res = interleaved(wfd_cases(B, C, H, W, image_grad=False), R)
+    row("   (info) warp_frame_depth fwd+bwd, image as data (grads: depth, pose) vs grid_sample (grads: grid)",
+        res["ours"], "grid_sample", res["grid_sample"], float("inf"), "only the gradients asked for are computed")
+    row("   (info) warp_frame_depth fwd+bwd, image as data vs kornia (grads: depth, pose)", res["ours"], "kornia",
+        res["kornia"], float("inf"))
     res_f = interleaved(wfd_cases(B, C, H, W, forward_only=True), R)
     row("   (info) warp_frame_depth forward vs kornia forward", res_f["ours"], "kornia", res_f["kornia"], float("inf"))
 

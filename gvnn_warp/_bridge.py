@@ -24,15 +24,11 @@ import torch
 import warp as wp
 
 from .kernels.launch import FloatKernel, element_shape, element_type, launch, set_default_num_threads
-from .kernels.launch import zero as zero_arrays
 
 wp.init()
 set_default_num_threads(torch.get_num_threads)
 
 _FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}
-# Gradient buffers of at least this many elements are zeroed by Warp threads (smaller ones by torch,
-# which fills them on one thread: cheaper than a launch)
-_ZERO_WITH_WARP = 32768
 
 
 def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
@@ -47,6 +43,8 @@ def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
 
 # The type of Warp's bare array descriptors (what ``wp.from_torch(..., return_ctype=True)`` returns)
 _ARRAY_T = type(wp.from_torch(torch.zeros(1), dtype=wp.float32, return_ctype=True))
+# A null array (no data, no elements): the adjoint of an input whose gradient is not wanted
+_NULL = _ARRAY_T(0, 0, 1, (0,), (0,))
 
 
 def _descriptor(t: torch.Tensor, kind: str, float_type):
@@ -184,25 +182,27 @@ def warp_op(
         fwd.register_autograd(backward_from._gvnn_autograd, setup_context=backward_from._gvnn_setup_context)
         return fwd
 
-    # backward(*tensors, *params, *grads of differentiable outputs) -> grads of the tensors
-    sig_grads = ", ".join(f"Tensor grad_{o.name}" for o in diff_outputs)
+    # backward(*tensors, *params, needs, *grads of differentiable outputs) -> grads of the tensors;
+    # bit k of ``needs`` asks for the gradient of tensor k (the others come back empty)
+    sig_grads = ", ".join(["int needs"] + [f"Tensor grad_{o.name}" for o in diff_outputs])
 
     def backward_impl(*args):
-        fargs, grads = args[: n_in + len(params)], args[n_in + len(params) :]
+        n_args = n_in + len(params)
+        fargs, needs, grads = args[:n_args], args[n_args], args[n_args + 1 :]
+        wanted = [bool(needs >> k & 1) for k in range(n_in)]
         n = n_threads(*fargs)
-        if n == 0:
-            return [torch.zeros_like(t) for t in fargs[:n_in]]
-        in_grads = [torch.empty_like(t, memory_format=torch.contiguous_format) for t in fargs[:n_in]]
+        # torch.zeros hands out lazily zeroed pages for large buffers: no fill pass, and no OpenMP
+        # fill that would leave torch's worker threads spinning on the cores the launch needs
+        in_grads = [
+            torch.zeros(t.shape, dtype=t.dtype) if w else t.new_empty(0) for t, w in zip(fargs[:n_in], wanted)
+        ]
+        if n == 0 or not any(wanted):
+            return in_grads
         scratch = alloc_outputs(fargs)  # the adjoint replays the forward's stores into these
         ft, arrays, out_arrays = wrap(fargs, scratch)
-        adj_in = [_descriptor(g, k, ft) for g, k in zip(in_grads, in_kinds)]
-        # Large gradient buffers are zeroed by Warp on gvnn_warp's threads: torch's OpenMP fill
-        # would leave torch's worker threads spinning on the cores the launch below needs.
-        large = [k for k, g in enumerate(in_grads) if g.numel() >= _ZERO_WITH_WARP]
-        for k, g in enumerate(in_grads):
-            if k not in large:
-                g.zero_()
-        zero_arrays([adj_in[k] for k in large], [element_type(in_kinds[k], ft) for k in large])
+        # a gradient nobody asked for gets a null array: Warp's adjoints skip writes to it, and the
+        # hand-written ones check (see gvnn_warp.kernels.sampler.sample_channels_grad)
+        adj_in = [_descriptor(g, k, ft) if w else _NULL for g, k, w in zip(in_grads, in_kinds, wanted)]
         g_iter = iter(grads)
         readable = [_readable_grad(next(g_iter), o.kind) if o.differentiable else None for o in outputs]
         adj_out = [_descriptor(g, o.kind, ft) if g is not None else None for g, o in zip(readable, outputs)]
@@ -218,7 +218,8 @@ def warp_op(
         return in_grads
 
     def backward_fake(*args):
-        return [torch.empty_like(t) for t in args[:n_in]]
+        needs = args[n_in + len(params)]
+        return [torch.empty_like(t) if needs >> k & 1 else t.new_empty(0) for k, t in enumerate(args[:n_in])]
 
     bwd = torch.library.custom_op(
         f"gvnn_warp::{name}_backward",
@@ -235,12 +236,13 @@ def warp_op(
 
     def autograd_backward(ctx, *grad_outs):
         tensors = ctx.saved_tensors
+        needs = sum(1 << k for k in range(n_in) if ctx.needs_input_grad[k])
         grads = []
         for o, g in zip(outputs, grad_outs):
             if o.differentiable:
                 grads.append(g if g is not None else tensors[0].new_zeros(tuple(o.shape(*tensors, *ctx.params))))
-        in_grads = bwd(*tensors, *ctx.params, *grads)
-        return (*in_grads, *([None] * len(params)))
+        in_grads = bwd(*tensors, *ctx.params, needs, *grads)
+        return (*(g if ctx.needs_input_grad[k] else None for k, g in enumerate(in_grads)), *([None] * len(params)))
 
     fwd.register_autograd(autograd_backward, setup_context=setup_context)
     fwd._gvnn_autograd = autograd_backward

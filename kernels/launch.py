@@ -59,7 +59,7 @@ from typing import Any
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})  # only the helper kernels (_accumulate, _fill_zero) live here
+wp.set_module_options({"enable_backward": False})  # only the helper kernel (_accumulate) lives here
 
 mat34f = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 mat34d = wp.types.matrix(shape=(3, 4), dtype=wp.float64)
@@ -476,32 +476,6 @@ _accumulate_f = {
 }
 
 
-@wp.kernel
-def _fill_zero(offset: int, dst: wp.array(dtype=Any)):
-    dst[offset + wp.tid()] = dst.dtype(0.0)
-
-
-_fill_zero_f = {ft: wp.overload(_fill_zero, {"dst": wp.array(dtype=ft)}) for ft in FLOAT_TYPES}
-
-
-def zero(arrays: Sequence, dtypes: Sequence) -> None:
-    """Set ``arrays`` (wp.arrays or descriptors of contiguous float arrays of element types
-    ``dtypes``) to zero on :func:`get_num_threads` threads.
-
-    Used for gradient buffers instead of ``torch.zeros``, whose OpenMP fill leaves torch's worker
-    threads spinning on the cores the following launch needs.
-    """
-    threads = get_num_threads()
-    jobs = []
-    for a, dtype in zip(arrays, dtypes):
-        scalar = getattr(dtype, "_wp_scalar_type_", dtype)
-        flat = _flat_view(a, dtype, _array_length(a), scalar)
-        m = flat.shape[0]
-        count = max(1, min(threads * CHUNKS_PER_THREAD, m // (8 * DEFAULT_GRAIN)))
-        jobs += [(_fill_zero_f[scalar], [flat], start, size) for start, size in _even_chunks(m, count) if size > 0]
-    _run_jobs(jobs, threads)
-
-
 def _run_jobs(jobs: list, threads: int) -> None:
     """Run the launches (kernel, arrays, start, size) = ``kernel(start, *arrays)`` over ``size``
     elements on the pool."""
@@ -539,7 +513,8 @@ def launch(
     ``inputs``/``outputs`` exclude the leading ``offset`` argument, which this helper supplies.
     Arrays may be ``wp.array`` s or array descriptors (``wp.from_torch(..., return_ctype=True)``).
     For an adjoint launch, ``adj_inputs`` holds one gradient array (or a placeholder for scalar
-    arguments) per input, accumulated into (callers zero them), and ``adj_outputs`` the incoming
+    arguments) per input, accumulated into (callers zero them; a null array, with no data and no
+    elements, for a gradient that is not wanted: writes to it are skipped), and ``adj_outputs`` the incoming
     gradient of each output (``None`` for non-differentiable ones). Results are bitwise identical
     for every thread count.
     """
@@ -568,6 +543,7 @@ def launch(
             for k, name in enumerate(arg_names)
             if wp.types.is_array(kernel.adj.args[1 + k].type)
             and adj_inputs[k] is not None
+            and _array_length(adj_inputs[k]) > 0  # a null array: that gradient is not wanted
             and info.scopes.get(name, "any") != "element"
         ]
     else:
@@ -655,5 +631,4 @@ __all__ = [
     "launch",
     "set_default_num_threads",
     "set_num_threads",
-    "zero",
 ]

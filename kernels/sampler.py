@@ -190,7 +190,8 @@ def sample_channels_grad(
     given ``g_out`` = d loss / d out, and returns (d loss / dx, d loss / dy).
 
     d out_c / d image[tap] = tap weight; d out_c / dx = (v10 - v00) wy0 + (v11 - v01) wy1, and
-    likewise for y (the derivative of the weights; floor() contributes nothing).
+    likewise for y (the derivative of the weights; floor() contributes nothing). A null
+    ``g_image`` (no elements: that gradient is not wanted) is left alone, which saves the scatter.
     """
     zero = type(x)(0.0)
     fx0 = wp.floor(x)
@@ -224,6 +225,12 @@ def sample_channels_grad(
     gx = zero
     gy = zero
     inside = k00 and k11
+    scatter = g_image.shape[0] > 0
+    # the taps written to (inside the image and wanted)
+    s00 = k00 and scatter
+    s10 = k10 and scatter
+    s01 = k01 and scatter
+    s11 = k11 and scatter
     for c in range(wp.static(UNROLLED_CHANNELS)):
         if c < C:
             q = c * hw_in
@@ -238,10 +245,11 @@ def sample_channels_grad(
                 v10 = image[i10]
                 v01 = image[i01]
                 v11 = image[i11]
-                g_image[i00] += g * w00
-                g_image[i10] += g * w10
-                g_image[i01] += g * w01
-                g_image[i11] += g * w11
+                if scatter:
+                    g_image[i00] += g * w00
+                    g_image[i10] += g * w10
+                    g_image[i01] += g * w01
+                    g_image[i11] += g * w11
                 gx += g * ((v10 - v00) * wy0 + (v11 - v01) * wy1)
                 gy += g * ((v01 - v00) * wx0 + (v11 - v10) * wx1)
             else:
@@ -249,13 +257,13 @@ def sample_channels_grad(
                 v10 = wp.where(k10, image[i10], zero)
                 v01 = wp.where(k01, image[i01], zero)
                 v11 = wp.where(k11, image[i11], zero)
-                if k00:
+                if s00:
                     g_image[i00] += g * w00
-                if k10:
+                if s10:
                     g_image[i10] += g * w10
-                if k01:
+                if s01:
                     g_image[i01] += g * w01
-                if k11:
+                if s11:
                     g_image[i11] += g * w11
                 gx += g * ((v10 - v00) * wy0 + (v11 - v01) * wy1)
                 gy += g * ((v01 - v00) * wx0 + (v11 - v10) * wx1)
@@ -266,13 +274,13 @@ def sample_channels_grad(
         v10 = wp.where(k10, image[p10 + q], zero)
         v01 = wp.where(k01, image[p01 + q], zero)
         v11 = wp.where(k11, image[p11 + q], zero)
-        if k00:
+        if s00:
             g_image[p00 + q] += g * w00
-        if k10:
+        if s10:
             g_image[p10 + q] += g * w10
-        if k01:
+        if s01:
             g_image[p01 + q] += g * w01
-        if k11:
+        if s11:
             g_image[p11 + q] += g * w11
         gx += g * ((v10 - v00) * wy0 + (v11 - v01) * wy1)
         gy += g * ((v01 - v00) * wx0 + (v11 - v10) * wx1)

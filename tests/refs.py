@@ -49,3 +49,38 @@ ANGLES = {
     "generic": 1.2,
     "near_pi": math.pi - 1e-3,
 }
+
+
+
+def gradients_of(op, args, wanted):
+    """Gradients of a fixed random weighting of the float outputs of ``op(*args)`` with respect to
+    its float tensor arguments, of which only those whose position (counting float tensors only)
+    is in ``wanted`` require grad. One entry per float tensor argument, None where not wanted."""
+    call, leaves = [], []
+    for a in args:
+        if isinstance(a, torch.Tensor) and a.is_floating_point():
+            a = a.detach().clone().requires_grad_(len(leaves) in wanted)
+            leaves.append(a)
+        call.append(a)
+    outs = op(*call)
+    outs = outs if isinstance(outs, (tuple, list)) else (outs,)
+    g = torch.Generator().manual_seed(7)
+    loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs if o.is_floating_point())
+    loss.backward()
+    return [t.grad for t in leaves]
+
+
+def assert_only_wanted_gradients(op, args):
+    """Asking for the gradient of one tensor argument (or of all but one) gives exactly (bitwise)
+    what asking for all gives, and None for the others."""
+    n = sum(isinstance(a, torch.Tensor) and a.is_floating_point() for a in args)
+    full = gradients_of(op, args, set(range(n)))
+    assert all(g is not None for g in full)
+    subsets = [{k} for k in range(n)] + ([set(range(n)) - {k} for k in range(n)] if n > 2 else [])
+    for wanted in subsets:
+        got = gradients_of(op, args, wanted)
+        for k, (a, b) in enumerate(zip(got, full)):
+            if k in wanted:
+                assert torch.equal(a, b), f"gradient {k} differs when only {sorted(wanted)} are wanted"
+            else:
+                assert a is None

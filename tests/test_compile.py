@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from refs import intrinsics
+from refs import assert_only_wanted_gradients, intrinsics
 
 import gvnn_warp as G
 from gvnn_warp import _ops
@@ -40,6 +40,12 @@ def _samples():
 def test_opcheck(name):
     args = tuple(a.requires_grad_() if isinstance(a, torch.Tensor) else a for a in _samples()[name])
     torch.library.opcheck(getattr(_ops, name), args)
+
+
+@pytest.mark.parametrize("name", list(_samples()))
+def test_only_wanted_gradients_are_computed(name):
+    """The backward computes the gradients torch asks for (needs_input_grad), bitwise the same."""
+    assert_only_wanted_gradients(getattr(_ops, name), _samples()[name])
 
 
 def test_compile_fullgraph_matches_eager():

@@ -12,6 +12,7 @@ import math
 import pytest
 import torch
 import torch.nn.functional as F
+from refs import assert_only_wanted_gradients
 
 from gvnn_warp import perpixel as P
 from gvnn_warp import perpixel_layers as L
@@ -612,6 +613,14 @@ def test_opcheck(name):
 
     args = tuple(a.requires_grad_() if isinstance(a, torch.Tensor) else a for a in _op_samples()[name])
     torch.library.opcheck(getattr(_perpixel_ops, name), args)
+
+
+@pytest.mark.parametrize("name", list(_op_samples()))
+def test_only_wanted_gradients_are_computed(name):
+    """The backward computes the gradients torch asks for (needs_input_grad), bitwise the same."""
+    from gvnn_warp import _perpixel_ops
+
+    assert_only_wanted_gradients(getattr(_perpixel_ops, name), _op_samples()[name])
 
 
 @pytest.mark.parametrize("B", [1, 3])

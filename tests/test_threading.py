@@ -11,6 +11,7 @@ import torch
 import warp as wp
 from gvnn_warp.kernels import launch as L
 from gvnn_warp.kernels import lie_kernels, sampling_kernels
+from refs import gradients_of
 
 import gvnn_warp as G
 
@@ -78,6 +79,25 @@ def test_warp_frame_depth_bitwise_equal(B, C, H, W, padding_mode, dtype):
         return G.warp_frame_depth(image, depth, pose, K, padding_mode=padding_mode)
 
     assert_bitwise_equal_across_threads(fn, *wfd_inputs(B, C, H, W, dtype))
+
+
+@pytest.mark.parametrize("B", [1, 3])
+@pytest.mark.parametrize("wanted", [{1, 2}, {0}, {2}])
+def test_wanted_gradients_bitwise_equal(B, wanted, dtype):
+    """Gradients not asked for are not computed (null adjoint arrays, no partial buffers for them):
+    the wanted ones equal those of a single-threaded call that wants all three."""
+    image, depth, pose, K = wfd_inputs(B, 3, 97, 131, dtype, seed=4)
+
+    def op(image, depth, pose):
+        return G.warp_frame_depth(image, depth, pose, K)[0]
+
+    L.set_num_threads(1)
+    ref = gradients_of(op, (image, depth, pose), {0, 1, 2})
+    for n in THREADS:
+        L.set_num_threads(n)
+        got = gradients_of(op, (image, depth, pose), wanted)
+        for k in range(3):
+            assert (got[k] is None) if k not in wanted else torch.equal(got[k], ref[k]), (n, k)
 
 
 # the last two have h w % 8 == 0: the 8-lane forward kernel
