@@ -21,22 +21,24 @@ from gvnn_warp._bridge import _descriptor
 F32 = wp.float32
 
 
-def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=(), launches=None):
+def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=(), launches=None, adjoint=True):
     """(forward, adjoint) callables launching fk on float32 tensors over ``launches`` threads
-    (default ``n``, the elements reported)."""
+    (default ``n``, the elements reported); adjoint None if ``adjoint`` is false."""
     launches = n if launches is None else launches
     k = fk[F32]
-    grads = [torch.zeros_like(t) for t in ins]
-    adj_outs = [torch.ones_like(t) if kd != "bool" else None for t, kd in zip(outs, out_kinds)]
-    # descriptors hold no references: the closures below keep every tensor alive
-    keep = (ins, outs, grads, adj_outs)
     d_in = [_descriptor(t, kd, F32) for t, kd in zip(ins, kinds)]
     d_out = [_descriptor(t, kd, F32) for t, kd in zip(outs, out_kinds)]
+
+    def fwd(keep=(ins, outs)):  # descriptors hold no references: the closures keep the tensors
+        launch.launch(k, launches, [*d_in, *params], d_out)
+
+    if not adjoint:
+        return fwd, None
+    grads = [torch.zeros_like(t) for t in ins]
+    adj_outs = [torch.ones_like(t) if kd != "bool" else None for t, kd in zip(outs, out_kinds)]
+    keep = (ins, outs, grads, adj_outs)
     d_grads = [_descriptor(g, kd, F32) for g, kd in zip(grads, kinds)]
     d_adj_out = [_descriptor(g, kd, F32) if g is not None else None for g, kd in zip(adj_outs, out_kinds)]
-
-    def fwd(keep=keep):
-        launch.launch(k, launches, [*d_in, *params], d_out)
 
     def adj(keep=keep):
         launch.launch(
@@ -90,7 +92,7 @@ def kernel_cases(quick: bool) -> dict:
     # the same samples, 8 output locations per thread (forward only: its backward is the above's adjoint)
     fwd_lanes, _ = _launch_case(
         sampling_kernels.bilinear_sample_lanes(C, 0, 0), n_pix, [image, grid], ["scalar", "vec16"], [out], ["vec8"],
-        (C, H, W, H * W, 0, 0), launches=n_pix // 8,
+        (C, H, W, H * W, 0, 0), launches=n_pix // 8, adjoint=False,
     )
     cases["bilinear_sample_lanes"] = (n_pix, fwd_lanes, None)
     warped = torch.empty_like(image)

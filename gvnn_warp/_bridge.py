@@ -140,6 +140,10 @@ def warp_op(
     compiled for them), instead of ``fk``. With ``select`` and ``backward_from``, ``fk`` may be
     None and ``array_kinds`` name the kinds of the kernels' arrays (none is built up front).
     """
+    # what an op that borrows another's backward must share with it (array kinds may differ: views)
+    signature = (tuple(inputs), tuple(params), tuple((o.name, o.differentiable) for o in outputs))
+    if backward_from is not None and getattr(backward_from, "_gvnn_signature", None) != signature:
+        raise ValueError(f"warp_op {name!r}: backward_from must be a warp_op with the same inputs, params, outputs")
     in_kinds = [(fk.array_kinds if fk is not None else array_kinds)[n] for n in inputs]
     n_in = len(inputs)
     sig_in = ", ".join([f"Tensor {n}" for n in inputs] + [f"{p.type} {p.name}" for p in params])
@@ -178,6 +182,7 @@ def warp_op(
     fwd.register_fake(forward_fake)
     _skip_lazy_dynamo_import(fwd)
 
+    fwd._gvnn_signature = signature
     if backward_from is not None:
         fwd.register_autograd(backward_from._gvnn_autograd, setup_context=backward_from._gvnn_setup_context)
         return fwd

@@ -67,3 +67,16 @@ def test_compile_fullgraph_matches_eager():
     l2.backward()
     torch.testing.assert_close(l1, l2)
     torch.testing.assert_close(xi1.grad, xi2.grad)
+
+
+def test_backward_from_needs_the_same_signature():
+    from gvnn_warp._bridge import Output, Param, warp_op
+
+    with pytest.raises(ValueError, match="backward_from must be a warp_op with the same inputs"):
+        warp_op(
+            "never_registered", None, ["image", "grid"], [Param("C", "int")],
+            [Output("out", "vec8", lambda *a: (1,))], lambda *a: 0,
+            backward_from=_ops.bilinear_sample,
+            select=lambda *a: None,
+            array_kinds={"image": "scalar", "grid": "vec16"},
+        )
