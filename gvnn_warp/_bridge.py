@@ -16,6 +16,7 @@ thread count follows ``torch.get_num_threads()`` unless set with
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -23,10 +24,32 @@ from dataclasses import dataclass
 import torch
 import warp as wp
 
-from .kernels.launch import FloatKernel, element_shape, element_type, launch, set_default_num_threads
+from .kernels.launch import FloatKernel, element_shape, element_type, launch, set_default_num_threads, use_openmp
 
 wp.init()
 set_default_num_threads(torch.get_num_threads)
+
+
+def _torch_libgomp() -> str | None:
+    """The GNU OpenMP runtime torch runs its parallel ops on, if it is one and is loaded (Linux):
+    the libgomp mapped into this process from torch's directory, else the only one mapped."""
+    if "parallel backend: OpenMP" not in torch.__config__.parallel_info():
+        return None
+    try:
+        with open("/proc/self/maps") as f:
+            paths = {line.split()[-1] for line in f if "libgomp" in line.rsplit("/", 1)[-1]}
+    except OSError:
+        return None
+    torch_dir = os.path.dirname(os.path.realpath(torch.__file__)) + os.sep
+    own = [p for p in paths if os.path.realpath(p).startswith(torch_dir)]
+    return own[0] if len(own) == 1 else (next(iter(paths)) if len(paths) == 1 else None)
+
+
+# Threaded launches run on torch's OpenMP team (whose threads spin, waiting for work, after every
+# parallel torch op: Python threads would share the cores with them); GVNN_WARP_OPENMP=0 keeps
+# gvnn_warp's own Python threads.
+if os.environ.get("GVNN_WARP_OPENMP", "1") != "0":
+    use_openmp(_torch_libgomp())
 
 _FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}
 

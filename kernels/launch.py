@@ -12,7 +12,8 @@ Threads
 -------
 A Warp CPU launch runs its whole range on one thread, and releases the GIL. :func:`launch` splits
 the range into chunks and runs them on a small pool of Python threads (the calling thread takes
-part), so one op uses several cores. The number of threads is, in order of precedence:
+part), so one op uses several cores; or, after :func:`use_openmp` (which the torch bridge calls
+with torch's own OpenMP runtime), on that runtime's thread team. The number of threads is, in order of precedence:
 :func:`set_num_threads` (``gvnn_warp.kernels.launch.set_num_threads(n)``), the environment variable
 ``GVNN_WARP_NUM_THREADS``, the default provider (the torch bridge installs
 ``torch.get_num_threads``), else ``os.cpu_count()``. ``1`` disables threading.
@@ -47,7 +48,9 @@ This module never imports torch.
 from __future__ import annotations
 
 import ast
+import ctypes
 import inspect
+import itertools
 import math
 import os
 import textwrap
@@ -203,7 +206,80 @@ class _Pool:
             raise errors[0]
 
 
-_pool = _Pool()
+_python_pool = _Pool()
+
+# An OpenMP team's worker function: void fn(void *data)
+_GOMP_FN = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
+
+
+class _OpenMPPool:
+    """Runs the chunks on the thread team of an already loaded GNU OpenMP runtime (libgomp's
+    ``GOMP_parallel``, the entry point GCC compiles ``#pragma omp parallel`` to); same contract as
+    :class:`_Pool`: the calling thread takes part, threads pull chunk indices from a shared
+    iterator, errors are re-raised.
+
+    Why: torch's OpenMP workers keep spinning for milliseconds after every parallel torch op,
+    waiting for more work. Python threads then share cores with them; a launch given to that team
+    instead starts at once on the threads that are already spinning. ctypes releases the GIL for
+    the call, and each team thread's callback takes it back while it picks a chunk (``wp.launch``
+    releases it again while the kernel runs). After a fork the child uses :class:`_Pool`
+    (libgomp's team does not survive a fork).
+    """
+
+    def __init__(self, library: str):
+        lib = ctypes.CDLL(library)
+        self._parallel = lib.GOMP_parallel
+        self._parallel.argtypes = [_GOMP_FN, ctypes.c_void_p, ctypes.c_uint, ctypes.c_uint]
+        self._parallel.restype = None
+        self.library = library
+        self._pid = os.getpid()
+        self._jobs: dict[int, tuple] = {}  # concurrent calls (several Python threads) by key
+        self._keys = itertools.count(1)
+        self._callback = _GOMP_FN(self._work)  # referenced here for as long as the pool lives
+
+    def _work(self, key) -> None:
+        fn, tasks, errors = self._jobs[key]
+        for k in tasks:  # next() on a shared iterator is atomic under the GIL
+            try:
+                fn(k)
+            except BaseException as e:  # noqa: BLE001 - re-raised by run()
+                errors.append(e)
+
+    def run(self, fn: Callable[[int], None], n_tasks: int, n_threads: int) -> None:
+        """Run ``fn(k)`` for k in [0, n_tasks) on up to ``n_threads`` threads; returns when all ran."""
+        n_threads = min(n_threads, n_tasks)
+        if n_threads <= 1:
+            for k in range(n_tasks):
+                fn(k)
+            return
+        if os.getpid() != self._pid:
+            _python_pool.run(fn, n_tasks, n_threads)
+            return
+        key = next(self._keys)
+        errors: list[BaseException] = []
+        self._jobs[key] = (fn, iter(range(n_tasks)), errors)
+        try:
+            self._parallel(self._callback, key, n_threads, 0)
+        finally:
+            del self._jobs[key]
+        if errors:
+            raise errors[0]
+
+
+_pool: _Pool | _OpenMPPool = _python_pool
+
+
+def use_openmp(library: str | None) -> None:
+    """Run threaded launches on the thread team of the GNU OpenMP runtime loaded from ``library``
+    (a path to an already loaded ``libgomp``; the torch bridge passes torch's own), or, with
+    ``None``, on gvnn_warp's pool of Python threads (the default). Results do not depend on it."""
+    global _pool
+    _pool = _OpenMPPool(library) if library is not None else _python_pool
+
+
+def thread_backend() -> str:
+    """Where threaded launches run: ``"openmp:<library>"`` or ``"python"`` (see :func:`use_openmp`)."""
+    return f"openmp:{_pool.library}" if isinstance(_pool, _OpenMPPool) else "python"
 
 
 # ----------------------------------------------------------------------------- kernel metadata
@@ -631,4 +707,6 @@ __all__ = [
     "launch",
     "set_default_num_threads",
     "set_num_threads",
+    "thread_backend",
+    "use_openmp",
 ]

@@ -18,9 +18,22 @@ import gvnn_warp as G
 THREADS = (2, 3, 4)
 
 
-@pytest.fixture(autouse=True)
-def restore_threads():
-    yield
+# where threaded launches run: torch's OpenMP team (the default with torch) or gvnn_warp's Python threads
+G.so3_exp(torch.zeros(1, 3))  # loads the torch bridge, which picks the backend
+DEFAULT_BACKEND = L.thread_backend()
+BACKENDS = [DEFAULT_BACKEND, "python"] if DEFAULT_BACKEND != "python" else ["python"]
+
+
+def use_backend(name):
+    L.use_openmp(name.removeprefix("openmp:") if name.startswith("openmp:") else None)
+
+
+@pytest.fixture(autouse=True, params=BACKENDS)
+def backend(request):
+    """Every test here runs on each backend; results must not depend on it."""
+    use_backend(request.param)
+    yield request.param
+    use_backend(DEFAULT_BACKEND)
     L.set_num_threads(None)
 
 
@@ -242,3 +255,69 @@ def test_env_var_in_subprocess(tmp_path):
     env = dict(os.environ, **{L.ENV_NUM_THREADS: "3"})
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip().splitlines()[-1] == "3"
+
+
+def test_torch_openmp_team_is_the_default():
+    if "parallel backend: OpenMP" not in torch.__config__.parallel_info() or not os.path.exists("/proc/self/maps"):
+        pytest.skip("torch does not run on OpenMP here")
+    assert DEFAULT_BACKEND.startswith("openmp:") and "libgomp" in DEFAULT_BACKEND
+
+
+def test_backends_give_bitwise_equal_results():
+    image, depth, pose, K = wfd_inputs(1, 3, 97, 131, torch.float32, seed=5)
+    L.set_num_threads(2)
+    results = {}
+    for name in BACKENDS:
+        use_backend(name)
+        results[name] = gradients_of(lambda i, d, p: G.warp_frame_depth(i, d, p, K)[0], (image, depth, pose), {0, 1, 2})
+    for name in BACKENDS[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(results[name], results[BACKENDS[0]]))
+
+
+def test_pool_errors_are_raised(backend):
+    done = []
+
+    def fn(k):
+        if k == 5:
+            raise RuntimeError("chunk 5 failed")
+        done.append(k)
+
+    with pytest.raises(RuntimeError, match="chunk 5 failed"):
+        L._pool.run(fn, 12, 3)
+    assert sorted(done) == [k for k in range(12) if k != 5]  # the other chunks still ran
+
+
+def _run(code, **env):
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=dict(os.environ, **env), capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_openmp_can_be_turned_off_by_env_var():
+    code = "import torch, gvnn_warp as G; G.so3_exp(torch.zeros(1, 3)); print(G.kernels.launch.thread_backend())"
+    assert _run(code, GVNN_WARP_OPENMP="0") == "python"
+
+
+def test_forked_child_runs_threaded_launches():
+    """libgomp's team does not survive a fork: a child's launches fall back to Python threads and
+    give the parent's results. (torch's own parallel ops hang in such a child unless it sets
+    torch.set_num_threads(1) first, as DataLoader workers do; so does this child.)"""
+    code = """
+import os, torch, gvnn_warp as G
+from gvnn_warp.kernels import launch as L
+L.set_num_threads(2)
+omega = torch.randn(200_000, 3, generator=torch.Generator().manual_seed(0))
+parent = G.so3_exp(omega)
+pid = os.fork()
+if pid == 0:
+    torch.set_num_threads(1)
+    os._exit(0 if torch.equal(G.so3_exp(omega), parent) and L.get_num_threads() == 2 else 3)
+_, status = os.waitpid(pid, 0)
+print(os.waitstatus_to_exitcode(status))
+"""
+    assert _run(code) == "0"
