@@ -30,26 +30,30 @@ wp.init()
 set_default_num_threads(torch.get_num_threads)
 
 
-def _torch_libgomp() -> str | None:
-    """The GNU OpenMP runtime torch runs its parallel ops on, if it is one and is loaded (Linux):
-    the libgomp mapped into this process from torch's directory, else the only one mapped."""
+def _torch_openmp_library() -> str | None:
+    """A library through which the OpenMP runtime torch's parallel ops run on is found: torch's
+    ``libtorch_cpu``, whose ``GOMP_parallel`` resolves to that runtime (dlsym searches the library's
+    own dependencies); None if torch does not run on OpenMP or the library is not there."""
     if "parallel backend: OpenMP" not in torch.__config__.parallel_info():
         return None
+    lib_dir = os.path.join(os.path.dirname(os.path.realpath(torch.__file__)), "lib")
+    path = os.path.join(lib_dir, "libtorch_cpu.so")
+    return path if os.path.exists(path) else None
+
+
+def _use_torch_openmp() -> None:
+    """Run threaded launches on torch's OpenMP team, whose threads spin, waiting for work, after
+    every parallel torch op (Python threads would share the cores with them), unless
+    ``GVNN_WARP_OPENMP=0``; gvnn_warp's own Python threads otherwise, or if that fails."""
+    if os.environ.get("GVNN_WARP_OPENMP", "1") == "0":
+        return
     try:
-        with open("/proc/self/maps") as f:
-            paths = {line.split()[-1] for line in f if "libgomp" in line.rsplit("/", 1)[-1]}
-    except OSError:
-        return None
-    torch_dir = os.path.dirname(os.path.realpath(torch.__file__)) + os.sep
-    own = [p for p in paths if os.path.realpath(p).startswith(torch_dir)]
-    return own[0] if len(own) == 1 else (next(iter(paths)) if len(paths) == 1 else None)
+        use_openmp(_torch_openmp_library())
+    except (OSError, AttributeError):  # no such library or symbol: keep the Python threads
+        use_openmp(None)
 
 
-# Threaded launches run on torch's OpenMP team (whose threads spin, waiting for work, after every
-# parallel torch op: Python threads would share the cores with them); GVNN_WARP_OPENMP=0 keeps
-# gvnn_warp's own Python threads.
-if os.environ.get("GVNN_WARP_OPENMP", "1") != "0":
-    use_openmp(_torch_libgomp())
+_use_torch_openmp()
 
 _FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}
 
@@ -219,8 +223,7 @@ def warp_op(
         fargs, needs, grads = args[:n_args], args[n_args], args[n_args + 1 :]
         wanted = [bool(needs >> k & 1) for k in range(n_in)]
         n = n_threads(*fargs)
-        # torch.zeros hands out lazily zeroed pages for large buffers: no fill pass, and no OpenMP
-        # fill that would leave torch's worker threads spinning on the cores the launch needs
+        # zeroed by torch (its OpenMP team, the one the launch below runs on)
         in_grads = [
             torch.zeros(t.shape, dtype=t.dtype) if w else t.new_empty(0) for t, w in zip(fargs[:n_in], wanted)
         ]
@@ -247,7 +250,9 @@ def warp_op(
 
     def backward_fake(*args):
         needs = args[n_in + len(params)]
-        return [torch.empty_like(t) if needs >> k & 1 else t.new_empty(0) for k, t in enumerate(args[:n_in])]
+        return [
+            torch.empty(t.shape, dtype=t.dtype) if needs >> k & 1 else t.new_empty(0) for k, t in enumerate(args[:n_in])
+        ]
 
     bwd = torch.library.custom_op(
         f"gvnn_warp::{name}_backward",

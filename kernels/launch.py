@@ -223,7 +223,12 @@ class _OpenMPPool:
     instead starts at once on the threads that are already spinning. ctypes releases the GIL for
     the call, and each team thread's callback takes it back while it picks a chunk (``wp.launch``
     releases it again while the kernel runs). After a fork the child uses :class:`_Pool`
-    (libgomp's team does not survive a fork).
+    (libgomp's team does not survive a fork; like torch's own parallel ops, anything else that
+    uses OpenMP in such a child hangs unless it runs on one thread, e.g. after
+    ``torch.set_num_threads(1)``).
+
+    ``library``: a loaded library in which ``GOMP_parallel`` resolves (the runtime itself, or a
+    library linked against it: dlsym searches its dependencies).
     """
 
     def __init__(self, library: str):
@@ -270,8 +275,9 @@ _pool: _Pool | _OpenMPPool = _python_pool
 
 
 def use_openmp(library: str | None) -> None:
-    """Run threaded launches on the thread team of the GNU OpenMP runtime loaded from ``library``
-    (a path to an already loaded ``libgomp``; the torch bridge passes torch's own), or, with
+    """Run threaded launches on the thread team of the GNU OpenMP runtime (``GOMP_parallel``) found
+    through ``library`` (an already loaded ``libgomp``, or a library linked against it: the torch
+    bridge passes torch's ``libtorch_cpu``), or, with
     ``None``, on gvnn_warp's pool of Python threads (the default). Results do not depend on it."""
     global _pool
     _pool = _OpenMPPool(library) if library is not None else _python_pool
