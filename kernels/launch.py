@@ -153,6 +153,17 @@ def get_num_threads() -> int:
     return os.cpu_count() or 1
 
 
+def _drain(fn: Callable[[int], None], tasks, errors: list) -> None:
+    """Run ``fn(k)`` for the chunk indices ``k`` left in ``tasks`` (an iterator shared by the
+    threads of a pool: next() on it is atomic under the GIL), collecting exceptions in ``errors``
+    for the pool to re-raise."""
+    for k in tasks:
+        try:
+            fn(k)
+        except BaseException as e:  # noqa: BLE001 - re-raised by the pool's run()
+            errors.append(e)
+
+
 class _Pool:
     """Worker threads that run chunk launches; the calling thread always takes part.
 
@@ -184,15 +195,11 @@ class _Pool:
             for k in range(n_tasks):
                 fn(k)
             return
-        tasks = iter(range(n_tasks))  # next() on it is atomic under the GIL
+        tasks = iter(range(n_tasks))
         errors: list[BaseException] = []
 
         def work():
-            for k in tasks:
-                try:
-                    fn(k)
-                except BaseException as e:  # noqa: BLE001 - re-raised by the caller below
-                    errors.append(e)
+            _drain(fn, tasks, errors)
 
         executor = self._get(n_threads - 1)
         futures = [executor.submit(work) for _ in range(n_threads - 1)]
@@ -243,21 +250,12 @@ class _OpenMPPool:
         self._callback = _GOMP_FN(self._work)  # referenced here for as long as the pool lives
 
     def _work(self, key) -> None:
-        fn, tasks, errors = self._jobs[key]
-        for k in tasks:  # next() on a shared iterator is atomic under the GIL
-            try:
-                fn(k)
-            except BaseException as e:  # noqa: BLE001 - re-raised by run()
-                errors.append(e)
+        _drain(*self._jobs[key])
 
     def run(self, fn: Callable[[int], None], n_tasks: int, n_threads: int) -> None:
         """Run ``fn(k)`` for k in [0, n_tasks) on up to ``n_threads`` threads; returns when all ran."""
         n_threads = min(n_threads, n_tasks)
-        if n_threads <= 1:
-            for k in range(n_tasks):
-                fn(k)
-            return
-        if os.getpid() != self._pid:
+        if n_threads <= 1 or os.getpid() != self._pid:  # serial, or a forked child
             _python_pool.run(fn, n_tasks, n_threads)
             return
         key = next(self._keys)
