@@ -16,7 +16,7 @@ from gvnn_warp.kernels import camera_kernels, launch, lie_kernels, sampling_kern
 
 import gvnn_warp  # noqa: F401  (initialises Warp quietly)
 from benchmarks.common import Case, affine_grid, interleaved, wfd_scene
-from gvnn_warp._bridge import _descriptor
+from gvnn_warp._bridge import _descriptor, _null
 
 F32 = wp.float32
 
@@ -38,7 +38,7 @@ def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=(), launches=None, a
     adj_outs = [torch.ones_like(t) if kd != "bool" else None for t, kd in zip(outs, out_kinds)]
     keep = (ins, outs, grads, adj_outs)
     d_grads = [_descriptor(g, kd, F32) for g, kd in zip(grads, kinds)]
-    d_adj_out = [_descriptor(g, kd, F32) if g is not None else None for g, kd in zip(adj_outs, out_kinds)]
+    d_adj_out = [_descriptor(g, kd, F32) if g is not None else _null(kd, F32) for g, kd in zip(adj_outs, out_kinds)]
 
     def adj(keep=keep):
         launch.launch(
