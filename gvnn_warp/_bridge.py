@@ -16,6 +16,7 @@ thread count follows ``torch.get_num_threads()`` unless set with
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -49,8 +50,8 @@ def _use_torch_openmp() -> None:
         return
     try:
         use_openmp(_torch_openmp_library())
-    except (OSError, AttributeError):  # no such library or symbol: keep the Python threads
-        use_openmp(None)
+    except (OSError, AttributeError):  # no such library or symbol: the Python threads stay
+        pass
 
 
 _use_torch_openmp()
@@ -72,6 +73,7 @@ def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
 _ARRAY_T = type(wp.from_torch(torch.zeros(1), dtype=wp.float32, return_ctype=True))
 
 
+@functools.cache
 def _null(kind: str, float_type):
     """A null array (no data, no elements) of ``kind``: the adjoint of an input whose gradient is
     not wanted, or of a non-differentiable output. Warp's adjoints skip writes to it; its stride

@@ -13,10 +13,10 @@ Threads
 A Warp CPU launch runs its whole range on one thread, and releases the GIL. :func:`launch` splits
 the range into chunks and runs them on a small pool of Python threads (the calling thread takes
 part), so one op uses several cores; or, after :func:`use_openmp` (which the torch bridge calls
-with torch's own OpenMP runtime), on that runtime's thread team. The number of threads is, in order of precedence:
-:func:`set_num_threads` (``gvnn_warp.kernels.launch.set_num_threads(n)``), the environment variable
-``GVNN_WARP_NUM_THREADS``, the default provider (the torch bridge installs
-``torch.get_num_threads``), else ``os.cpu_count()``. ``1`` disables threading.
+with torch's own OpenMP runtime), on that runtime's thread team. The number of threads is, in
+order of precedence: :func:`set_num_threads` (``gvnn_warp.kernels.launch.set_num_threads(n)``),
+the environment variable ``GVNN_WARP_NUM_THREADS``, the default provider (the torch bridge
+installs ``torch.get_num_threads``), else ``os.cpu_count()``. ``1`` disables threading.
 
 Determinism
 -----------
@@ -275,8 +275,8 @@ _pool: _Pool | _OpenMPPool = _python_pool
 def use_openmp(library: str | None) -> None:
     """Run threaded launches on the thread team of the GNU OpenMP runtime (``GOMP_parallel``) found
     through ``library`` (an already loaded ``libgomp``, or a library linked against it: the torch
-    bridge passes torch's ``libtorch_cpu``), or, with
-    ``None``, on gvnn_warp's pool of Python threads (the default). Results do not depend on it."""
+    bridge passes torch's ``libtorch_cpu``), or, with ``None``, on gvnn_warp's pool of Python
+    threads (the default). Results do not depend on it."""
     global _pool
     _pool = _OpenMPPool(library) if library is not None else _python_pool
 
@@ -594,9 +594,9 @@ def launch(
     Arrays may be ``wp.array`` s or array descriptors (``wp.from_torch(..., return_ctype=True)``).
     For an adjoint launch, ``adj_inputs`` holds one gradient array (or a placeholder for scalar
     arguments) per input, accumulated into (callers zero them; a null array, with no data and no
-    elements, for a gradient that is not wanted: writes to it are skipped), and ``adj_outputs`` the incoming
-    gradient of each output (``None`` for non-differentiable ones). Results are bitwise identical
-    for every thread count.
+    elements, for a gradient that is not wanted: writes to it are skipped), and ``adj_outputs``
+    the incoming gradient of each output (``None`` or a null array for non-differentiable ones).
+    Results are bitwise identical for every thread count.
     """
     if n <= 0:
         return

@@ -62,12 +62,18 @@ def gradients_of(op, args, wanted):
             a = a.detach().clone().requires_grad_(len(leaves) in wanted)
             leaves.append(a)
         call.append(a)
-    outs = op(*call)
+    weighted_backward(op(*call), seed=7)
+    return [t.grad for t in leaves]
+
+
+def weighted_backward(outs, seed):
+    """Backpropagate a fixed random weighting (from ``seed``) of the float tensors in ``outs`` (one
+    tensor or a tuple/list). Returns ``outs`` as a tuple."""
     outs = outs if isinstance(outs, (tuple, list)) else (outs,)
-    g = torch.Generator().manual_seed(7)
+    g = torch.Generator().manual_seed(seed)
     loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs if o.is_floating_point())
     loss.backward()
-    return [t.grad for t in leaves]
+    return tuple(outs)
 
 
 def assert_only_wanted_gradients(op, args):

@@ -11,7 +11,7 @@ import torch
 import warp as wp
 from gvnn_warp.kernels import launch as L
 from gvnn_warp.kernels import lie_kernels, sampling_kernels
-from refs import gradients_of
+from refs import gradients_of, weighted_backward
 
 import gvnn_warp as G
 
@@ -55,11 +55,7 @@ def run_with_threads(n, fn, *inputs):
     """fn(*leaves) -> tensors; returns the outputs and the gradients of every leaf, with n threads."""
     L.set_num_threads(n)
     leaves = [t.detach().clone().requires_grad_(t.is_floating_point()) for t in inputs]
-    outs = fn(*leaves)
-    outs = outs if isinstance(outs, tuple) else (outs,)
-    g = torch.Generator().manual_seed(123)
-    loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs if o.is_floating_point())
-    loss.backward()
+    outs = weighted_backward(fn(*leaves), seed=123)
     return [o.detach() for o in outs], [t.grad for t in leaves if t.requires_grad]
 
 
