@@ -13,8 +13,11 @@ either (alternatives of different ranks).
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 FLOAT_DTYPES = (torch.float32, torch.float64)
@@ -94,11 +97,22 @@ class ArgCheck:
             self._fail(ValueError, f"argument '{name}' must be one of {list(allowed)}, got {value!r}")
         return value
 
-    def positive(self, name: str, value) -> float:
-        """Check ``value`` is a finite number > 0; returns it as float."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < float("inf")):
+    def positive(self, name: str, value, dtype: torch.dtype | None = None) -> float:
+        """Check ``value`` is a real number (Python or NumPy scalar, not bool) that is finite and
+        > 0; returns it as float. With ``dtype``, also that its square is a normal number of that
+        dtype (``value`` in [sqrt(tiny), sqrt(max)]: ~[1.1e-19, 1.8e19] for float32), so a scale c
+        and c^2 survive the conversion to the kernel's precision."""
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+            self._fail(TypeError, f"argument '{name}' must be a real number, got {type(value).__name__}")
+        if not (0 < value < float("inf")):
             self._fail(ValueError, f"argument '{name}' must be a positive finite number, got {value!r}")
-        return float(value)
+        value = float(value)
+        if dtype is not None:
+            info = torch.finfo(dtype)
+            lo, hi = math.sqrt(info.tiny), math.sqrt(info.max)
+            if not lo <= value <= hi:
+                self._fail(ValueError, f"argument '{name}' must lie in [{lo:.3g}, {hi:.3g}] for {dtype}, got {value!r}")
+        return value
 
     def dim(self, name: str) -> int:
         return self.dims[name][0]

@@ -50,8 +50,8 @@ def _padding(chk: ArgCheck, padding_mode: str) -> int:
     return _PADDING[chk.option("padding_mode", padding_mode, tuple(_PADDING))]
 
 
-def _robust_args(chk: ArgCheck, kind: str, scale: float) -> tuple[int, float]:
-    return _ROBUST_CODES[chk.option("kind", kind, ROBUST_KINDS)], chk.positive("scale", scale)
+def _robust_args(chk: ArgCheck, kind: str, scale: float, dtype: torch.dtype) -> tuple[int, float]:
+    return _ROBUST_CODES[chk.option("kind", kind, ROBUST_KINDS)], chk.positive("scale", scale, dtype)
 
 
 # ----------------------------------------------------------------------------- sampling
@@ -71,8 +71,9 @@ def flow_warp(image: Tensor, flow: Tensor, *, padding_mode: str = "zeros") -> Te
             into [0, W-1] x [0, H-1], with zero gradient to the flow when clamped).
 
     Returns:
-        (B, C, H, W) warped image. Gradients flow to image and flow; a non-finite flow samples 0
-        with zero gradient.
+        (B, C, H, W) warped image. Gradients flow to image and flow. A NaN flow samples 0 with
+        zero gradient; so does an infinite one with "zeros" padding, while "border" clamps it to
+        the border like ``grid_sample``.
     """
     chk = ArgCheck("flow_warp")
     chk.tensor("image", image, "B C H W")
@@ -176,10 +177,13 @@ def homography_flow(params: Tensor) -> Tensor:
     Near-singular denominators: where |w| < ``HOMOGRAPHY_MIN_DEN`` (1e-6) w is replaced by
     +-1e-6 with the sign of w (+ for w = 0). The output stays finite (for finite params) and no
     gradient flows through w there (h6, h7, h8 get 0); the numerator's gradient is that of the
-    clamped map (large, 1e6 times the incoming gradient, but finite). Never NaN for finite params.
+    clamped map (large, 1e6 times the incoming gradient, but finite). Never NaN for finite params;
+    NaN params give a NaN flow. The threshold is absolute, so the overall scale of ``h`` matters
+    there: normalise it (e.g. h8 = 1, or ``|h| ~ 1``) to keep ``|w|`` far from 1e-6.
 
     Args:
-        params: (B, 9, H, W), row-major 3x3 homographies per pixel (any scale).
+        params: (B, 9, H, W), row-major 3x3 homographies per pixel (defined up to scale, but see
+            the threshold above).
 
     Returns:
         (B, 2, H, W) flow in pixels.
@@ -223,7 +227,9 @@ def pointwise_se3(points: Tensor, params: Tensor) -> Tensor:
             R = so3_exp(omega), exact with finite gradients at omega = 0) and translation.
 
     Returns:
-        (B, H, W, 3) transformed points; gradients flow to points and params.
+        (B, H, W, 3) transformed points; gradients flow to points and params. A non-finite point
+        (e.g. from a NaN depth) is passed through unchanged and its parameters get zero gradient
+        (the same in :func:`pointwise_sim3` and :func:`pointwise_transform10`).
     """
     return _pointwise("pointwise_se3", points, params, 6, _ops.pointwise_se3)
 
@@ -236,7 +242,8 @@ def pointwise_sim3(points: Tensor, params: Tensor) -> Tensor:
         params: (B, 7, H, W), ``[omega, t, sigma]`` per pixel.
 
     Returns:
-        (B, H, W, 3) transformed points; gradients flow to points and params.
+        (B, H, W, 3) transformed points; gradients flow to points and params. Non-finite points
+        pass through unchanged, with zero gradient to their parameters.
     """
     return _pointwise("pointwise_sim3", points, params, 7, _ops.pointwise_sim3)
 
@@ -250,7 +257,8 @@ def pointwise_transform10(points: Tensor, params: Tensor) -> Tensor:
         params: (B, 10, H, W), ``[omega, t, sigma, p]`` per pixel (p the anchor point).
 
     Returns:
-        (B, H, W, 3) transformed points; gradients flow to points and params.
+        (B, H, W, 3) transformed points; gradients flow to points and params. Non-finite points
+        pass through unchanged, with zero gradient to their parameters.
     """
     return _pointwise("pointwise_transform10", points, params, 10, _ops.pointwise_transform10)
 
@@ -304,14 +312,15 @@ def robust_rho(x: Tensor, kind: str, scale: float = 1.0) -> Tensor:
     Args:
         x: tensor of any shape (residuals).
         kind: one of "huber", "cauchy", "geman_mcclure", "tukey".
-        scale: positive finite number (not learnable; it is not a tensor).
+        scale: positive real number (not learnable; it is not a tensor), within [1.1e-19, 1.8e19]
+            for float32 input (c^2 must be a normal float32), [1.5e-154, 1.3e154] for float64.
 
     Returns:
         rho(x), same shape and dtype as x.
     """
     chk = ArgCheck("robust_rho")
     chk.tensor("x", x, "...")
-    code, c = _robust_args(chk, kind, scale)
+    code, c = _robust_args(chk, kind, scale, x.dtype)
     return _ops.robust_rho(x.reshape(-1).contiguous(), code, c).reshape(x.shape)
 
 
@@ -326,14 +335,14 @@ def robust_psi(x: Tensor, kind: str, scale: float = 1.0) -> Tensor:
     Args:
         x: tensor of any shape.
         kind: one of "huber", "cauchy", "geman_mcclure", "tukey".
-        scale: positive finite number.
+        scale: positive real number, range as in :func:`robust_rho`.
 
     Returns:
         psi(x), same shape and dtype as x; differentiable (its gradient is rho'').
     """
     chk = ArgCheck("robust_psi")
     chk.tensor("x", x, "...")
-    code, c = _robust_args(chk, kind, scale)
+    code, c = _robust_args(chk, kind, scale, x.dtype)
     return _ops.robust_psi(x.reshape(-1).contiguous(), code, c).reshape(x.shape)
 
 
@@ -348,7 +357,7 @@ def smoothness_loss(field: Tensor, kind: str = "huber", scale: float = 1.0) -> T
     Args:
         field: (B, K, H, W).
         kind: M-estimator, as in :func:`robust_rho` (default "huber", as in Patraucean et al.).
-        scale: positive finite number.
+        scale: positive real number, range as in :func:`robust_rho`.
 
     Returns:
         0-dim tensor; gradient flows to field. The per-pixel penalties (already divided by the
@@ -356,7 +365,7 @@ def smoothness_loss(field: Tensor, kind: str = "huber", scale: float = 1.0) -> T
     """
     chk = ArgCheck("smoothness_loss")
     chk.tensor("field", field, "B K H W")
-    code, c = _robust_args(chk, kind, scale)
+    code, c = _robust_args(chk, kind, scale, field.dtype)
     B, K, H, W = field.shape
     nx = B * K * H * (W - 1)
     ny = B * K * (H - 1) * W

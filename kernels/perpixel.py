@@ -54,13 +54,13 @@ def se2_point(x: Any, y: Any, theta: Any, tx: Any, ty: Any):
 
 @wp.func
 def safe_denominator(d: Any):
-    """d, or +-HOMOGRAPHY_MIN_DEN (sign of d, + for 0) where |d| < HOMOGRAPHY_MIN_DEN.
+    """d, or +-HOMOGRAPHY_MIN_DEN (sign of d, + for 0) where |d| < HOMOGRAPHY_MIN_DEN (NaN stays NaN).
 
     ``wp.where`` routes no gradient to the side it does not select, so the clamped value has zero
     gradient with respect to d."""
     m = type(d)(HOMOGRAPHY_MIN_DEN)
     clamped = wp.where(d < type(d)(0.0), -m, m)
-    return wp.where(wp.abs(d) >= m, d, clamped)
+    return wp.where(wp.abs(d) < m, clamped, d)  # NaN is not < m: it passes through
 
 
 @wp.func
@@ -93,6 +93,14 @@ def grid_coordinate(i: Any, n: int, align_corners: int):
 
 
 # ----------------------------------------------------------------------------- 3D maps
+
+
+@wp.func
+def finite_or_zero(p: Any):
+    """(p, True) for a finite point, else (0, False): an invalid point (NaN/inf, e.g. from a NaN
+    depth) is transformed as the origin, so its parameters get 0 gradient rather than 0 * NaN."""
+    ok = wp.isfinite(p)
+    return wp.where(ok, p, type(p)()), ok
 
 
 @wp.func

@@ -169,7 +169,8 @@ def _pointwise_se3(
     j = i - b * hw
     omega = wp.vector(channel(params, b, 0, 6, hw, j), channel(params, b, 1, 6, hw, j), channel(params, b, 2, 6, hw, j))
     t = wp.vector(channel(params, b, 3, 6, hw, j), channel(params, b, 4, 6, hw, j), channel(params, b, 5, 6, hw, j))
-    out[i] = perpixel.se3_point(points[i], omega, t)
+    p, ok = perpixel.finite_or_zero(points[i])
+    out[i] = wp.where(ok, perpixel.se3_point(p, omega, t), points[i])
 
 
 @wp.kernel(module=_POINTS)
@@ -181,7 +182,8 @@ def _pointwise_sim3(
     j = i - b * hw
     omega = wp.vector(channel(params, b, 0, 7, hw, j), channel(params, b, 1, 7, hw, j), channel(params, b, 2, 7, hw, j))
     t = wp.vector(channel(params, b, 3, 7, hw, j), channel(params, b, 4, 7, hw, j), channel(params, b, 5, 7, hw, j))
-    out[i] = perpixel.sim3_point(points[i], omega, t, channel(params, b, 6, 7, hw, j))
+    p, ok = perpixel.finite_or_zero(points[i])
+    out[i] = wp.where(ok, perpixel.sim3_point(p, omega, t, channel(params, b, 6, 7, hw, j)), points[i])
 
 
 @wp.kernel(module=_POINTS)
@@ -198,7 +200,8 @@ def _pointwise_transform10(
     anchor = wp.vector(
         channel(params, b, 7, 10, hw, j), channel(params, b, 8, 10, hw, j), channel(params, b, 9, 10, hw, j)
     )
-    out[i] = perpixel.transform10_point(points[i], omega, t, channel(params, b, 6, 10, hw, j), anchor)
+    p, ok = perpixel.finite_or_zero(points[i])
+    out[i] = wp.where(ok, perpixel.transform10_point(p, omega, t, channel(params, b, 6, 10, hw, j), anchor), points[i])
 
 
 @wp.kernel(module=_FLOWS)

@@ -18,6 +18,14 @@ cancellation for small x), and Cauchy uses :func:`log1p`, accurate for tiny argu
 gradient ``1 / (1 + z)`` is given explicitly with ``@wp.func_grad``. All functions are generic
 over float32/float64 except the two concrete :func:`log1p` overloads (custom gradients cannot
 be generic in Warp 1.19).
+
+Huge residuals. ``(x/c)^2`` overflows once |x/c| > ~1.8e19 (float32), so where |x/c| > 1 Cauchy and
+Geman-McClure are evaluated in ``w = c/x`` (``log(1 + u^2) = 2 log|u| + log(1 + w^2)``, ``u^2 / (1
++ u^2) = 1 / (1 + w^2)``): finite for every finite x and correct at x = +-inf (rho = inf, c^2/2,
+psi = 0). Each branch is evaluated on an input replaced by a harmless value where the other branch
+is taken (:func:`_keep`), and the branches are joined by ``wp.where``, whose adjoint sends nothing
+to the side not taken: the unused branch can neither overflow nor put ``0 * inf = NaN`` into the
+gradient.
 """
 
 from typing import Any
@@ -43,7 +51,7 @@ def log1p(z: wp.float32):
     u = wp.float32(1.0) + z
     r = z
     if u != wp.float32(1.0):
-        r = wp.log(u) * z / (u - wp.float32(1.0))
+        r = wp.log(u) * (z / (u - wp.float32(1.0)))  # z / (u - 1) first: log(u) z overflows for z ~ 1e37
     return r
 
 
@@ -57,7 +65,7 @@ def log1p(z: wp.float64):  # noqa: F811 (the float64 overload)
     u = wp.float64(1.0) + z
     r = z
     if u != wp.float64(1.0):
-        r = wp.log(u) * z / (u - wp.float64(1.0))
+        r = wp.log(u) * (z / (u - wp.float64(1.0)))
     return r
 
 
@@ -70,36 +78,51 @@ def adj_log1p(z: wp.float64, adj_ret: wp.float64):  # noqa: F811 (the float64 ov
 
 
 @wp.func
+def _keep(take: bool, x: Any, other: Any):
+    """x where ``take``, else ``other``: the input of a branch, made harmless where it is not taken."""
+    return wp.where(take, x, other)
+
+
+@wp.func
 def huber_rho(x: Any, eps: Any):
-    ax = wp.abs(x)
-    r = x * x * type(x)(0.5)
-    if ax > eps:
-        r = eps * (ax - eps * type(x)(0.5))
-    return r
+    inner = wp.abs(x) <= eps
+    xi = _keep(inner, x, type(x)(0.0))
+    ao = wp.abs(_keep(inner, eps, x))
+    return wp.where(inner, xi * xi * type(x)(0.5), eps * (ao - eps * type(x)(0.5)))
 
 
 @wp.func
 def cauchy_rho(x: Any, c: Any):
-    u = x / c
-    return c * c * type(x)(0.5) * log1p(u * u)
+    inner = wp.abs(x) <= c
+    u = _keep(inner, x, type(x)(0.0)) / c
+    xo = wp.abs(_keep(inner, c, x))
+    w = c / xo  # |w| < 1 where taken; 0 at x = +-inf
+    # log(1 + u^2) for |u| <= 1, 2 log|x/c| + log(1 + w^2) beyond; log|x| - log c where x/c overflows
+    uo = xo / c
+    log_uo = wp.where(uo <= type(x)(3.0e38), wp.log(uo), wp.log(xo) - wp.log(c))
+    h = c * c * type(x)(0.5)
+    return wp.where(inner, h * log1p(u * u), h * (type(x)(2.0) * log_uo + log1p(w * w)))
 
 
 @wp.func
 def geman_mcclure_rho(x: Any, c: Any):
-    u = x / c
-    return x * x * type(x)(0.5) / (type(x)(1.0) + u * u)
+    inner = wp.abs(x) <= c
+    xi = _keep(inner, x, type(x)(0.0))
+    u = xi / c
+    w = c / _keep(inner, c, x)
+    half = type(x)(0.5)
+    # (x^2/2) / (1 + u^2) = (c^2/2) / (1 + w^2) for |u| > 1
+    return wp.where(inner, xi * xi * half / (type(x)(1.0) + u * u), c * c * half / (type(x)(1.0) + w * w))
 
 
 @wp.func
 def tukey_rho(x: Any, c: Any):
     k = c * c / type(x)(6.0)
-    r = k
-    if wp.abs(x) <= c:
-        u = x / c
-        z = u * u
-        # 1 - (1 - z)^3 = z (3 - 3 z + z^2), without the cancellation of the closed form
-        r = k * z * (type(x)(3.0) - z * (type(x)(3.0) - z))
-    return r
+    inner = wp.abs(x) <= c
+    u = _keep(inner, x, type(x)(0.0)) / c
+    z = u * u
+    # 1 - (1 - z)^3 = z (3 - 3 z + z^2), without the cancellation of the closed form
+    return wp.where(inner, k * z * (type(x)(3.0) - z * (type(x)(3.0) - z)), k)
 
 
 @wp.func
@@ -120,35 +143,39 @@ def rho(x: Any, kind: int, c: Any):
 
 @wp.func
 def huber_psi(x: Any, eps: Any):
-    r = x
-    if x > eps:
-        r = eps
-    elif x < -eps:
-        r = -eps
-    return r
+    inner = wp.abs(x) <= eps
+    return wp.where(inner, _keep(inner, x, type(x)(0.0)), wp.where(x < type(x)(0.0), -eps, eps))
 
 
 @wp.func
 def cauchy_psi(x: Any, c: Any):
-    u = x / c
-    return x / (type(x)(1.0) + u * u)
+    inner = wp.abs(x) <= c
+    xi = _keep(inner, x, type(x)(0.0))
+    u = xi / c
+    w = c / _keep(inner, c, x)
+    # x / (1 + u^2) = c w / (1 + w^2) for |u| > 1 (0 at x = +-inf)
+    return wp.where(inner, xi / (type(x)(1.0) + u * u), c * w / (type(x)(1.0) + w * w))
 
 
 @wp.func
 def geman_mcclure_psi(x: Any, c: Any):
-    u = x / c
+    inner = wp.abs(x) <= c
+    xi = _keep(inner, x, type(x)(0.0))
+    u = xi / c
+    w = c / _keep(inner, c, x)
     d = type(x)(1.0) + u * u
-    return x / (d * d)
+    e = type(x)(1.0) + w * w
+    # x / (1 + u^2)^2 = c w^3 / (1 + w^2)^2 for |u| > 1
+    return wp.where(inner, xi / (d * d), c * w * w * w / (e * e))
 
 
 @wp.func
 def tukey_psi(x: Any, c: Any):
-    r = type(x)(0.0)
-    if wp.abs(x) <= c:
-        u = x / c
-        w = type(x)(1.0) - u * u
-        r = x * w * w
-    return r
+    inner = wp.abs(x) <= c
+    xi = _keep(inner, x, type(x)(0.0))
+    u = xi / c
+    v = type(x)(1.0) - u * u
+    return wp.where(inner, xi * v * v, type(x)(0.0))
 
 
 @wp.func

@@ -161,6 +161,52 @@ def test_robust_float32_matches_float64():
             assert torch.allclose(r32.double(), fn(x, kind, 1.0), rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_robust_huge_and_infinite_residuals(dtype):
+    # |x/c| far beyond where (x/c)^2 overflows (1.8e19 in float32, 1.3e154 in float64), and +-inf:
+    # rho and psi stay finite (inf only for the unbounded rho at inf) and d rho / dx equals psi.
+    big = 3e19 if dtype == torch.float32 else 1e160
+    x = torch.tensor([big, -big, 4e37 if dtype == torch.float32 else 1e300, math.inf, -math.inf], dtype=dtype)
+    c = 1.5
+    u = [abs(v) / c for v in x.tolist()]
+    expect_rho = {
+        "huber": [c * (abs(v) - c / 2) for v in x.tolist()],
+        "cauchy": [c * c / 2 * 2 * math.log(a) for a in u],  # log(1 + u^2) = 2 log u to rounding here
+        "geman_mcclure": [c * c / 2] * 5,
+        "tukey": [c * c / 6] * 5,
+    }
+    for kind in KINDS:
+        xg = x.clone().requires_grad_()
+        r = P.robust_rho(xg, kind, c)
+        (g,) = torch.autograd.grad(r.sum(), xg)
+        psi = P.robust_psi(x, kind, c)
+        assert not r.isnan().any() and torch.isfinite(g).all() and torch.isfinite(psi).all(), kind
+        assert torch.allclose(r.double(), torch.tensor(expect_rho[kind], dtype=D), rtol=1e-6), kind
+        assert torch.allclose(g, psi, rtol=1e-6, atol=0), kind
+        # psi of a huge residual: c sign(x) (Huber), ~c^2/x (Cauchy), ~c^4/x^3 (GM, 0 here), 0 (Tukey)
+        if kind == "cauchy":
+            assert torch.allclose(psi[:2].double(), c * c / x[:2].double(), rtol=1e-6)
+        if kind == "huber":
+            assert torch.equal(psi, c * x.sign())
+    # a small scale reaches the same regime with ordinary residuals
+    r = P.robust_rho(torch.tensor([1e7], dtype=dtype), "cauchy", 1e-12)
+    assert math.isclose(r.item(), 1e-24 / 2 * 2 * math.log(1e19), rel_tol=1e-5)
+
+
+def test_robust_scale_argument():
+    x = torch.tensor([0.5, 3.0])
+    np = pytest.importorskip("numpy")
+    for s in (np.float32(1.0), np.int64(1), 1):  # NumPy and Python scalars alike
+        assert torch.equal(P.robust_rho(x, "huber", s), P.robust_rho(x, "huber", 1.0))
+    with pytest.raises(TypeError, match=r"robust_rho: argument 'scale' must be a real number, got str"):
+        P.robust_rho(x, "huber", "1")
+    # c and c^2 must be normal numbers of the input's dtype (c = 1e39 is inf in float32)
+    for s in (1e39, 1e-50, 1e20):
+        with pytest.raises(ValueError, match=r"robust_rho: argument 'scale' must lie in .* for torch.float32"):
+            P.robust_rho(x, "cauchy", s)
+    assert torch.isfinite(P.robust_rho(x.double(), "cauchy", 1e20)).all()
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_smoothness_loss(kind):
     f = rand(2, 3, 5, 6, seed=5, scale=2.0)
@@ -386,6 +432,35 @@ def test_pointwise_identity_and_zero_rotation_gradcheck(fn, ref, k):
         ident[:, 7:] = rand(B, 3, H, W, seed=25)  # any anchor: identity when R = I, s = 1, t = 0
     assert torch.allclose(fn(pts, ident), pts, atol=1e-15)
     assert grad_ok(fn, pts, ident)  # omega = 0 exactly: finite, exact gradients
+
+
+@pytest.mark.parametrize("fn, ref, k", POINTWISE)
+def test_pointwise_invalid_points(fn, ref, k):
+    # NaN / inf points (a missing depth through depth_to_points) pass through unchanged; their
+    # parameters get zero gradient, so a masked loss gives finite gradients everywhere
+    B, H, W = 1, 2, 3
+    pts = rand(B, H, W, 3, seed=30, scale=2.0)
+    pts[0, 0, 1] = math.nan
+    pts[0, 1, 2, 2] = math.inf
+    prm = rand(B, k, H, W, seed=31).requires_grad_()
+    p = pts.clone().requires_grad_()
+    out = fn(p, prm)
+    bad = ~torch.isfinite(pts).all(-1)
+    assert torch.equal(out[bad].isnan(), pts[bad].isnan()) and torch.isfinite(out[~bad]).all()
+    assert torch.allclose(out[~bad], ref(pts, prm.detach())[~bad], atol=1e-12)
+    ok = torch.isfinite(out)
+    (gp, gq) = torch.autograd.grad(torch.where(ok, out, 0.0).sum(), (p, prm))
+    assert torch.isfinite(gq).all() and torch.isfinite(gp).all()
+    assert (gq.permute(0, 2, 3, 1)[bad] == 0).all() and (gq.permute(0, 2, 3, 1)[~bad] != 0).any()
+
+
+def test_homography_flow_nan_params():
+    p = torch.eye(3, dtype=D).reshape(1, 9, 1, 1).repeat(1, 1, 2, 3)
+    p[0, 8, 1, 2] = math.nan  # a NaN denominator must not be mistaken for a tiny one
+    flow = P.homography_flow(p)
+    assert flow[0, :, 1, 2].isnan().all()
+    flow[0, :, 1, 2] = 0.0
+    assert torch.equal(flow, torch.zeros_like(flow))
 
 
 def test_pointwise_special_cases_agree():
