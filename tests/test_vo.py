@@ -332,6 +332,44 @@ def test_resume_continues_exactly(tiny_run, tmp_path, monkeypatch):
     del first
 
 
+@pytest.mark.parametrize("change", [dict(seed=1), dict(n_frames=17), dict(n_train_traj=3)])
+def test_resume_refuses_a_run_on_other_data(tiny_run, change):
+    from gvnn_warp.vo.train import ConfigError
+
+    out, _ = tiny_run
+    before = (out / "checkpoint.pt").stat().st_mtime_ns
+    key = next(iter(change))
+    with pytest.raises(ConfigError, match=f"cannot resume: checkpoint has {key}="):
+        train(_tiny_config(out, resume=True, **change))
+    assert (out / "checkpoint.pt").stat().st_mtime_ns == before
+
+
+def test_too_few_training_pairs_for_the_batch(tmp_path):
+    from gvnn_warp.vo.train import ConfigError
+
+    with pytest.raises(ConfigError, match="2 training pairs are fewer than --batch-size 8"):
+        train(_tiny_config(tmp_path, n_train_traj=1, n_frames=2))
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["vo", "--motion", "so3", "--out", "X", "--seed", "-1"], "argument --seed: expected an integer >= 0"),
+        (["vo", "--motion", "so3", "--out", "X", "--lr", "0"], "argument --lr: expected a positive number"),
+        (["vo", "--motion", "so3", "--out", "X", "--loss-scale", "nan"], "argument --loss-scale: expected a positive"),
+        (["align", "--out", "X", "--size", "16x16", "--levels", "4"], "--levels 4 is too many for 16x16"),
+    ],
+)
+def test_cli_rejects_bad_arguments(argv, message, capsys, tmp_path):
+    from gvnn_warp.cli import main
+
+    argv = [str(tmp_path / a) if a == "X" else a for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert message in capsys.readouterr().err + str(exc.value.code)
+    assert not (tmp_path / "X").exists()
+
+
 def test_cli_interrupt_and_resume(tmp_path):
     """SIGINT mid-run saves a checkpoint and exits 130; --resume continues from its step."""
     out = tmp_path / "run"

@@ -39,3 +39,14 @@ def positive_int(text: str) -> int:
 def nonnegative_int(text: str) -> int:
     """``type=`` for optional repetitions: an integer >= 0."""
     return _int_at_least(text, 0, "an integer >= 0")
+
+
+def positive_float(text: str) -> float:
+    """``type=`` for rates and scales: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not 0 < v < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v

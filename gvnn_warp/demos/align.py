@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._args import image_size, positive_int
+from ._args import image_size, nonnegative_int, positive_int
+
+MIN_LEVEL_SIZE = 4  # pixels along the shorter side of the coarsest pyramid level
 
 
 def add_parser(subparsers) -> None:
@@ -27,7 +29,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels (default 3)")
     p.add_argument("--rotation-deg", type=float, default=4.0, help="true rotation between the views")
     p.add_argument("--translation-cm", type=float, default=8.0, help="true translation between the views")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the scene and the motion (default 0)")
     p.set_defaults(func=run)
 
 
@@ -69,6 +71,10 @@ def run(args: argparse.Namespace) -> int:
     from .. import functional as G
 
     width, height = args.size
+    max_levels = int(math.log2(min(width, height) // MIN_LEVEL_SIZE)) + 1
+    if args.levels > max_levels:
+        raise SystemExit(f"gvnn-warp align: error: --levels {args.levels} is too many for {width}x{height} (the "
+                         f"coarsest level must keep >= {MIN_LEVEL_SIZE} pixels a side); use at most {max_levels}")
     args.out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(args.seed)
     t0 = time.perf_counter()

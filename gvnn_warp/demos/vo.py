@@ -24,7 +24,7 @@ import sys
 # is first imported (this module does not import torch at import time).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from ._args import image_size, nonnegative_int, positive_int
+from ._args import image_size, nonnegative_int, positive_float, positive_int
 
 _SIZE = image_size(32)
 
@@ -39,15 +39,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory (checkpoint, metrics.json, figures)")
     p.add_argument("--steps", type=positive_int, default=None, help="total training steps (default per motion)")
     p.add_argument("--size", type=_SIZE, default=None, help="image size WxH (default 128x96; e.g. 320x240)")
-    p.add_argument("--seed", type=int, default=None, help="seed of weights, trajectories and batches (default 0)")
+    p.add_argument("--seed", type=nonnegative_int, default=None,
+                   help="seed of weights, trajectories and batches (default 0)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.pt")
     p.add_argument("--loss", choices=LOSSES, default=None,
                    help="per-pixel penalty: l1 (default), l2, or an M-estimator (gvnn_warp.perpixel)")
-    p.add_argument("--loss-scale", type=float, default=None, help="M-estimator scale (default 0.1)")
+    p.add_argument("--loss-scale", type=positive_float, default=None, help="M-estimator scale (default 0.1)")
     p.add_argument("--batch-size", type=positive_int, default=None, help="global batch size (default 16)")
-    p.add_argument("--lr", type=float, default=None, help="peak Adam learning rate (default 1e-3)")
+    p.add_argument("--lr", type=positive_float, default=None, help="peak Adam learning rate (default 1e-3)")
     p.add_argument("--trajectories", type=positive_int, default=None,
-                   help="training trajectories to render (default 8; held-out: 2 others)")
+                   help="training trajectories to render (default 8 for so3, 16 for se3; held-out: 2 others)")
     p.add_argument("--frames", type=positive_int, default=None, help="frames per trajectory (default 80)")
     p.add_argument("--stages", type=positive_int, default=None,
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
@@ -92,13 +93,13 @@ def _config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from gvnn_warp.vo.train import train
+    from gvnn_warp.vo.train import ConfigError, train
 
     try:
         cfg = _config(args)
-    except ValueError as e:  # inconsistent options, e.g. --refine with a single stage
+        metrics = train(cfg)
+    except ConfigError as e:  # inconsistent options, e.g. --refine with a single stage, or --resume
         raise SystemExit(f"gvnn-warp vo: error: {e}") from None
-    metrics = train(cfg)
     if metrics.get("interrupted"):
         return 130
     if metrics:

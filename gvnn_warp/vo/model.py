@@ -53,7 +53,8 @@ class SiameseVO(nn.Module):
     Layout for ``widths = (16, 32, 64, 128)``, input 128x96 (every convolution 3x3, stride 2):
 
     - per head (shared weights): 4 -> 16 -> 32 channels (64x48, 32x24), PReLU after each;
-    - fused: concatenation (64 channels), then 64 -> 64 -> 128 -> 128 (16x12, 8x6, 4x3), PReLU;
+    - fused: concatenation (64 channels), then 64 -> 64 -> 64 -> 128 -> 128 (16x12, 8x6, 4x3, 2x2),
+      PReLU;
     - the last three layers, linear: a convolution over the whole remaining map (the paper's
       2x1 / 2x2 convolutions that absorb the input size; here it is adaptive), then two 1x1
       convolutions 128 -> 128 -> ``pose_dim``; the last one is initialised to zero.

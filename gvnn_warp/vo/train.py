@@ -85,6 +85,20 @@ class VOConfig:
     extra: dict = field(default_factory=dict)
 
 
+class ConfigError(ValueError):
+    """Options that cannot work together (or with the checkpoint being resumed); the CLI prints
+    the message without a traceback."""
+
+
+# Settings a resumed run must share with its checkpoint: the network's shape and the data it trains
+# and is scored on (the same seed and trajectories re-render the same pairs).
+RESUME_KEYS = (
+    "motion", "size", "depth_input", "widths", "n_head_layers", "depth_normalised_t", "stage_scales",
+    "seed", "n_train_traj", "n_eval_traj", "n_frames", "gaps", "both_directions", "scene_seed", "n_boxes",
+    "supersample", "trajectory_kwargs",
+)
+
+
 def default_config(motion: str, out: str, **overrides) -> VOConfig:
     """The tuned defaults for ``motion`` (``so3`` or ``se3``), with ``overrides`` (None = keep)."""
     per_motion: dict[str, dict] = {
@@ -95,15 +109,15 @@ def default_config(motion: str, out: str, **overrides) -> VOConfig:
         "se3": dict(gaps=(1, 2, 3), steps=1800, stage_scales=(1, 1), n_train_traj=16, refine=2),
     }
     if motion not in per_motion:
-        raise ValueError(f"motion must be one of {sorted(per_motion)}, got {motion!r}")
+        raise ConfigError(f"motion must be one of {sorted(per_motion)}, got {motion!r}")
     kw = {**per_motion[motion], **{k: v for k, v in overrides.items() if v is not None}}
     cfg = VOConfig(motion=motion, out=out, **kw)
     if cfg.loss not in LOSSES:
-        raise ValueError(f"loss must be one of {LOSSES}, got {cfg.loss!r}")
+        raise ConfigError(f"loss must be one of {LOSSES}, got {cfg.loss!r}")
     if len(cfg.stage_scales) < 2 and overrides.get("refine") is None:
         cfg.refine = 0  # the per-motion default refines with a second stage; a single network cannot
     if cfg.refine < 0 or (cfg.refine and len(cfg.stage_scales) < 2):
-        raise ValueError(f"refine must be >= 0 and needs at least 2 stages, got refine={cfg.refine!r} "
+        raise ConfigError(f"refine must be >= 0 and needs at least 2 stages, got refine={cfg.refine!r} "
                          f"with {len(cfg.stage_scales)} stage(s)")
     return cfg
 
@@ -268,8 +282,19 @@ def train(cfg: VOConfig) -> dict:
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
 
+    ckpt_path = out / CHECKPOINT
+    ck = None
+    if cfg.resume and ckpt_path.exists():  # checked before anything is rendered
+        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        if "stage_scales" not in ck["config"]:
+            raise ConfigError(f"cannot resume: {ckpt_path} was written by an older gvnn_warp (no CascadeVO); "
+                              "start a new run in another directory")
+        for key in RESUME_KEYS:
+            if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
+                raise ConfigError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "
+                                  f"this run {getattr(cfg, key)!r} (repeat the options the run was started with)")
     if cfg.batch_size % world:
-        raise ValueError(f"--batch-size {cfg.batch_size} must be divisible by the {world} ranks")
+        raise ConfigError(f"--batch-size {cfg.batch_size} must be divisible by the {world} ranks")
     local_batch = cfg.batch_size // world
     W, H = cfg.size
 
@@ -287,6 +312,9 @@ def train(cfg: VOConfig) -> dict:
     t_data = time.perf_counter() - t0
     _log(rank, f"vo {cfg.motion}: {len(train_set)} training pairs, {len(eval_set)} held-out pairs at "
          f"{W}x{H}, rendered in {t_data:.1f} s")
+    if len(train_set) < cfg.batch_size:
+        raise ConfigError(f"{len(train_set)} training pairs are fewer than --batch-size {cfg.batch_size}: "
+                          "render more (--trajectories, --frames) or use a smaller batch")
     eval_idx = _even_subset(len(eval_set), cfg.n_eval)
     panel_idx = eval_idx[_even_subset(len(eval_idx), cfg.n_panel + 2)[1:-1]][: cfg.n_panel]
 
@@ -302,16 +330,7 @@ def train(cfg: VOConfig) -> dict:
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
 
     step, history, snapshots, elapsed_before = 0, [], {}, 0.0
-    ckpt_path = out / CHECKPOINT
-    if cfg.resume and ckpt_path.exists():
-        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
-        if "stage_scales" not in ck["config"]:
-            raise ValueError(f"cannot resume: {ckpt_path} was written by an older gvnn_warp (no CascadeVO); "
-                             "start a new run in another directory")
-        for key in ("motion", "size", "depth_input", "widths", "n_head_layers", "depth_normalised_t", "stage_scales"):
-            if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
-                raise ValueError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "
-                                 f"this run {getattr(cfg, key)!r}")
+    if ck is not None:
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         step, history, snapshots = ck["step"], list(ck["train_loss"]), dict(ck["snapshots"])
