@@ -17,6 +17,7 @@ thread count follows ``torch.get_num_threads()`` unless set with
 from __future__ import annotations
 
 import functools
+import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -187,6 +188,13 @@ def warp_op(
         return ft, arrays, out_arrays
 
     def forward(*args):
+        for o in outputs:  # inputs are checked by ArgCheck; an output can be far larger (e.g. a big grid)
+            shape = tuple(o.shape(*args))
+            if math.prod(shape) >= 2**31:
+                raise ValueError(
+                    f"gvnn_warp.{name}: the output would have shape {shape} ({math.prod(shape)} elements); "
+                    "kernels index with int32 (< 2**31): split the batch"
+                )
         outs = alloc_outputs(args)
         n = n_threads(*args)
         if n > 0:
@@ -262,6 +270,16 @@ def warp_op(
         schema=f"({sig_in}, {sig_grads}) -> Tensor[]",
     )
     bwd.register_fake(backward_fake)
+
+    def no_second_order(ctx, *grads):
+        raise NotImplementedError(
+            f"gvnn_warp.{name}: second-order gradients are not supported (its backward is a Warp adjoint "
+            "launch, which has no adjoint of its own); see docs/conventions.md"
+        )
+
+    # without this, create_graph=True would seem to work and the second backward would fail with a
+    # torch-internal "no autograd formula" error
+    bwd.register_autograd(no_second_order, setup_context=lambda ctx, inputs, output: None)
     _skip_lazy_dynamo_import(bwd)
 
     def setup_context(ctx, inputs, output):

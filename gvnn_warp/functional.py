@@ -96,8 +96,9 @@ def quaternion_to_matrix(q: Tensor) -> Tensor:
     """Quaternion -> rotation matrix.
 
     Args:
-        q: (..., 4) quaternions in (w, x, y, z) order, any non-zero norm (normalised inside;
-            the gradient is that of q / |q|). A zero quaternion gives the identity.
+        q: (..., 4) quaternions in (w, x, y, z) order, of any norm with |q|^2 in (1e-30, dtype
+            max) (normalised inside; the gradient is that of q / |q|). Below that (a zero
+            quaternion) the identity, with zero gradient.
 
     Returns:
         (..., 3, 3) rotation matrices.
@@ -264,7 +265,8 @@ def bilinear_sample(
     image: for W = 4, gx = -1 is pixel x = -0.5, gx = 0 is x = 1.5. With ``align_corners=True``
     they are the centres of the corner pixels: gx = -1 is x = 0, gx = 1 is x = W - 1.
     ``padding_mode="zeros"`` reads 0 outside; ``"border"`` clamps the position into the image.
-    Non-finite grid values sample 0 with zero gradient.
+    NaN grid values sample 0 with zero gradient; so do +-inf with "zeros", while "border" clamps
+    them to the edge (as ``grid_sample`` does).
 
     Args:
         image: (B, C, H, W).
@@ -279,6 +281,8 @@ def bilinear_sample(
     pad = _PADDING[chk.option("padding_mode", padding_mode, tuple(_PADDING))]
     B, C, H, W = image.shape
     h, w = grid.shape[1:3]
+    if H * W == 0 and B * h * w > 0:
+        chk._fail(ValueError, f"argument 'image' has no pixels to sample from (shape {tuple(image.shape)})")
     # 8 output locations per thread where they tile the output (SIMD weights; same results)
     op = _ops.bilinear_sample_lanes if sampling_kernels.fits_lanes(h * w, H, W) else _ops.bilinear_sample
     out = op(image.contiguous(), _flat(grid, 1), C, H, W, h * w, int(bool(align_corners)), pad)

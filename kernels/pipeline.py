@@ -27,9 +27,26 @@ from .sampler import PADDING_BORDER, PADDING_ZEROS
 _PADDING = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
 
 
-def _expect(fn: str, name: str, cond: bool, what: str, got) -> None:
+def _expect(fn: str, name: str, cond: bool, what: str, got, exc: type[Exception] = ValueError) -> None:
     if not cond:
-        raise ValueError(f"gvnn_warp.kernels.{fn}: argument '{name}' must be {what}, got {got}")
+        raise exc(f"gvnn_warp.kernels.{fn}: argument '{name}' must be {what}, got {got}")
+
+
+def _type_name(t) -> str:
+    shape, scalar = getattr(t, "_shape_", None), getattr(t, "_wp_scalar_type_", None)
+    if shape is not None and scalar is not None:  # vector / matrix types: "3x4 float64"
+        return f"{'x'.join(map(str, shape))} {scalar.__name__}"
+    return getattr(t, "__name__", repr(t))
+
+
+def _expect_float(fn: str, name: str, a: wp.array) -> None:
+    ok = a.dtype in (wp.float32, wp.float64)
+    _expect(fn, name, ok, "of dtype float32 or float64", _type_name(a.dtype), TypeError)
+
+
+def _expect_matrices(fn: str, name: str, a: wp.array, shape: tuple[int, int], ft) -> None:
+    ok = getattr(a.dtype, "_shape_", None) == shape and getattr(a.dtype, "_wp_scalar_type_", None) is ft
+    _expect(fn, name, ok, f"an array of {shape[0]}x{shape[1]} {ft.__name__} matrices", _type_name(a.dtype), TypeError)
 
 
 def warp_frame_depth(
@@ -53,8 +70,12 @@ def warp_frame_depth(
     _expect(fn, "pose", pose.ndim == 1 and pose.shape[0] == B, f"a ({B},) array of 3x4 matrices", pose.shape)
     _expect(fn, "K", K.ndim == 1 and K.shape[0] == B, f"a ({B},) array of 3x3 matrices", K.shape)
     _expect(fn, "padding_mode", padding_mode in _PADDING, f"one of {list(_PADDING)}", repr(padding_mode))
+    _expect_float(fn, "image", image)
     ft = image.dtype
-    _expect(fn, "depth", depth.dtype == ft, f"of dtype {ft.__name__}", depth.dtype.__name__)
+    _expect(fn, "depth", depth.dtype == ft, f"of dtype {ft.__name__}", _type_name(depth.dtype), TypeError)
+    _expect_matrices(fn, "pose", pose, (3, 4), ft)
+    _expect_matrices(fn, "K", K, (3, 3), ft)
+    _expect(fn, "min_depth", 0 < min_depth < float("inf"), "a positive finite number", repr(min_depth))
     requires_grad = image.requires_grad or depth.requires_grad or pose.requires_grad or K.requires_grad
     warped = wp.zeros((B, C, H, W), dtype=ft, device=image.device, requires_grad=requires_grad)
     valid = wp.zeros((B, 1, H, W), dtype=wp.bool, device=image.device)
@@ -86,6 +107,10 @@ def masked_squared_error(a: wp.array, b: wp.array, valid: wp.array) -> wp.array:
     a, b: (B, C, H, W) of one float type; valid: (B, 1, H, W) of ``wp.bool``.
     """
     fn = "masked_squared_error"
+    _expect(fn, "a", a.ndim == 4, "a 4-D (B, C, H, W) array", a.shape)
+    _expect_float(fn, "a", a)
+    _expect(fn, "b", b.dtype == a.dtype, f"of dtype {_type_name(a.dtype)}", _type_name(b.dtype), TypeError)
+    _expect(fn, "valid", valid.dtype == wp.bool, "of dtype bool", _type_name(valid.dtype), TypeError)
     _expect(fn, "b", tuple(b.shape) == tuple(a.shape), f"of shape {tuple(a.shape)}", b.shape)
     B, C, H, W = a.shape
     _expect(fn, "valid", tuple(valid.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}", valid.shape)

@@ -41,6 +41,9 @@ CASES = [
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE, K, min_depth=-1), ValueError, r"'min_depth' must be a positive"),
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE, K, padding_mode="bogus"), ValueError, r"warp_frame_depth: argument 'padding_mode'"),
     (lambda: G.so3_exp(torch.zeros(1, 3).expand(2**31 // 3 + 1, 3)), ValueError, r"so3_exp: argument 'omega' has \d+ elements; kernels index with int32"),
+    (lambda: G.bilinear_sample(IMG[:, :, :0], torch.zeros(2, 4, 4, 2, dtype=f64)), ValueError, r"bilinear_sample: argument 'image' has no pixels to sample from \(shape \(2, 3, 0, 8\)\)"),
+    # small inputs, an output of 2**31 elements (1 x 1024 channels x 2048 x 1024): refused before allocating
+    (lambda: G.bilinear_sample(torch.zeros(1, 1024, 2, 2), torch.zeros(1, 2048, 1024, 2)), ValueError, r"gvnn_warp\.bilinear_sample(_lanes)?: the output would have shape .* \(2147483648 elements\); kernels index with int32"),
 ]
 
 
@@ -50,3 +53,18 @@ def test_bad_input_message(case):
     with pytest.raises(exc, match=r"gvnn_warp\.[a-z0-9_]+: " if "gvnn_warp" not in pattern else pattern) as info:
         call()
     assert info.match(pattern)
+
+
+@pytest.mark.parametrize(
+    "fn, make",
+    [
+        (G.so3_exp, lambda: torch.rand(4, 3, dtype=f64)),
+        (lambda g: G.bilinear_sample(IMG, g), lambda: torch.rand(2, 3, 3, 2, dtype=f64) - 0.5),
+    ],
+)
+def test_second_order_gradients_refused_clearly(fn, make):
+    # create_graph=True gives a first-order gradient; differentiating it again names the function
+    x = make().requires_grad_()
+    (g,) = torch.autograd.grad(fn(x).pow(2).sum(), x, create_graph=True)
+    with pytest.raises(NotImplementedError, match=r"gvnn_warp\.[a-z0-9_]+: second-order gradients are not supported"):
+        g.pow(2).sum().backward()

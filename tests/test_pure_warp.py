@@ -36,3 +36,35 @@ def test_readme_pure_warp_pipeline(tmp_path):
     result = np.load(out)
     assert np.isfinite(result).all() and result[0] > 0
     assert np.abs(result[1:]).max() > 0  # the photometric loss does depend on the pose
+
+
+def test_pipeline_checks_its_arguments():
+    import pytest
+    import warp as wp
+    from gvnn_warp.kernels import pipeline
+
+    mat34f, mat34d = (wp.types.matrix((3, 4), t) for t in (wp.float32, wp.float64))
+
+    B, C, H, W = 1, 2, 3, 4
+
+    def arrays(ft=wp.float32, pose_t=mat34f, K_t=wp.mat33f, image_t=None):
+        image = wp.zeros((B, C, H, W), dtype=image_t or ft)
+        depth = wp.ones((B, 1, H, W), dtype=image_t or ft)
+        pose = wp.array([np.eye(3, 4)], dtype=pose_t)
+        K = wp.array([np.eye(3)], dtype=K_t)
+        return image, depth, pose, K
+
+    warped, valid = pipeline.warp_frame_depth(*arrays())
+    assert warped.shape == (B, C, H, W) and valid.numpy().all()
+    bad = [
+        (arrays(pose_t=mat34d), {}, TypeError, r"argument 'pose' must be an array of 3x4 float32 matrices, got 3x4 f"),
+        (arrays(K_t=wp.mat33d), {}, TypeError, r"argument 'K' must be an array of 3x3 float32 matrices"),
+        (arrays(image_t=wp.int32), {}, TypeError, r"argument 'image' must be of dtype float32 or float64, got int32"),
+        (arrays(), {"min_depth": -1.0}, ValueError, r"argument 'min_depth' must be a positive finite number"),
+        (arrays(), {"padding_mode": "reflect"}, ValueError, r"argument 'padding_mode' must be one of"),
+    ]
+    for args, kw, exc, pattern in bad:
+        with pytest.raises(exc, match=r"gvnn_warp\.kernels\.warp_frame_depth: " + pattern):
+            pipeline.warp_frame_depth(*args, **kw)
+    with pytest.raises(TypeError, match=r"masked_squared_error: argument 'valid' must be of dtype bool"):
+        pipeline.masked_squared_error(warped, warped, warped)
