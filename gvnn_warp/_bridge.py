@@ -177,9 +177,13 @@ def warp_op(
     def out_dtype(o: Output, ref: torch.Tensor) -> torch.dtype:
         return torch.bool if o.kind == "bool" else ref.dtype
 
-    def alloc_outputs(args, empty=torch.empty):
+    def output_shapes(args) -> list[tuple]:
+        return [tuple(o.shape(*args)) for o in outputs]
+
+    def alloc_outputs(args, shapes=None):
         ref = args[0]
-        return [empty(tuple(o.shape(*args)), dtype=out_dtype(o, ref), device=ref.device) for o in outputs]
+        shapes = output_shapes(args) if shapes is None else shapes
+        return [torch.empty(s, dtype=out_dtype(o, ref), device=ref.device) for s, o in zip(shapes, outputs)]
 
     def wrap(args, outs):
         ft = _FLOAT_TYPES[args[0].dtype]
@@ -188,14 +192,14 @@ def warp_op(
         return ft, arrays, out_arrays
 
     def forward(*args):
-        for o in outputs:  # inputs are checked by ArgCheck; an output can be far larger (e.g. a big grid)
-            shape = tuple(o.shape(*args))
+        shapes = output_shapes(args)
+        for shape in shapes:  # inputs are checked by ArgCheck; an output can be far larger (e.g. a big grid)
             if math.prod(shape) >= 2**31:
                 raise ValueError(
                     f"gvnn_warp.{name}: the output would have shape {shape} ({math.prod(shape)} elements); "
                     "kernels index with int32 (< 2**31): split the batch"
                 )
-        outs = alloc_outputs(args)
+        outs = alloc_outputs(args, shapes)
         n = n_threads(*args)
         if n > 0:
             ft, arrays, out_arrays = wrap(args, outs)
@@ -204,7 +208,7 @@ def warp_op(
         return outs[0] if len(outs) == 1 else tuple(outs)
 
     def forward_fake(*args):
-        outs = alloc_outputs(args, empty=torch.empty)
+        outs = alloc_outputs(args)
         return outs[0] if len(outs) == 1 else tuple(outs)
 
     fwd = torch.library.custom_op(
