@@ -84,6 +84,15 @@ def _keep(take: bool, x: Any, other: Any):
 
 
 @wp.func
+def _branches(x: Any, c: Any):
+    """(inner, xi, u, w) for the two branches of Cauchy and Geman-McClure: ``inner`` = |x| <= c;
+    there xi = x and u = x/c (0 elsewhere); beyond, w = c/x (1 elsewhere), with |w| < 1."""
+    inner = wp.abs(x) <= c
+    xi = _keep(inner, x, type(x)(0.0))
+    return inner, xi, xi / c, c / _keep(inner, c, x)
+
+
+@wp.func
 def huber_rho(x: Any, eps: Any):
     inner = wp.abs(x) <= eps
     xi = _keep(inner, x, type(x)(0.0))
@@ -93,10 +102,8 @@ def huber_rho(x: Any, eps: Any):
 
 @wp.func
 def cauchy_rho(x: Any, c: Any):
-    inner = wp.abs(x) <= c
-    u = _keep(inner, x, type(x)(0.0)) / c
+    inner, _, u, w = _branches(x, c)  # w = 0 at x = +-inf
     xo = wp.abs(_keep(inner, c, x))
-    w = c / xo  # |w| < 1 where taken; 0 at x = +-inf
     # log(1 + u^2) for |u| <= 1, 2 log|x/c| + log(1 + w^2) beyond; log|x| - log c where x/c overflows
     uo = xo / c
     log_uo = wp.where(uo <= type(x)(3.0e38), wp.log(uo), wp.log(xo) - wp.log(c))
@@ -106,10 +113,7 @@ def cauchy_rho(x: Any, c: Any):
 
 @wp.func
 def geman_mcclure_rho(x: Any, c: Any):
-    inner = wp.abs(x) <= c
-    xi = _keep(inner, x, type(x)(0.0))
-    u = xi / c
-    w = c / _keep(inner, c, x)
+    inner, xi, u, w = _branches(x, c)
     half = type(x)(0.5)
     # (x^2/2) / (1 + u^2) = (c^2/2) / (1 + w^2) for |u| > 1
     return wp.where(inner, xi * xi * half / (type(x)(1.0) + u * u), c * c * half / (type(x)(1.0) + w * w))
@@ -149,20 +153,14 @@ def huber_psi(x: Any, eps: Any):
 
 @wp.func
 def cauchy_psi(x: Any, c: Any):
-    inner = wp.abs(x) <= c
-    xi = _keep(inner, x, type(x)(0.0))
-    u = xi / c
-    w = c / _keep(inner, c, x)
+    inner, xi, u, w = _branches(x, c)
     # x / (1 + u^2) = c w / (1 + w^2) for |u| > 1 (0 at x = +-inf)
     return wp.where(inner, xi / (type(x)(1.0) + u * u), c * w / (type(x)(1.0) + w * w))
 
 
 @wp.func
 def geman_mcclure_psi(x: Any, c: Any):
-    inner = wp.abs(x) <= c
-    xi = _keep(inner, x, type(x)(0.0))
-    u = xi / c
-    w = c / _keep(inner, c, x)
+    inner, xi, u, w = _branches(x, c)
     d = type(x)(1.0) + u * u
     e = type(x)(1.0) + w * w
     # x / (1 + u^2)^2 = c w^3 / (1 + w^2)^2 for |u| > 1
