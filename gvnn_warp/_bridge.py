@@ -19,40 +19,33 @@ from __future__ import annotations
 import functools
 import math
 import os
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
 import warp as wp
 
+from . import _compat
+from .kernels._compat import array_descriptor
 from .kernels.launch import FloatKernel, element_shape, element_type, launch, set_default_num_threads, use_openmp
 
 wp.init()
 set_default_num_threads(torch.get_num_threads)
 
 
-def _torch_openmp_library() -> str | None:
-    """A library through which the OpenMP runtime torch's parallel ops run on is found: torch's
-    ``libtorch_cpu``, whose ``GOMP_parallel`` resolves to that runtime (dlsym searches the library's
-    own dependencies); None if torch does not run on OpenMP or the library is not there."""
-    if "parallel backend: OpenMP" not in torch.__config__.parallel_info():
-        return None
-    lib_dir = os.path.join(os.path.dirname(os.path.realpath(torch.__file__)), "lib")
-    path = os.path.join(lib_dir, "libtorch_cpu.so")
-    return path if os.path.exists(path) else None
-
-
 def _use_torch_openmp() -> None:
     """Run threaded launches on torch's OpenMP team, whose threads spin, waiting for work, after
     every parallel torch op (Python threads would share the cores with them), unless
-    ``GVNN_WARP_OPENMP=0``; gvnn_warp's own Python threads otherwise, or if that fails."""
+    ``GVNN_WARP_OPENMP=0``; gvnn_warp's own Python threads otherwise, or if that fails. The choice
+    and its reason: ``gvnn_warp.info()`` (and a DEBUG line on the ``gvnn_warp`` logger)."""
     if os.environ.get("GVNN_WARP_OPENMP", "1") == "0":
+        use_openmp(None, "GVNN_WARP_OPENMP=0; using Python threads")
         return
+    library, reason = _compat.torch_openmp_library()
     try:
-        use_openmp(_torch_openmp_library())
-    except (OSError, AttributeError):  # no such library or symbol: the Python threads stay
-        pass
+        use_openmp(library, reason)
+    except (OSError, AttributeError) as e:  # no such library or symbol: the Python threads stay
+        use_openmp(None, f"torch's OpenMP runtime could not be used ({e}); using Python threads")
 
 
 _use_torch_openmp()
@@ -70,17 +63,13 @@ def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
     )
 
 
-# The type of Warp's bare array descriptors (what ``wp.from_torch(..., return_ctype=True)`` returns)
-_ARRAY_T = type(wp.from_torch(torch.zeros(1), dtype=wp.float32, return_ctype=True))
-
-
 @functools.cache
 def _null(kind: str, float_type):
     """A null array (no data, no elements) of ``kind``: the adjoint of an input whose gradient is
     not wanted, or of a non-differentiable output. Warp's adjoints skip writes to it; its stride
     is the element size, as a contiguous array's, so it keeps the kernel on Warp's faster
     contiguous-array path."""
-    return _ARRAY_T(0, 0, 1, (0,), (wp.types.type_size_in_bytes(element_type(kind, float_type)),))
+    return array_descriptor(0, 0, wp.types.type_size_in_bytes(element_type(kind, float_type)))
 
 
 def _descriptor(t: torch.Tensor, kind: str, float_type):
@@ -93,32 +82,14 @@ def _descriptor(t: torch.Tensor, kind: str, float_type):
     for d in element_shape(kind):
         inner *= d
     n = t.numel() // inner
-    return _ARRAY_T(t.data_ptr(), 0, 1, (n,), (inner * t.element_size(),))
+    return array_descriptor(t.data_ptr(), n, inner * t.element_size())
 
 
 def _skip_lazy_dynamo_import(op) -> None:
-    """Spare the first call of ``op`` the import of ``torch._dynamo`` (~2 s).
-
-    torch wraps custom-op implementations in ``torch._disable_dynamo``, which imports
-    ``torch._dynamo`` on the first call to build its wrapper. Until something else imports
-    ``torch._dynamo`` nothing can be tracing, so the wrapper can wait: this installs a
-    ``__dynamo_disable`` that calls the implementation directly and builds the real wrapper once
-    ``torch._dynamo`` is loaded. Same behaviour otherwise; a no-op if torch's internals differ.
-    """
-    for wrapper in getattr(op, "_backend_fns", {}).values():
-        impl = getattr(wrapper, "__wrapped__", None)
-        if impl is None or getattr(impl, "__dynamo_disable", None) is not None:
-            continue
-
-        def lazy(*args, _impl=impl, **kwargs):
-            dynamo = sys.modules.get("torch._dynamo")
-            if dynamo is None:
-                return _impl(*args, **kwargs)
-            real = dynamo.disable(_impl, recursive=True, wrapping=False)
-            _impl.__dynamo_disable = real
-            return real(*args, **kwargs)
-
-        impl.__dynamo_disable = lazy
+    """Spare the first call of ``op`` the import of ``torch._dynamo`` (~2 s; see
+    :func:`._compat.defer_dynamo_disable`)."""
+    for impl in _compat.custom_op_implementations(op):
+        _compat.defer_dynamo_disable(impl)
 
 
 @dataclass(frozen=True)
@@ -137,6 +108,23 @@ class Output:
     kind: str
     shape: Callable[..., Sequence[int]]
     differentiable: bool = True
+
+
+@dataclass(frozen=True)
+class OpSpec:
+    """What :func:`warp_op` registered: the op, its kernels and arguments (see ``OPS``)."""
+
+    name: str
+    op: Callable
+    fk: FloatKernel | None
+    inputs: tuple[str, ...]
+    params: tuple[Param, ...]
+    outputs: tuple[Output, ...]
+    backward_kernel: FloatKernel | None  # whose adjoint the backward launches
+    select: Callable[..., FloatKernel] | None = None
+
+
+OPS: dict[str, OpSpec] = {}  # every op registered by warp_op, by name (tests walk it)
 
 
 def warp_op(
@@ -218,6 +206,11 @@ def warp_op(
     _skip_lazy_dynamo_import(fwd)
 
     fwd._gvnn_signature = signature
+    OPS[name] = OpSpec(
+        name, fwd, fk, tuple(inputs), tuple(params), tuple(outputs),
+        backward_kernel=OPS[backward_from._gvnn_name].fk if backward_from is not None else fk, select=select,
+    )
+    fwd._gvnn_name = name
     if backward_from is not None:
         fwd.register_autograd(backward_from._gvnn_autograd, setup_context=backward_from._gvnn_setup_context)
         return fwd

@@ -6,12 +6,14 @@
 - Thin kernels with float32/float64 overloads: :mod:`.lie_kernels`, :mod:`.camera_kernels`,
   :mod:`.sampling_kernels` (including the fused 3D spatial transformer).
 - Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`.
-- The launch helper and overload machinery: :mod:`.launch`.
+- The launch layer: :mod:`.kinds` (array kinds, float32/float64 overloads, each kernel's declaration
+  of how it may be split), :mod:`.threads` (thread count, pools), :mod:`.launch` (the chunk
+  planner and ``launch()``; re-exports the public names of the other two).
 
 Conventions: ``docs/conventions.md``.
 """
 
-from . import camera, camera_kernels, launch, lie, lie_kernels, pipeline, sampler, sampling_kernels
+from . import camera, camera_kernels, kinds, launch, lie, lie_kernels, pipeline, sampler, sampling_kernels
 from .camera import MIN_DEPTH, pixel_ray, project, project_clamped, unproject
 from .lie import (
     euler_to_matrix,
@@ -36,6 +38,7 @@ __all__ = [
     "camera_kernels",
     "euler_to_matrix",
     "hat",
+    "kinds",
     "launch",
     "lie",
     "lie_kernels",

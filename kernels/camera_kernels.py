@@ -48,6 +48,17 @@ def _project_points(
     pixels[i] = camera.project_clamped(K[i // P], p, type(p[0])(min_depth))
 
 
-depth_to_points = FloatKernel(_depth_to_points, depth="scalar", K="mat33", points="vec3")
-transform_points = FloatKernel(_transform_points, T="mat34", points="vec3", out="vec3")
-project_points = FloatKernel(_project_points, points="vec3", K="mat33", pixels="vec2")
+# Adjoint scopes (see :meth:`.launch.FloatKernel.set_parallel`): per-point inputs are written back
+# only at the element's own point; a batch item's K or T gathers the gradients of all its points
+# ("any": cut into fixed pieces with partial buffers. They are also "segment" with segments of P
+# or H*W points; declaring so would split batches more freely, but would change the rounding of
+# large launches with several batch items, which this refactor keeps bitwise as it was).
+depth_to_points = FloatKernel(_depth_to_points, depth="scalar", K="mat33", points="vec3").set_parallel(
+    scopes={"depth": "element", "K": "any"}
+)
+transform_points = FloatKernel(_transform_points, T="mat34", points="vec3", out="vec3").set_parallel(
+    scopes={"T": "any", "points": "element"}
+)
+project_points = FloatKernel(_project_points, points="vec3", K="mat33", pixels="vec2").set_parallel(
+    scopes={"points": "element", "K": "any"}
+)

@@ -71,11 +71,18 @@ def _se3_log(offset: int, T: wp.array(dtype=Any), omega: wp.array(dtype=Any), u:
     u[i] = lie.se3_log_u(Ti, w)
 
 
-so3_exp = FloatKernel(_so3_exp, omega="vec3", R="mat33")
-so3_log = FloatKernel(_so3_log, R="mat33", omega="vec3")
-quaternion_to_matrix = FloatKernel(_quaternion_to_matrix, q="vec4", R="mat33")
-euler_to_matrix = FloatKernel(_euler_to_matrix, angles="vec3", R="mat33")
-se3_to_matrix = FloatKernel(_se3_to_matrix, omega="vec3", t="vec3", T="mat34")
-sim3_to_matrix = FloatKernel(_sim3_to_matrix, omega="vec3", t="vec3", sigma="scalar", T="mat34")
-se3_exp = FloatKernel(_se3_exp, omega="vec3", u="vec3", T="mat34")
-se3_log = FloatKernel(_se3_log, T="mat34", omega="vec3", u="vec3")
+# Every element reads and writes only its own batch item: any split is exact.
+so3_exp = FloatKernel(_so3_exp, omega="vec3", R="mat33").set_parallel(scopes={"omega": "element"})
+so3_log = FloatKernel(_so3_log, R="mat33", omega="vec3").set_parallel(scopes={"R": "element"})
+quaternion_to_matrix = FloatKernel(_quaternion_to_matrix, q="vec4", R="mat33").set_parallel(scopes={"q": "element"})
+euler_to_matrix = FloatKernel(_euler_to_matrix, angles="vec3", R="mat33").set_parallel(scopes={"angles": "element"})
+se3_to_matrix = FloatKernel(_se3_to_matrix, omega="vec3", t="vec3", T="mat34").set_parallel(
+    scopes={"omega": "element", "t": "element"}
+)
+sim3_to_matrix = FloatKernel(_sim3_to_matrix, omega="vec3", t="vec3", sigma="scalar", T="mat34").set_parallel(
+    scopes={"omega": "element", "t": "element", "sigma": "element"}
+)
+se3_exp = FloatKernel(_se3_exp, omega="vec3", u="vec3", T="mat34").set_parallel(
+    scopes={"omega": "element", "u": "element"}
+)
+se3_log = FloatKernel(_se3_log, T="mat34", omega="vec3", u="vec3").set_parallel(scopes={"T": "element"})

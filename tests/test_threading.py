@@ -10,7 +10,7 @@ import pytest
 import torch
 import warp as wp
 from gvnn_warp.kernels import launch as L
-from gvnn_warp.kernels import lie_kernels, sampling_kernels
+from gvnn_warp.kernels import lie_kernels, sampling_kernels, threads
 from refs import gradients_of, weighted_backward
 
 import gvnn_warp as G
@@ -195,9 +195,9 @@ def test_thread_count_precedence(monkeypatch):
 
 
 def test_adjoint_scopes():
-    so3 = L._info(lie_kernels.so3_exp[wp.float32])
-    assert so3.scopes == {"omega": "element", "R": "element"} and so3.forward
-    wfd = L._info(sampling_kernels.warp_frame_depth[wp.float64])
+    so3 = L.declaration(lie_kernels.so3_exp[wp.float32])
+    assert so3.scopes == {"omega": "element"} and so3.forward
+    wfd = L.declaration(sampling_kernels.warp_frame_depth[wp.float64])
     assert wfd.scopes["image"] == "segment" and wfd.scopes["depth"] == "element" and wfd.blocked is not None
 
 
@@ -213,19 +213,32 @@ def _gather(offset: int, x: wp.array(dtype=Any), idx: wp.array(dtype=wp.int32), 
     out[i] = x[idx[i]] * x[i]
 
 
-def test_inferred_kernels_are_safe():
-    splat = L.FloatKernel(_splat, x="scalar", out="scalar")[wp.float64]
-    assert not L._info(splat).forward  # forward atomics: one thread
-    gather = L.FloatKernel(_gather, x="scalar", out="scalar")[wp.float64]
-    assert L._info(gather).scopes["x"] == "any"
+def test_undeclared_kernels_are_refused():
+    """A kernel that did not declare how it may be split is refused by name, never guessed at."""
+    bare = L.FloatKernel(_gather, x="scalar", out="scalar")[wp.float64]
+    x = wp.zeros(4, dtype=wp.float64)
+    idx = wp.zeros(4, dtype=wp.int32)
+    with pytest.raises(ValueError, match="_gather.*no declaration.*set_parallel"):
+        L.launch(bare, 4, [x, idx], [wp.zeros(4, dtype=wp.float64)])
+    with pytest.raises(ValueError, match="has no array argument 'y'"):
+        L.FloatKernel(_gather, x="scalar", out="scalar").set_parallel(scopes={"y": "element"})
+
+
+def test_declared_atomics_and_gathers_are_safe():
+    """forward=False keeps an atomic forward on one thread; an "any" scope (the default for an
+    input not named) cuts a gathering adjoint into fixed pieces with partial buffers."""
+    splat = L.FloatKernel(_splat, x="scalar", out="scalar").set_parallel(forward=False, scopes={"x": "element"})
+    splat = splat[wp.float64]
+    gather = L.FloatKernel(_gather, x="scalar", out="scalar").set_parallel()[wp.float64]
+    assert L.declaration(gather).scope("x") == "any"
 
     n = 50_000
     rng = torch.Generator().manual_seed(4)
     x = torch.rand(n, dtype=torch.float64, generator=rng)
     idx = torch.randint(0, n, (n,), generator=rng, dtype=torch.int32)
     results = []
-    for threads in (1, 2, 4):
-        L.set_num_threads(threads)
+    for n_threads in (1, 2, 4):
+        L.set_num_threads(n_threads)
         total = torch.zeros(1, dtype=torch.float64)
         L.launch(splat, n, [wp.from_torch(x)], [wp.from_torch(total)])
         gx = torch.zeros(n, dtype=torch.float64)
@@ -270,7 +283,7 @@ def test_pool_runs_on_several_threads(backend):
         ids.add(threading.get_native_id())
         time.sleep(0.005)  # long enough for every thread to get chunks
 
-    L._pool.run(fn, 16, 2)
+    threads.pool().run(fn, 16, 2)
     assert len(ids) == 2 and threading.get_native_id() in ids
 
 
@@ -294,7 +307,7 @@ def test_pool_errors_are_raised(backend):
         done.append(k)
 
     with pytest.raises(RuntimeError, match="chunk 5 failed"):
-        L._pool.run(fn, 12, 3)
+        threads.pool().run(fn, 12, 3)
     assert sorted(done) == [k for k in range(12) if k != 5]  # the other chunks still ran
 
 
@@ -321,6 +334,7 @@ def test_forked_child_runs_threaded_launches():
     code = """
 import os, torch, gvnn_warp as G
 from gvnn_warp.kernels import launch as L
+from gvnn_warp.kernels import threads
 L.set_num_threads(2)
 omega = torch.randn(200_000, 3, generator=torch.Generator().manual_seed(0))
 parent = G.so3_exp(omega)

@@ -1,0 +1,64 @@
+"""Adapters for the few Warp internals gvnn_warp.kernels relies on, one small function each.
+
+Each is pinned by a test in ``tests/test_compat.py`` that fails loudly if a Warp upgrade changes
+it (warp-lang is pinned to 1.19.x in pyproject.toml). Never imports torch.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+
+import warp as wp
+
+
+def kernel_arguments(kernel: wp.Kernel) -> list[tuple[str, bool]]:
+    """``(name, is_array)`` of every argument of ``kernel``, in order.
+
+    Warp keeps a kernel's signature in ``kernel.adj.args`` (``warp._src.codegen.Var`` objects with
+    ``label`` and ``type``); there is no public accessor.
+    """
+    return [(a.label, wp.types.is_array(a.type)) for a in kernel.adj.args]
+
+
+def kernel_argument_dtype(kernel: wp.Kernel, index: int):
+    """The element type of array argument ``index`` of a concrete (overloaded) kernel (see
+    :func:`kernel_arguments`)."""
+    return kernel.adj.args[index].type.dtype
+
+
+@functools.cache
+def _array_descriptor_type() -> type:
+    # The ctypes struct Warp passes to kernels for an array (``warp._src.types.array_t``); it is
+    # what ``wp.from_torch(t, return_ctype=True)`` returns. Taken from an array, not imported from
+    # Warp's private module path.
+    return type(wp.empty(0, dtype=wp.float32, device="cpu").__ctype__())
+
+
+def array_descriptor(ptr: int, length: int, stride_bytes: int):
+    """A bare 1-D array descriptor (no data ownership, no gradient) over ``length`` elements at
+    ``ptr``, ``stride_bytes`` apart; ``wp.launch`` accepts it wherever an array goes (~1 us to
+    make, against ~9 us for ``wp.from_torch``). Warp's constructor is positional:
+    ``(data, grad, ndim, shape, strides)``."""
+    return _array_descriptor_type()(ptr, 0, 1, (length,), (stride_bytes,))
+
+
+def is_array_descriptor(a) -> bool:
+    return isinstance(a, _array_descriptor_type())
+
+
+def array_length(a) -> int:
+    """The first dimension of a ``wp.array`` or of an array descriptor."""
+    return int(a.shape[0])
+
+
+def array_pointer(a) -> int:
+    """The data address of a ``wp.array`` (``ptr``) or of an array descriptor (``data``)."""
+    return int(a.ptr) if isinstance(a, wp.array) else int(a.data)
+
+
+def gil_enabled() -> bool:
+    """False on a free-threaded CPython running without the GIL (``sys._is_gil_enabled``, 3.13+);
+    True everywhere else."""
+    check = getattr(sys, "_is_gil_enabled", None)
+    return True if check is None else bool(check())

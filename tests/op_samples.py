@@ -1,0 +1,63 @@
+"""Sample arguments for every registered ``gvnn_warp::*`` op (flattened, as the ops take them).
+
+One entry per op: ``tests/test_ops_registry.py`` fails, with a list, for an op that has none.
+Used by the opcheck tests (tiny sizes) and by ``tests/test_scopes.py`` (sizes large enough to cut
+every launch into many pieces).
+"""
+
+import torch
+from gvnn_warp.kernels.robust import KINDS as ROBUST_CODES
+from refs import intrinsics
+
+import gvnn_warp as G
+
+
+def op_samples(B=2, C=2, H=5, W=6, seed=0):
+    """name -> args, float64, for batch B, C channels, H x W images."""
+    g = torch.Generator().manual_seed(seed)
+    f64 = torch.float64
+
+    def r(*s):  # uniform in [0, 1)
+        return torch.rand(*s, generator=g, dtype=f64)
+
+    def u(*s, scale=1.0):  # uniform in [-scale, scale)
+        return (r(*s) * 2 - 1) * scale
+
+    n = B * 3  # batch of small ops
+    P = 4  # points per batch item
+    K = intrinsics(W, H).expand(B, 3, 3).contiguous()
+    pose = G.se3_to_matrix(r(B, 6) * 0.1).contiguous()
+    img = r(B, C, H, W)
+    hw = H * W
+    return {
+        # gvnn_warp._ops
+        "so3_exp": (r(n, 3),),
+        "so3_log": (G.so3_exp(r(n, 3)),),
+        "quaternion_to_matrix": (r(n, 4),),
+        "euler_to_matrix": (r(n, 3), 2, 1, 0),
+        "se3_to_matrix": (r(n, 3), r(n, 3)),
+        "sim3_to_matrix": (r(n, 3), r(n, 3), r(n)),
+        "se3_exp": (r(n, 3), r(n, 3)),
+        "se3_log": (G.se3_exp(r(n, 6)).contiguous(),),
+        "depth_to_points": (r(B * hw) + 1, K, H, W),
+        "transform_points": (pose, r(B * P, 3), P),
+        "project_points": (r(B * P, 3) + 1, K, P, 1e-3),
+        "bilinear_sample": (img, r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
+        "bilinear_sample_lanes": (img, r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
+        "warp_frame_depth": (img, r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
+        # gvnn_warp._perpixel_ops
+        "flow_warp": (img, u(B, 2, H, W, scale=2), C, H, W, 0),
+        "disparity_warp": (img, u(B, 1, H, W, scale=2), C, H, W, 1),
+        "affine_flow_warp": (img, u(B, 6, H, W), C, H, W, 0),
+        "affine_flow": (u(B, 6, H, W), H, W),
+        "se2_flow": (u(B, 3, H, W), H, W),
+        "homography_flow": (u(B, 9, H, W) * 0.1 + torch.eye(3, dtype=f64).reshape(1, 9, 1, 1), H, W),
+        "plane_disparity": (u(B, 3, H, W), H, W),
+        "pointwise_se3": (u(B, H, W, 3), u(B, 6, H, W), hw),
+        "pointwise_sim3": (u(B, H, W, 3), u(B, 7, H, W), hw),
+        "pointwise_transform10": (u(B, H, W, 3), u(B, 10, H, W), hw),
+        "affine_grid": (u(B, 2, 3), H, W, 0),
+        "robust_rho": (u(n, scale=3), ROBUST_CODES["cauchy"], 0.5),
+        "robust_psi": (u(n, scale=3), ROBUST_CODES["tukey"], 2.0),
+        "smoothness": (u(B, 3, H, W), H, W, ROBUST_CODES["huber"], 0.3, 0.01, 0.02),
+    }
