@@ -15,7 +15,7 @@ SECTIONS = [
     ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.perpixel"),
     ("Layers (nn.Module)", "gvnn_warp.layers"),
     ("Per-pixel layers (nn.Module)", "gvnn_warp.perpixel_layers"),
-    ("Threads", "gvnn_warp.kernels.launch", ["get_num_threads", "set_num_threads"]),
+    ("Threads and diagnostics", "gvnn_warp", ["get_num_threads", "info", "set_num_threads"]),
 ]
 
 

@@ -83,8 +83,37 @@ _LAZY = {
 _SUBMODULES = ("functional", "layers", "perpixel", "perpixel_layers")
 
 __all__ = [
-    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_SUBMODULES, "kernels", "get_num_threads", "set_num_threads"
+    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_SUBMODULES,
+    "kernels", "get_num_threads", "info", "set_num_threads",
 ]
+
+
+def info() -> dict:
+    """Versions and threading of this installation, for bug reports and for checking where
+    launches run: ``gvnn_warp``, ``warp``, ``torch`` (None if not installed), ``python``,
+    ``num_threads``, ``thread_backend`` (``"openmp:<library>"``, ``"python"`` or ``"serial"``) and
+    ``thread_backend_reason`` (e.g. why torch's OpenMP team is not used). Loads the torch bridge
+    if torch is installed, since that is where the backend is chosen."""
+    import platform
+
+    from .kernels import threads
+
+    try:
+        importlib.import_module("._bridge", __name__)
+        import torch
+
+        torch_version = torch.__version__
+    except ImportError:
+        torch_version = None
+    return {
+        "gvnn_warp": __version__,
+        "warp": _wp.config.version,
+        "torch": torch_version,
+        "python": platform.python_version(),
+        "num_threads": threads.get_num_threads(),
+        "thread_backend": threads.thread_backend(),
+        "thread_backend_reason": threads.backend_reason(),
+    }
 
 
 def __getattr__(name: str):

@@ -1,0 +1,127 @@
+"""The torch and Warp internals gvnn_warp relies on, each behind one adapter (gvnn_warp/_compat.py,
+gvnn_warp/kernels/_compat.py): these tests fail loudly if an upgrade changes one. Also the thread
+backend's visibility (info(), the debug log) and the free-threaded fallback."""
+
+import ctypes
+import logging
+import subprocess
+import sys
+import threading
+import warnings
+from typing import Any
+
+import torch
+import warp as wp
+from gvnn_warp.kernels import _compat as wcompat
+from gvnn_warp.kernels import launch as L
+from gvnn_warp.kernels import lie_kernels, threads
+
+import gvnn_warp as G
+from gvnn_warp import _bridge, _compat, _ops  # noqa: F401  (_ops registers the ops)
+
+
+@wp.kernel
+def _probe(offset: int, x: wp.array(dtype=Any), n: int, y: wp.array(dtype=Any)):
+    i = wp.tid() + offset
+    y[i] = x[i] * type(x[i])(n)
+
+
+def test_warp_kernel_arguments():
+    fk = L.FloatKernel(_probe, x="scalar", y="vec3")
+    assert wcompat.kernel_arguments(fk[wp.float64]) == [("offset", False), ("x", True), ("n", False), ("y", True)]
+    assert wcompat.kernel_argument_dtype(fk[wp.float64], 1) is wp.float64
+    assert wcompat.kernel_argument_dtype(fk[wp.float32], 3) is wp.vec3f
+
+
+def test_warp_array_descriptor():
+    t = torch.arange(6, dtype=torch.float64).reshape(2, 3)
+    d = wcompat.array_descriptor(t.data_ptr(), 2, 3 * 8)
+    assert type(d) is type(wp.from_torch(t, dtype=wp.vec3d, return_ctype=True))
+    assert wcompat.is_array_descriptor(d) and not wcompat.is_array_descriptor(wp.from_torch(t))
+    assert wcompat.array_length(d) == 2 and wcompat.array_pointer(d) == t.data_ptr()
+    a = wp.from_torch(t, dtype=wp.vec3d)
+    assert wcompat.array_length(a) == 2 and wcompat.array_pointer(a) == t.data_ptr()
+    # a kernel launched on descriptors reads and writes the tensors' memory
+    omega = torch.tensor([[0.0, 0.0, torch.pi / 2]], dtype=torch.float64)
+    R = torch.zeros(1, 3, 3, dtype=torch.float64)
+    k = lie_kernels.so3_exp[wp.float64]
+    wp.launch(k, dim=1, inputs=[0, wcompat.array_descriptor(omega.data_ptr(), 1, 24)],
+              outputs=[wcompat.array_descriptor(R.data_ptr(), 1, 72)], device="cpu")
+    torch.testing.assert_close(R[0], torch.tensor([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]], dtype=torch.float64))
+    null = wcompat.array_descriptor(0, 0, 8)  # a null array: no elements
+    assert wcompat.array_length(null) == 0 and wcompat.array_pointer(null) == 0
+
+
+def test_gil_enabled(monkeypatch):
+    assert wcompat.gil_enabled() == (getattr(sys, "_is_gil_enabled", lambda: True)())
+    monkeypatch.setattr(sys, "_is_gil_enabled", lambda: False, raising=False)
+    assert not wcompat.gil_enabled()
+
+
+def test_torch_custom_op_implementations():
+    impls = _compat.custom_op_implementations(_bridge.OPS["so3_exp"].op)
+    assert impls, "torch.library.custom_op no longer keeps its implementations in op._backend_fns"
+    assert any(getattr(f, "__dynamo_disable", None) is not None for f in impls)
+
+
+def test_first_call_does_not_import_dynamo():
+    """The lazy __dynamo_disable is what torch calls: the first op call imports no torch._dynamo."""
+    code = (
+        "import sys, torch, gvnn_warp as G; G.so3_exp(torch.zeros(2, 3)); "
+        "print('torch._dynamo' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_torch_openmp_library():
+    library, reason = _compat.torch_openmp_library()
+    assert "parallel backend:" in torch.__config__.parallel_info(), "parallel_info() text changed"
+    if not sys.platform.startswith("linux") or "parallel backend: OpenMP" not in torch.__config__.parallel_info():
+        assert library is None and reason
+        return
+    assert library is not None, reason
+    assert ctypes.CDLL(library).GOMP_parallel  # resolves through libtorch_cpu's dependencies
+
+
+def test_other_platforms_use_python_threads(monkeypatch):
+    monkeypatch.setattr(sys, "platform", "darwin")
+    library, reason = _compat.torch_openmp_library()
+    assert library is None and "darwin" in reason and "Python threads" in reason
+
+
+def test_info():
+    info = G.info()
+    assert info["gvnn_warp"] == G.__version__ and info["warp"] == wp.config.version
+    assert info["torch"] == torch.__version__ and info["num_threads"] == G.get_num_threads()
+    assert info["thread_backend"] == L.thread_backend() and info["thread_backend_reason"]
+
+
+def test_backend_choice_is_logged_not_warned(caplog):
+    before = L.thread_backend()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with caplog.at_level(logging.DEBUG, logger="gvnn_warp"):
+                L.use_openmp(None, "because a test said so")
+        assert L.thread_backend() == "python" and L.backend_reason() == "because a test said so"
+        assert any("because a test said so" in r.getMessage() and r.levelno == logging.DEBUG for r in caplog.records)
+    finally:
+        _bridge._use_torch_openmp()
+    assert L.thread_backend() == before
+
+
+def test_free_threaded_interpreter_runs_launches_on_one_thread(monkeypatch):
+    monkeypatch.setattr(wcompat, "gil_enabled", lambda: False)
+    assert L.thread_backend() == "serial" and "free-threaded" in L.backend_reason()
+    ids = []
+    threads.pool().run(lambda k: ids.append((k, threading.get_native_id())), 8, 4)
+    assert ids == [(k, threading.get_native_id()) for k in range(8)]  # in order, on this thread
+    omega = torch.randn(100_000, 3, generator=torch.Generator().manual_seed(0))
+    L.set_num_threads(1)
+    try:
+        one = G.so3_exp(omega)
+        L.set_num_threads(4)
+        assert torch.equal(G.so3_exp(omega), one)
+    finally:
+        L.set_num_threads(None)
