@@ -101,7 +101,7 @@ def kernel_cases(quick: bool) -> dict:
         n_pix,
         *_launch_case(
             sampling_kernels.warp_frame_depth, n_pix, [image, depth, pose, K], ["scalar", "scalar", "mat34", "mat33"],
-            [warped, valid], ["scalar", "bool"], (C, H, W, 1e-3, 0),
+            [warped, valid], ["scalar", "bool"], (C, H, W, 1e-3, 0), launches=B * H,  # one thread per row
         ),
     )
     return cases

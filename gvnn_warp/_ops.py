@@ -77,7 +77,7 @@ warp_frame_depth = warp_op(
         Output("out", "scalar", lambda img, *_: tuple(img.shape)),
         Output("valid", "bool", lambda img, d, *_: tuple(d.shape), differentiable=False),
     ],
-    lambda img, d, *_: d.numel(),
+    lambda img, d, *_: d.shape[0] * d.shape[2],  # one thread per image row: B * H
 )
 
 

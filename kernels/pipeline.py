@@ -81,7 +81,7 @@ def warp_frame_depth(
     valid = wp.zeros((B, 1, H, W), dtype=wp.bool, device=image.device)
     wp.launch(
         sampling_kernels.warp_frame_depth[ft],
-        dim=B * H * W,
+        dim=B * H,  # one thread per image row, as in the torch op
         inputs=[0, image.flatten(), depth.flatten(), pose, K, C, H, W, float(min_depth), _PADDING[padding_mode]],
         outputs=[warped.flatten(), valid.flatten()],
         device=image.device,

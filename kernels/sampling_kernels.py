@@ -2,15 +2,16 @@
 
 The fused kernel is the point of this package: one pass over the depth map, no (B, H, W, 3)
 point or (B, H, W, 2) grid intermediates, and its adjoint (Warp's) scatters image gradients and
-accumulates depth, pose and intrinsics gradients in the same pass.
+accumulates depth, pose and intrinsics gradients in the same pass. One kernel body serves both
+fronts (the torch op and :func:`.pipeline.warp_frame_depth`).
 
 Speed. The per-pixel work is two building blocks with hand-shaped Warp adjoints
 (:func:`.camera.project_moved_ray` and :func:`.sampler.sample_channels`, both ``@wp.func_grad``): tap
 addresses and weights are computed once for all channels, and the backward pass does not re-sample
-the image. ``warp_frame_depth`` has a row-blocked twin, ``_warp_frame_depth_rows`` (one thread per
-image row): per-row quantities are computed once, and the pose and intrinsics gradients of a row
-are summed in registers before one write; :func:`.launch.launch` uses it automatically, and splits
-launches over threads by batch item (see :meth:`.launch.FloatKernel.set_parallel`).
+the image. ``warp_frame_depth`` runs one thread per image row (launch size B * H): per-row
+quantities are computed once, and the pose and intrinsics gradients of a row are summed in
+registers before one write; :func:`.launch.launch` splits launches over threads by batch item
+(see :meth:`.launch.FloatKernel.set_parallel`).
 :func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
 thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
 scalar); it gives the same values and shares the sampler's adjoint.
@@ -140,47 +141,10 @@ def _warp_frame_depth(
     out: wp.array(dtype=Any),
     valid: wp.array(dtype=wp.bool),
 ):
-    i = wp.tid() + offset  # flat (b, y, x) of the depth map's frame
-    hw = H * W
-    b = i // hw
-    j = i - b * hw
-    py = j // W
-    px = j - py * W
-    Kb = K[b]
-    Tb = pose[b]
-    zmin = type(Kb[0, 0])(min_depth)
-    one = type(zmin)(1.0)
-    tol = type(zmin)(INSIDE_TOLERANCE)
-    a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
-    d = depth[wp.max(i, 0)]
-    # Invalid depth (<= min, NaN, inf) is replaced by 1 *before* any arithmetic, so neither the
-    # values nor Warp's adjoint ever see it (wp.where routes no gradient to the unused side).
-    depth_ok = d > zmin and d < type(d)(1.0e30)
-    uvz = camera.project_moved_ray(a0, ax, lie.pose_translation(Tb), Kb, type(d)(px), wp.where(depth_ok, d, one), zmin)
-    ok = depth_ok and uvz[2] > zmin
-    u = uvz[0]
-    v = uvz[1]
-    valid[wp.max(i, 0)] = ok and u >= -tol and u <= type(d)(W - 1) + tol and v >= -tol and v <= type(d)(H - 1) + tol
-    xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
-    sampler.sample_channels(image, out, b * C * hw, b * C * hw + j, C, hw, hw, H, W, xs, ys, ok and reachable)
-
-
-@wp.kernel(module="unique")
-def _warp_frame_depth_rows(
-    offset: int,
-    image: wp.array(dtype=Any),
-    depth: wp.array(dtype=Any),
-    pose: wp.array(dtype=Any),
-    K: wp.array(dtype=Any),
-    C: int,
-    H: int,
-    W: int,
-    min_depth: float,
-    padding: int,
-    out: wp.array(dtype=Any),
-    valid: wp.array(dtype=wp.bool),
-):
-    # _warp_frame_depth with one thread per image row: element r covers pixels [r W, (r + 1) W).
+    # One thread per image row: element r = (b, y) covers the pixels [r W, (r + 1) W) of the depth
+    # map's frame; per-row quantities are computed once, and Warp's adjoint sums a row's pose and
+    # intrinsics gradients in registers before one write. Used by both fronts (the torch op and
+    # .pipeline.warp_frame_depth): launch B * H elements.
     r = wp.tid() + offset  # flat (b, y)
     b = r // H
     py = r - b * H
@@ -200,6 +164,8 @@ def _warp_frame_depth_rows(
     for px in range(W):
         i = wp.max(row + px, 0)
         d = depth[i]
+        # Invalid depth (<= min, NaN, inf) is replaced by 1 *before* any arithmetic, so neither the
+        # values nor Warp's adjoint ever see it (wp.where routes no gradient to the unused side).
         depth_ok = d > zmin and d < type(d)(1.0e30)
         uvz = camera.project_moved_ray(a0, ax, t, Kb, type(d)(px), wp.where(depth_ok, d, one), zmin)
         ok = depth_ok and uvz[2] > zmin
@@ -215,18 +181,10 @@ bilinear_sample = FloatKernel(_bilinear_sample, image="scalar", grid="vec2", out
     scopes={"image": "segment", "grid": "element"},
     grain=_GRAIN_PIXELS,
 )
-_warp_frame_depth_rows_fk = FloatKernel(
-    _warp_frame_depth_rows, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
+warp_frame_depth = FloatKernel(
+    _warp_frame_depth, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
 ).set_parallel(
     segment=lambda a: a["H"],  # rows of one batch item
     scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
     grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
-)
-warp_frame_depth = FloatKernel(
-    _warp_frame_depth, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
-).set_parallel(
-    segment=lambda a: a["H"] * a["W"],  # batch items
-    scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
-    grain=_GRAIN_PIXELS,
-    blocked=(_warp_frame_depth_rows_fk, lambda a: a["W"]),
 )

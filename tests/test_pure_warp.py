@@ -68,3 +68,46 @@ def test_pipeline_checks_its_arguments():
             pipeline.warp_frame_depth(*args, **kw)
     with pytest.raises(TypeError, match=r"masked_squared_error: argument 'valid' must be of dtype bool"):
         pipeline.masked_squared_error(warped, warped, warped)
+
+
+def test_both_fronts_run_the_same_kernel():
+    """The torch op and the pure-Warp pipeline launch the one warp_frame_depth kernel: outputs and
+    gradients (torch autograd vs wp.Tape) are bitwise equal (one thread: one launch each)."""
+    import torch
+    import warp as wp
+    from gvnn_warp.kernels import launch, pipeline
+
+    import gvnn_warp as G
+
+    B, C, H, W = 2, 3, 11, 13
+    g = torch.Generator().manual_seed(0)
+    image = torch.rand(B, C, H, W, generator=g, dtype=torch.float64)
+    depth = torch.rand(B, 1, H, W, generator=g, dtype=torch.float64) + 1
+    depth[0, 0, 0, :2] = torch.tensor([0.0, float("nan")])
+    pose = G.se3_to_matrix(torch.randn(B, 6, generator=g, dtype=torch.float64) * 0.05).contiguous()
+    K = torch.tensor([[12.0, 0, 6], [0, 12, 5], [0, 0, 1]], dtype=torch.float64).expand(B, 3, 3).contiguous()
+    weight = torch.randn(B, C, H, W, generator=g, dtype=torch.float64)
+
+    launch.set_num_threads(1)
+    try:
+        leaves = [t.clone().requires_grad_() for t in (image, depth, pose, K)]
+        out, valid = G.warp_frame_depth(*leaves)
+        out.backward(weight)
+    finally:
+        launch.set_num_threads(None)
+
+    mat34d = launch.mat34d
+    arrays = [
+        wp.array(image.numpy(), dtype=wp.float64, requires_grad=True),
+        wp.array(depth.numpy(), dtype=wp.float64, requires_grad=True),
+        wp.array(pose.numpy(), dtype=mat34d, requires_grad=True),
+        wp.array(K.numpy(), dtype=wp.mat33d, requires_grad=True),
+    ]
+    tape = wp.Tape()
+    with tape:
+        warped, wvalid = pipeline.warp_frame_depth(*arrays)
+    tape.backward(grads={warped: wp.array(weight.numpy(), dtype=wp.float64)})
+    assert np.array_equal(warped.numpy(), out.detach().numpy())
+    assert np.array_equal(wvalid.numpy(), valid.numpy())
+    for a, t in zip(arrays, leaves):
+        assert np.array_equal(a.grad.numpy().reshape(t.shape), t.grad.numpy())

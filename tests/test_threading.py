@@ -168,12 +168,35 @@ def test_large_launches_are_split(count_chunks):
     assert len(count_chunks) == 1
 
 
-def test_fused_kernel_uses_row_blocks(count_chunks):
+@wp.kernel
+def _scale(offset: int, x: wp.array(dtype=Any), L: int, out: wp.array(dtype=Any)):
+    i = wp.tid() + offset
+    out[i] = x[i] * x.dtype(2.0)
+
+
+@wp.kernel
+def _scale_blocks(offset: int, x: wp.array(dtype=Any), L: int, out: wp.array(dtype=Any)):
+    k = wp.tid() + offset  # elements [k L, (k + 1) L) of _scale
+    for j in range(L):
+        i = k * L + j
+        out[i] = x[i] * x.dtype(2.0)
+
+
+def test_blocked_variant_is_used(count_chunks):
+    """A kernel declaring a blocked twin (set_parallel(blocked=(fk, L))) is launched as the twin
+    over n / L elements where L divides n, as itself otherwise; same results."""
+    blocks = L.FloatKernel(_scale_blocks, x="scalar", out="scalar").set_parallel(scopes={"x": "element"})
+    fk = L.FloatKernel(_scale, x="scalar", out="scalar").set_parallel(
+        scopes={"x": "element"}, blocked=(blocks, lambda a: a["L"])
+    )
     L.set_num_threads(1)
-    inputs = wfd_inputs(2, 1, 8, 8, torch.float32)
-    count_chunks.clear()
-    G.warp_frame_depth(*inputs)
-    assert count_chunks and all("rows" in k for k in count_chunks)
+    x = torch.rand(60, dtype=torch.float64)
+    for block, expect in ((6, "_scale_blocks"), (7, "_scale")):
+        out = torch.empty_like(x)
+        count_chunks.clear()
+        L.launch(fk[wp.float64], 60, [wp.from_torch(x), block], [wp.from_torch(out)])
+        assert len(count_chunks) == 1 and ("blocks" in count_chunks[0]) == (expect == "_scale_blocks")
+        assert torch.equal(out, x * 2)
 
 
 def test_thread_count_precedence(monkeypatch):
@@ -198,7 +221,7 @@ def test_adjoint_scopes():
     so3 = L.declaration(lie_kernels.so3_exp[wp.float32])
     assert so3.scopes == {"omega": "element"} and so3.forward
     wfd = L.declaration(sampling_kernels.warp_frame_depth[wp.float64])
-    assert wfd.scopes["image"] == "segment" and wfd.scopes["depth"] == "element" and wfd.blocked is not None
+    assert wfd.scopes["image"] == "segment" and wfd.scopes["depth"] == "element" and wfd.segment({"H": 7}) == 7
 
 
 @wp.kernel
