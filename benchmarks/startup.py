@@ -36,7 +36,7 @@ res = {"torch_import_s": t1 - t0, "import_and_first_forward_s": t3 - t2, "import
 if "--all-modules" in sys.argv:
     import warp as wp
     import gvnn_warp.functional, gvnn_warp.layers  # noqa: F401
-    for extra in ("gvnn_warp.perpixel", "gvnn_warp.kernels.render"):
+    for extra in ("gvnn_warp.perpixel", "gvnn_warp.synthetic"):
         try:
             __import__(extra)
         except ImportError:

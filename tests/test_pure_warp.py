@@ -18,8 +18,20 @@ def readme_pure_warp_example() -> str:
 
 def test_kernels_package_never_imports_torch():
     code = (
-        "import sys, gvnn_warp.kernels, gvnn_warp.kernels.render, gvnn_warp.synthetic, gvnn_warp\n"
+        "import sys, gvnn_warp.kernels, gvnn_warp.synthetic, gvnn_warp\n"
         "assert 'torch' not in sys.modules, 'torch was imported'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_layers_do_not_depend_on_data_generation():
+    """gvnn_warp.synthetic (data generation) has one home the layers do not import."""
+    code = (
+        "import sys, torch, gvnn_warp as G, gvnn_warp.kernels, gvnn_warp.functional, gvnn_warp.perpixel\n"
+        "import gvnn_warp.layers, gvnn_warp.perpixel_layers\n"
+        "G.warp_frame_depth(torch.rand(1, 1, 4, 4), torch.ones(1, 1, 4, 4), torch.eye(3, 4)[None], torch.eye(3)[None])"
+        "\n"
+        "assert not [m for m in sys.modules if m.startswith('gvnn_warp.synthetic')], 'synthetic was imported'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
 

@@ -1,11 +1,10 @@
-"""Tests of the synthetic RGB-D renderer (gvnn_warp.kernels.render) and the camera trajectories
-(gvnn_warp.synthetic). numpy + Warp only."""
+"""Tests of the synthetic RGB-D renderer (gvnn_warp.synthetic.render) and the camera trajectories
+(gvnn_warp.synthetic.trajectories). numpy + Warp only."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from gvnn_warp.kernels.render import make_room_scene, render_rgbd, surface_distance
 
 from gvnn_warp.synthetic import (
     BOX_CLEARANCE,
@@ -15,10 +14,13 @@ from gvnn_warp.synthetic import (
     ROOM_MIN,
     default_intrinsics,
     euler_to_rotation,
+    make_room_scene,
     relative_pose,
+    render_rgbd,
     rotation_angle_deg,
     rotation_trajectory,
     smooth_se3_trajectory,
+    surface_distance,
 )
 
 W, H = 320, 240

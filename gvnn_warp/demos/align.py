@@ -1,6 +1,6 @@
 """``gvnn-warp align``: recover the relative pose of two rendered views by gradient descent.
 
-Two views of the synthetic room (``gvnn_warp.kernels.render``) are rendered a known motion apart;
+Two views of the synthetic room (``gvnn_warp.synthetic``) are rendered a known motion apart;
 starting from the identity, a 6-vector [omega, t] is fitted by Adam on the photometric error of
 ``warp_frame_depth(live, ref_depth, se3_to_matrix(xi), K)`` against the reference image,
 coarse to fine over an image pyramid. Writes ``align.png`` (reference, live, warped before and
@@ -35,8 +35,7 @@ def add_parser(subparsers) -> None:
 
 def make_views(width: int, height: int, rotation_deg: float, translation_cm: float, seed: int):
     """Render reference and live views; returns numpy (ref_img, ref_depth, live_img, K, T_live_ref)."""
-    from ..kernels.render import make_room_scene, render_rgbd
-    from ..synthetic import default_intrinsics, relative_pose, smooth_se3_trajectory
+    from ..synthetic import default_intrinsics, make_room_scene, relative_pose, render_rgbd, smooth_se3_trajectory
 
     rng = np.random.default_rng(seed)
     scene = make_room_scene(seed=seed)

@@ -1,6 +1,6 @@
 """Synthetic RGB-D frame pairs for the visual-odometry demo, rendered once and kept in memory.
 
-A split is a set of camera trajectories in one room (``gvnn_warp.kernels.render``), each rendered
+A split is a set of camera trajectories in one room (``gvnn_warp.synthetic``), each rendered
 into images and depths; a *pair* is (reference frame k, live frame k + g) for every gap g in
 ``gaps``, in both temporal directions (k -> k + g and k + g -> k) when ``both_directions``. The
 ground-truth pose of a pair is ``T_live_ref = relative_pose(T_world_live, T_world_ref)``: it maps
@@ -103,8 +103,7 @@ def render_split(
     several degrees per frame), ``se3`` = ``smooth_se3_trajectory`` (6-DoF, a few cm per frame).
     """
     from gvnn_warp import so3_log
-    from gvnn_warp.kernels.render import make_room_scene, render_rgbd
-    from gvnn_warp.synthetic import default_intrinsics
+    from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd
 
     W, H = size
     K = default_intrinsics(W, H)

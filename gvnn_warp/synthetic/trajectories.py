@@ -1,4 +1,4 @@
-"""Camera intrinsics, room layout and camera trajectories for the synthetic RGB-D data (numpy only).
+"""Camera intrinsics and camera trajectories for the synthetic RGB-D data (numpy only).
 
 Conventions are the project's: camera frame x right, y down, z forward (metres); ``K`` maps camera
 coordinates to pixels whose centres are at integer coordinates; a pose ``T_a_b`` (float64, 4x4)
@@ -8,8 +8,8 @@ The world frame of the room has the same orientation as an upright camera lookin
 x right, y down (the floor is at ``y = ROOM_MAX[1]``), z towards the far wall. A camera with
 identity rotation therefore looks along +z, level with the floor.
 
-The room itself is built by :func:`gvnn_warp.kernels.render.make_room_scene`, which keeps its boxes at
-least ``BOX_CLEARANCE`` away from ``CAMERA_REGION_MIN``/``CAMERA_REGION_MAX``; every trajectory here
+The room is built by :func:`.scene.make_room_scene`, which keeps its boxes at least
+``BOX_CLEARANCE`` away from ``CAMERA_REGION_MIN``/``CAMERA_REGION_MAX``; every trajectory here
 keeps the camera centre inside that region, so all rendered depths stay above ~0.4 m.
 """
 
@@ -17,21 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Room bounds in world coordinates (metres): 6 m wide (x), 3 m high (y, down), 8 m deep (z).
-ROOM_MIN = np.array([-3.0, -1.5, -4.0])
-ROOM_MAX = np.array([3.0, 1.5, 4.0])
-#: Axis-aligned volume the camera centres of all trajectories stay in (eye height 1.25-1.85 m).
-CAMERA_REGION_MIN = np.array([-0.8, -0.35, -2.8])
-CAMERA_REGION_MAX = np.array([0.8, 0.25, -1.2])
-#: Minimum distance (metres) between any scene box and the camera region.
-BOX_CLEARANCE = 0.6
+from .scene import CAMERA_REGION_MAX, CAMERA_REGION_MIN
 
 __all__ = [
-    "BOX_CLEARANCE",
-    "CAMERA_REGION_MAX",
-    "CAMERA_REGION_MIN",
-    "ROOM_MAX",
-    "ROOM_MIN",
     "default_intrinsics",
     "euler_to_rotation",
     "relative_pose",

@@ -1,0 +1,57 @@
+"""Synthetic RGB-D data: a textured room of boxes, camera trajectories in it, and a Warp ray caster.
+
+Data generation lives here, apart from the layers: nothing in ``gvnn_warp.kernels`` or the torch
+front imports it. Never imports torch (numpy and Warp only).
+
+- :mod:`.scene`: the room layout (``ROOM_MIN``, ``ROOM_MAX``, ``CAMERA_REGION_MIN/MAX``,
+  ``BOX_CLEARANCE``), :class:`RoomScene`, :func:`make_room_scene`, :func:`surface_distance`;
+- :mod:`.trajectories`: :func:`default_intrinsics`, :func:`rotation_trajectory`,
+  :func:`smooth_se3_trajectory`, :func:`relative_pose`, :func:`euler_to_rotation`,
+  :func:`rotation_angle_deg`;
+- :mod:`.render`: :func:`render_rgbd` (colour and depth of a scene from camera poses, on the CPU).
+
+Example::
+
+    from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd, smooth_se3_trajectory
+
+    K = default_intrinsics(64, 48)
+    image, depth = render_rgbd(make_room_scene(seed=0), smooth_se3_trajectory(10, seed=0), K, 64, 48)
+"""
+
+from .render import render_rgbd
+from .scene import (
+    BOX_CLEARANCE,
+    CAMERA_REGION_MAX,
+    CAMERA_REGION_MIN,
+    ROOM_MAX,
+    ROOM_MIN,
+    RoomScene,
+    make_room_scene,
+    surface_distance,
+)
+from .trajectories import (
+    default_intrinsics,
+    euler_to_rotation,
+    relative_pose,
+    rotation_angle_deg,
+    rotation_trajectory,
+    smooth_se3_trajectory,
+)
+
+__all__ = [
+    "BOX_CLEARANCE",
+    "CAMERA_REGION_MAX",
+    "CAMERA_REGION_MIN",
+    "ROOM_MAX",
+    "ROOM_MIN",
+    "RoomScene",
+    "default_intrinsics",
+    "euler_to_rotation",
+    "make_room_scene",
+    "relative_pose",
+    "render_rgbd",
+    "rotation_angle_deg",
+    "rotation_trajectory",
+    "smooth_se3_trajectory",
+    "surface_distance",
+]
