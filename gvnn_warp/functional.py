@@ -17,7 +17,7 @@ from . import _ops
 from ._checks import ArgCheck
 from .kernels import sampling_kernels
 from .kernels.camera import MIN_DEPTH
-from .kernels.sampler import PADDING_BORDER, PADDING_ZEROS
+from .kernels.sampler import PADDING_MODES as _PADDING
 
 __all__ = [
     "MIN_DEPTH",
@@ -36,7 +36,6 @@ __all__ = [
     "warp_frame_depth",
 ]
 
-_PADDING = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
 _AXES = {"X": 0, "Y": 1, "Z": 2}
 EULER_CONVENTIONS = tuple(
     a + b + c for a in "XYZ" for b in "XYZ" for c in "XYZ" if a != b and b != c

@@ -20,7 +20,7 @@ from . import _perpixel_ops as _ops
 from ._checks import ArgCheck
 from .kernels.perpixel import HOMOGRAPHY_MIN_DEN
 from .kernels.robust import KINDS as _ROBUST_CODES
-from .kernels.sampler import PADDING_BORDER, PADDING_ZEROS
+from .kernels.sampler import PADDING_MODES as _PADDING
 
 __all__ = [
     "HOMOGRAPHY_MIN_DEN",
@@ -41,7 +41,6 @@ __all__ = [
     "smoothness_loss",
 ]
 
-_PADDING = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
 #: The M-estimators of :func:`robust_rho` / :func:`robust_psi` / :func:`smoothness_loss`.
 ROBUST_KINDS = tuple(_ROBUST_CODES)
 

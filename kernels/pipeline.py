@@ -22,9 +22,7 @@ import warp as wp
 
 from . import sampling_kernels
 from .camera import MIN_DEPTH
-from .sampler import PADDING_BORDER, PADDING_ZEROS
-
-_PADDING = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
+from .sampler import PADDING_MODES as _PADDING
 
 
 def _expect(fn: str, name: str, cond: bool, what: str, got, exc: type[Exception] = ValueError) -> None:

@@ -20,6 +20,8 @@ import warp as wp
 
 PADDING_ZEROS = wp.constant(0)
 PADDING_BORDER = wp.constant(1)
+# padding_mode names (as grid_sample spells them) -> the codes kernels take
+PADDING_MODES = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
 
 
 @wp.func
@@ -95,6 +97,37 @@ UNROLLED_CHANNELS = 4
 
 
 @wp.func
+def bilinear_taps(src: int, H: int, W: int, x: Any, y: Any):
+    """The four taps of a bilinear sample at (x, y) (-1 < x < W, -1 < y < H) of the H x W plane at
+    flat offset ``src``: their addresses ``p00, p10, p01, p11`` (clamped into the image, so always
+    valid), whether each is inside the image ``k00 ... k11`` (a tap outside reads 0), and the
+    weights along each axis ``wx0, wx1, wy0, wy1`` (tap (i, j) has weight ``wxi * wyj``, as in
+    grid_sample: with x0 = floor(x), the tap at x0 has weight x0 + 1 - x)."""
+    fx0 = wp.floor(x)
+    fy0 = wp.floor(y)
+    x0 = int(fx0)
+    y0 = int(fy0)
+    wx1 = x - fx0
+    wy1 = y - fy0
+    wx0 = type(x)(1.0) - wx1
+    wy0 = type(x)(1.0) - wy1
+    kx0 = x0 >= 0
+    kx1 = x0 < W - 1
+    ky0 = y0 >= 0
+    ky1 = y0 < H - 1
+    ra = src + wp.max(y0, 0) * W
+    rb = src + wp.min(y0 + 1, H - 1) * W
+    xa = wp.max(x0, 0)
+    xb = wp.min(x0 + 1, W - 1)
+    # wp.max(..., 0): indices known non-negative spare Warp's negative-index wrap-around
+    p00 = wp.max(ra + xa, 0)
+    p10 = wp.max(ra + xb, 0)
+    p01 = wp.max(rb + xa, 0)
+    p11 = wp.max(rb + xb, 0)
+    return p00, p10, p01, p11, ky0 and kx0, ky0 and kx1, ky1 and kx0, ky1 and kx1, wx0, wx1, wy0, wy1
+
+
+@wp.func
 def sample_channels_values(
     image: wp.array(dtype=Any),
     out: wp.array(dtype=Any),
@@ -110,32 +143,7 @@ def sample_channels_values(
 ):
     """The forward of :func:`sample_channels` where active (see there)."""
     zero = type(x)(0.0)
-    fx0 = wp.floor(x)
-    fy0 = wp.floor(y)
-    x0 = int(fx0)
-    y0 = int(fy0)
-    wx1 = x - fx0
-    wy1 = y - fy0
-    wx0 = type(x)(1.0) - wx1
-    wy0 = type(x)(1.0) - wy1
-    # taps outside the image read 0; their (clamped, valid) addresses are never used
-    kx0 = x0 >= 0
-    kx1 = x0 < W - 1
-    ky0 = y0 >= 0
-    ky1 = y0 < H - 1
-    ra = src + wp.max(y0, 0) * W
-    rb = src + wp.min(y0 + 1, H - 1) * W
-    xa = wp.max(x0, 0)
-    xb = wp.min(x0 + 1, W - 1)
-    # wp.max(..., 0): indices known non-negative spare Warp's negative-index wrap-around
-    p00 = wp.max(ra + xa, 0)
-    p10 = wp.max(ra + xb, 0)
-    p01 = wp.max(rb + xa, 0)
-    p11 = wp.max(rb + xb, 0)
-    k00 = ky0 and kx0
-    k10 = ky0 and kx1
-    k01 = ky1 and kx0
-    k11 = ky1 and kx1
+    p00, p10, p01, p11, k00, k10, k01, k11, wx0, wx1, wy0, wy1 = bilinear_taps(src, H, W, x, y)
     w00 = wx0 * wy0
     w10 = wx1 * wy0
     w01 = wx0 * wy1
@@ -194,30 +202,7 @@ def sample_channels_grad(
     ``g_image`` (no elements: that gradient is not wanted) is left alone, which saves the scatter.
     """
     zero = type(x)(0.0)
-    fx0 = wp.floor(x)
-    fy0 = wp.floor(y)
-    x0 = int(fx0)
-    y0 = int(fy0)
-    wx1 = x - fx0
-    wy1 = y - fy0
-    wx0 = type(x)(1.0) - wx1
-    wy0 = type(x)(1.0) - wy1
-    kx0 = x0 >= 0
-    kx1 = x0 < W - 1
-    ky0 = y0 >= 0
-    ky1 = y0 < H - 1
-    ra = src + wp.max(y0, 0) * W
-    rb = src + wp.min(y0 + 1, H - 1) * W
-    xa = wp.max(x0, 0)
-    xb = wp.min(x0 + 1, W - 1)
-    p00 = wp.max(ra + xa, 0)
-    p10 = wp.max(ra + xb, 0)
-    p01 = wp.max(rb + xa, 0)
-    p11 = wp.max(rb + xb, 0)
-    k00 = ky0 and kx0
-    k10 = ky0 and kx1
-    k01 = ky1 and kx0
-    k11 = ky1 and kx1
+    p00, p10, p01, p11, k00, k10, k01, k11, wx0, wx1, wy0, wy1 = bilinear_taps(src, H, W, x, y)
     w00 = wx0 * wy0
     w10 = wx1 * wy0
     w01 = wx0 * wy1

@@ -57,9 +57,10 @@ def make_views(width: int, height: int, rotation_deg: float, translation_cm: flo
 
 def pose_error(T_est, T_gt) -> tuple[float, float]:
     """(rotation error in degrees, translation error in metres) between two (3, 4) poses."""
-    R = T_est[:3, :3].T @ T_gt[:3, :3]
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
-    return angle, float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3]))
+    from ..synthetic import pose_error as errors
+
+    rot, trans = errors(T_est, T_gt)
+    return float(rot), float(trans)
 
 
 def run(args: argparse.Namespace) -> int:

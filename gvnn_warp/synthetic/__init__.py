@@ -6,7 +6,7 @@ front imports it. Never imports torch (numpy and Warp only).
 - :mod:`.scene`: the room layout (``ROOM_MIN``, ``ROOM_MAX``, ``CAMERA_REGION_MIN/MAX``,
   ``BOX_CLEARANCE``), :class:`RoomScene`, :func:`make_room_scene`, :func:`surface_distance`;
 - :mod:`.trajectories`: :func:`default_intrinsics`, :func:`rotation_trajectory`,
-  :func:`smooth_se3_trajectory`, :func:`relative_pose`, :func:`euler_to_rotation`,
+  :func:`smooth_se3_trajectory`, :func:`relative_pose`, :func:`pose_error`, :func:`euler_to_rotation`,
   :func:`rotation_angle_deg`;
 - :mod:`.render`: :func:`render_rgbd` (colour and depth of a scene from camera poses, on the CPU).
 
@@ -32,6 +32,7 @@ from .scene import (
 from .trajectories import (
     default_intrinsics,
     euler_to_rotation,
+    pose_error,
     relative_pose,
     rotation_angle_deg,
     rotation_trajectory,
@@ -48,6 +49,7 @@ __all__ = [
     "default_intrinsics",
     "euler_to_rotation",
     "make_room_scene",
+    "pose_error",
     "relative_pose",
     "render_rgbd",
     "rotation_angle_deg",

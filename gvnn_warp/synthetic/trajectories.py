@@ -22,6 +22,7 @@ from .scene import CAMERA_REGION_MAX, CAMERA_REGION_MIN
 __all__ = [
     "default_intrinsics",
     "euler_to_rotation",
+    "pose_error",
     "relative_pose",
     "rotation_angle_deg",
     "rotation_trajectory",
@@ -75,9 +76,23 @@ def relative_pose(T_world_a: np.ndarray, T_world_b: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
-    """Geodesic angle (degrees) of rotation matrices (..., 3, 3)."""
+    """Geodesic angle (degrees) of rotation matrices (..., 3, 3).
+
+    As ``atan2(sin, cos)`` with ``2 sin = |vee(R - R^T)|`` and ``2 cos = trace(R) - 1``: accurate
+    also near 0 (where ``arccos`` of the trace loses half the digits)."""
+    R = np.asarray(R, dtype=np.float64)
     cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    return np.degrees(np.arctan2(np.linalg.norm(v, axis=-1) / 2.0, cos))
+
+
+def pose_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation error in degrees, the geodesic angle of ``R_est^T R_gt``; translation error in
+    metres, ``|t_est - t_gt|``) between poses (..., 3, 4) or (..., 4, 4), in float64."""
+    T_est = np.asarray(T_est, dtype=np.float64)
+    T_gt = np.asarray(T_gt, dtype=np.float64)
+    R = np.swapaxes(T_est[..., :3, :3], -1, -2) @ T_gt[..., :3, :3]
+    return rotation_angle_deg(R), np.linalg.norm(T_est[..., :3, 3] - T_gt[..., :3, 3], axis=-1)
 
 
 def _ar1(rng: np.random.Generator, n: int, dim: int, corr: float) -> np.ndarray:

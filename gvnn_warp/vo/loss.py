@@ -109,11 +109,9 @@ def photometric_loss(
 def pose_errors(pred: Tensor, T_gt: Tensor) -> tuple[Tensor, Tensor]:
     """Rotation error (degrees, geodesic angle of R_pred^T R_gt) and translation error (metres,
     |t_pred - t_gt|) per pair, computed in float64; ``pred`` as from the network ((B, 3) or (B, 6))."""
-    from gvnn_warp import se3_to_matrix, so3_log
+    from gvnn_warp import se3_to_matrix
+    from gvnn_warp.synthetic import pose_error
 
     T_pred = se3_to_matrix(full_xi(pred.detach()).double())
-    T_gt = T_gt.double()
-    R_err = T_pred[:, :3, :3].transpose(1, 2) @ T_gt[:, :3, :3]
-    rot = torch.rad2deg(so3_log(R_err.contiguous()).norm(dim=-1))
-    trans = (T_pred[:, :3, 3] - T_gt[:, :3, 3]).norm(dim=-1)
-    return rot, trans
+    rot, trans = pose_error(T_pred.numpy(), T_gt.detach().double().cpu().numpy())
+    return torch.from_numpy(rot), torch.from_numpy(trans)

@@ -32,7 +32,6 @@ from torch import Tensor
 from .data import PairSet, render_split, split_seeds
 from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, warp_live
 from .model import CascadeVO
-from .progress import Progress
 
 __all__ = ["CHECKPOINT", "METRICS", "VOConfig", "default_config", "evaluate", "train"]
 
@@ -364,7 +363,10 @@ def train(cfg: VOConfig) -> dict:
 
     flips = cfg.flip_augment and _symmetric_intrinsics(train_set.K, W, H)
     stages = _stage_steps(cfg.steps)
-    bar = Progress(cfg.steps, initial=step, desc=f"vo {cfg.motion}", enabled=cfg.progress and rank == 0)
+    from tqdm import tqdm
+
+    bar = tqdm(total=cfg.steps, initial=step, desc=f"vo {cfg.motion}", unit="step", mininterval=0.5,
+               disable=not (cfg.progress and rank == 0))
     t_train0 = time.perf_counter()
     last_ckpt_t, last_ckpt_step = t_train0, step
     interrupted = False
@@ -398,7 +400,8 @@ def train(cfg: VOConfig) -> dict:
                 stat[0] /= world
             history.append(float(stat[0]))
             step += 1
-            bar.update(step, history[-1])
+            bar.update()
+            bar.set_postfix(loss=f"{history[-1]:.4g}", refresh=False)
             now = time.perf_counter()
             stop = bool(stat[1] > 0)
             if stop or step == cfg.steps or step - last_ckpt_step >= cfg.checkpoint_every or (
