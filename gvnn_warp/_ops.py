@@ -99,3 +99,22 @@ bilinear_sample_lanes = warp_op(
     select=_lanes_kernel,
     array_kinds=sampling_kernels.LANES_ARRAY_KINDS,
 )
+
+# op -> (its public function in gvnn_warp, its nn.Module layer in gvnn_warp or why there is none);
+# tests/test_ops_registry.py checks every registered op is here, exported and documented
+PUBLIC = {
+    "so3_exp": ("so3_exp", "SO3"),
+    "so3_log": ("so3_log", "no layer: the inverse map, applied to outputs rather than learnt through"),
+    "quaternion_to_matrix": ("quaternion_to_matrix", "no layer: a parametrisation used inside user modules"),
+    "euler_to_matrix": ("euler_to_matrix", "no layer: a parametrisation used inside user modules"),
+    "se3_to_matrix": ("se3_to_matrix", "SE3"),
+    "sim3_to_matrix": ("sim3_to_matrix", "Sim3"),
+    "se3_exp": ("se3_exp", "no layer: SE3 covers the exponential map as gvnn's layer does"),
+    "se3_log": ("se3_log", "no layer: the inverse map, applied to outputs rather than learnt through"),
+    "depth_to_points": ("depth_to_points", "GridGenerator3D"),
+    "transform_points": ("transform_points", "GridGenerator3D"),
+    "project_points": ("project_points", "PinholeProjection"),
+    "bilinear_sample": ("bilinear_sample", "BilinearSampler"),
+    "bilinear_sample_lanes": ("bilinear_sample", "BilinearSampler"),  # its 8-lane forward fast path
+    "warp_frame_depth": ("warp_frame_depth", "SpatialTransformer3D"),
+}

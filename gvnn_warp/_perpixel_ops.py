@@ -138,3 +138,22 @@ smoothness = warp_op(
     [Output("out", "scalar", lambda f, *_: tuple(f.shape))],
     _numel,
 )
+
+# op -> (its public function in gvnn_warp, its nn.Module layer in gvnn_warp or why there is none);
+# tests/test_ops_registry.py checks every registered op is here, exported and documented
+PUBLIC = {
+    "flow_warp": ("flow_warp", "FlowWarp"),
+    "disparity_warp": ("disparity_warp", "DisparityWarp"),
+    "affine_flow_warp": ("affine_flow_warp", "AffineFlowWarp"),
+    "affine_flow": ("affine_flow", "AffineFlow"),
+    "se2_flow": ("se2_flow", "SE2Flow"),
+    "homography_flow": ("homography_flow", "HomographyFlow"),
+    "plane_disparity": ("slanted_plane_disparity", "SlantedPlaneDisparity"),
+    "pointwise_se3": ("pointwise_se3", "PointwiseSE3"),
+    "pointwise_sim3": ("pointwise_sim3", "PointwiseSim3"),
+    "pointwise_transform10": ("pointwise_transform10", "PointwiseTransform10"),
+    "affine_grid": ("affine_grid", "AffineGridGenerator"),
+    "robust_rho": ("robust_rho", "RobustLoss"),
+    "robust_psi": ("robust_psi", "no layer: the M-estimator's derivative (IRLS weights); RobustLoss covers rho"),
+    "smoothness": ("smoothness_loss", "SmoothnessLoss"),
+}

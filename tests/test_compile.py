@@ -2,50 +2,27 @@
 
 import pytest
 import torch
+from op_samples import op_samples
 from refs import assert_only_wanted_gradients, intrinsics
 
 import gvnn_warp as G
-from gvnn_warp import _ops
+from gvnn_warp import _bridge, _ops, _perpixel_ops  # noqa: F401  (register the ops)
+
+OP_NAMES = sorted(_bridge.OPS)  # every registered op; samples in tests/op_samples.py
 
 
-def _samples():
-    g = torch.Generator().manual_seed(0)
-    f64 = torch.float64
-
-    def r(*s):
-        return torch.rand(*s, generator=g, dtype=f64)
-
-    B, C, H, W = 2, 2, 5, 6
-    K = intrinsics(W, H).expand(B, 3, 3).contiguous()
-    pose = G.se3_to_matrix(r(B, 6) * 0.1).contiguous()
-    return {
-        "so3_exp": (r(3, 3),),
-        "so3_log": (G.so3_exp(r(3, 3)),),
-        "quaternion_to_matrix": (r(3, 4),),
-        "euler_to_matrix": (r(3, 3), 2, 1, 0),
-        "se3_to_matrix": (r(3, 3), r(3, 3)),
-        "sim3_to_matrix": (r(3, 3), r(3, 3), r(3)),
-        "se3_exp": (r(3, 3), r(3, 3)),
-        "se3_log": (G.se3_exp(r(3, 6)).contiguous(),),
-        "depth_to_points": (r(B * H * W) + 1, K, H, W),
-        "transform_points": (pose, r(B * 4, 3), 4),
-        "project_points": (r(B * 4, 3) + 1, K, 4, 1e-3),
-        "bilinear_sample": (r(B, C, H, W), r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
-        "bilinear_sample_lanes": (r(B, C, H, W), r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
-        "warp_frame_depth": (r(B, C, H, W), r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
-    }
-
-
-@pytest.mark.parametrize("name", list(_samples()))
+@pytest.mark.parametrize("name", OP_NAMES)
 def test_opcheck(name):
-    args = tuple(a.requires_grad_() if isinstance(a, torch.Tensor) else a for a in _samples()[name])
-    torch.library.opcheck(getattr(_ops, name), args)
+    """Schema, fake (meta) implementation, autograd registration and AOTAutograd tracing (the part
+    of torch.compile that needs the fake and autograd registrations) of every op."""
+    args = tuple(a.requires_grad_() if isinstance(a, torch.Tensor) else a for a in op_samples()[name])
+    torch.library.opcheck(_bridge.OPS[name].op, args)
 
 
-@pytest.mark.parametrize("name", list(_samples()))
+@pytest.mark.parametrize("name", OP_NAMES)
 def test_only_wanted_gradients_are_computed(name):
     """The backward computes the gradients torch asks for (needs_input_grad), bitwise the same."""
-    assert_only_wanted_gradients(getattr(_ops, name), _samples()[name])
+    assert_only_wanted_gradients(_bridge.OPS[name].op, op_samples()[name])
 
 
 def test_compile_fullgraph_matches_eager():

@@ -12,7 +12,6 @@ import math
 import pytest
 import torch
 import torch.nn.functional as F
-from refs import assert_only_wanted_gradients
 
 from gvnn_warp import perpixel as P
 from gvnn_warp import perpixel_layers as L
@@ -659,43 +658,7 @@ def test_flow_demo_smoke(tmp_path, capsys):
         parser.parse_args(["flow", "--out", str(tmp_path), "--size", "48"])
 
 
-def _op_samples():
-    from gvnn_warp.kernels.robust import KINDS as CODES
-
-    B, C, H, W = 2, 2, 4, 5
-    img = rand(B, C, H, W, seed=41)
-    return {
-        "flow_warp": (img, rand(B, 2, H, W, seed=42, scale=2), C, H, W, 0),
-        "disparity_warp": (img, rand(B, 1, H, W, seed=43, scale=2), C, H, W, 1),
-        "affine_flow_warp": (img, rand(B, 6, H, W, seed=44), C, H, W, 0),
-        "affine_flow": (rand(B, 6, H, W, seed=45), H, W),
-        "se2_flow": (rand(B, 3, H, W, seed=46), H, W),
-        "homography_flow": (rand(B, 9, H, W, seed=47) * 0.1 + torch.eye(3, dtype=D).reshape(1, 9, 1, 1), H, W),
-        "plane_disparity": (rand(B, 3, H, W, seed=48), H, W),
-        "pointwise_se3": (rand(B, H, W, 3, seed=49), rand(B, 6, H, W, seed=50), H * W),
-        "pointwise_sim3": (rand(B, H, W, 3, seed=51), rand(B, 7, H, W, seed=52), H * W),
-        "pointwise_transform10": (rand(B, H, W, 3, seed=53), rand(B, 10, H, W, seed=54), H * W),
-        "affine_grid": (rand(B, 2, 3, seed=55), H, W, 0),
-        "robust_rho": (rand(7, seed=56, scale=3), CODES["cauchy"], 0.5),
-        "robust_psi": (rand(7, seed=57, scale=3), CODES["tukey"], 2.0),
-        "smoothness": (rand(B, 3, H, W, seed=58), H, W, CODES["huber"], 0.3, 0.01, 0.02),
-    }
-
-
-@pytest.mark.parametrize("name", list(_op_samples()))
-def test_opcheck(name):
-    from gvnn_warp import _perpixel_ops
-
-    args = tuple(a.requires_grad_() if isinstance(a, torch.Tensor) else a for a in _op_samples()[name])
-    torch.library.opcheck(getattr(_perpixel_ops, name), args)
-
-
-@pytest.mark.parametrize("name", list(_op_samples()))
-def test_only_wanted_gradients_are_computed(name):
-    """The backward computes the gradients torch asks for (needs_input_grad), bitwise the same."""
-    from gvnn_warp import _perpixel_ops
-
-    assert_only_wanted_gradients(getattr(_perpixel_ops, name), _op_samples()[name])
+# opcheck and the wanted-gradients test of these ops: tests/test_compile.py (all ops)
 
 
 @pytest.mark.parametrize("B", [1, 3])
