@@ -5,7 +5,7 @@ from typing import Any
 import warp as wp
 
 from . import camera, lie
-from .launch import FloatKernel
+from .kinds import FloatKernel
 
 
 @wp.kernel

@@ -9,7 +9,7 @@ from typing import Any
 import warp as wp
 
 from . import lie
-from .launch import FloatKernel
+from .kinds import FloatKernel
 
 
 @wp.kernel

@@ -14,7 +14,7 @@ from typing import Any
 import warp as wp
 
 from . import perpixel, robust
-from .launch import FloatKernel
+from .kinds import FloatKernel
 from .perpixel import channel
 
 # Four Warp modules (each compiled, float32 and float64 together, on the first launch of one of its

@@ -23,7 +23,7 @@ from typing import Any
 import warp as wp
 
 from . import camera, lie, sampler
-from .launch import FloatKernel
+from .kinds import FloatKernel
 
 # A projection counts as inside the image when it lies in [-tol, W - 1 + tol] x [-tol, H - 1 + tol]
 # (pixel units): all four bilinear taps are then real pixels, up to rounding (so the identity pose
