@@ -9,6 +9,7 @@ from torch import Tensor, nn
 
 from . import perpixel as P
 from ._checks import ArgCheck
+from .kernels.sampler import PADDING_MODES
 
 __all__ = [
     "AffineFlow",
@@ -26,7 +27,7 @@ __all__ = [
     "SmoothnessLoss",
 ]
 
-_PADDING_MODES = ("zeros", "border")
+_PADDING_MODES = tuple(PADDING_MODES)
 _REDUCTIONS = ("mean", "sum", "none")
 
 

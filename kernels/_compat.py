@@ -57,6 +57,25 @@ def array_pointer(a) -> int:
     return int(a.ptr) if isinstance(a, wp.array) else int(a.data)
 
 
+def scalar_type(dtype):
+    """The scalar type of a Warp element type (``wp.float32`` for ``wp.vec3f``; a scalar type
+    itself for a scalar). Warp keeps it as the private class attribute ``_wp_scalar_type_``."""
+    return getattr(dtype, "_wp_scalar_type_", dtype)
+
+
+def scalars_per_element(dtype) -> int:
+    """How many scalars one element of a Warp element type holds (3 for ``vec3``, 12 for a 3x4
+    matrix, 1 for a scalar); Warp's private class attribute ``_length_``."""
+    return int(getattr(dtype, "_length_", 1))
+
+
+def matrix_shape(dtype) -> tuple[int, ...] | None:
+    """The shape of a Warp vector or matrix type ((3,), (3, 4)), None for a scalar; Warp's private
+    class attribute ``_shape_``."""
+    shape = getattr(dtype, "_shape_", None)
+    return tuple(shape) if shape is not None else None
+
+
 def gil_enabled() -> bool:
     """False on a free-threaded CPython running without the GIL (``sys._is_gil_enabled``, 3.13+);
     True everywhere else."""

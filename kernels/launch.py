@@ -178,7 +178,7 @@ def _run_jobs(jobs: list, n_threads: int) -> None:
 def _flat_view(a, dtype, length: int, scalar) -> wp.array:
     """A 1-D ``scalar`` view of the ``length`` elements of ``dtype`` stored in array ``a``."""
     return wp.array(
-        ptr=_compat.array_pointer(a), dtype=scalar, shape=(length * getattr(dtype, "_length_", 1),), device="cpu"
+        ptr=_compat.array_pointer(a), dtype=scalar, shape=(length * _compat.scalars_per_element(dtype),), device="cpu"
     )
 
 
@@ -266,7 +266,7 @@ def launch(
     # ---- partial buffers, added in slot order (the same order for every thread count)
     for k, bufs in partials.items():
         dtype = _compat.kernel_argument_dtype(kernel, 1 + k)
-        scalar = getattr(dtype, "_wp_scalar_type_", dtype)
+        scalar = _compat.scalar_type(dtype)
         length = _compat.array_length(adj_inputs[k])
         dst = _flat_view(adj_inputs[k], dtype, length, scalar)
         m = dst.shape[0]

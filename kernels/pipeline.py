@@ -20,7 +20,7 @@ from typing import Any
 
 import warp as wp
 
-from . import sampling_kernels
+from . import _compat, sampling_kernels
 from .camera import MIN_DEPTH
 from .sampler import PADDING_MODES as _PADDING
 
@@ -31,8 +31,8 @@ def _expect(fn: str, name: str, cond: bool, what: str, got, exc: type[Exception]
 
 
 def _type_name(t) -> str:
-    shape, scalar = getattr(t, "_shape_", None), getattr(t, "_wp_scalar_type_", None)
-    if shape is not None and scalar is not None:  # vector / matrix types: "3x4 float64"
+    shape, scalar = _compat.matrix_shape(t), _compat.scalar_type(t)
+    if shape is not None:  # vector / matrix types: "3x4 float64"
         return f"{'x'.join(map(str, shape))} {scalar.__name__}"
     return getattr(t, "__name__", repr(t))
 
@@ -43,7 +43,7 @@ def _expect_float(fn: str, name: str, a: wp.array) -> None:
 
 
 def _expect_matrices(fn: str, name: str, a: wp.array, shape: tuple[int, int], ft) -> None:
-    ok = getattr(a.dtype, "_shape_", None) == shape and getattr(a.dtype, "_wp_scalar_type_", None) is ft
+    ok = _compat.matrix_shape(a.dtype) == shape and _compat.scalar_type(a.dtype) is ft
     _expect(fn, name, ok, f"an array of {shape[0]}x{shape[1]} {ft.__name__} matrices", _type_name(a.dtype), TypeError)
 
 

@@ -52,6 +52,14 @@ def test_warp_array_descriptor():
     assert wcompat.array_length(null) == 0 and wcompat.array_pointer(null) == 0
 
 
+def test_warp_type_attributes():
+    assert wcompat.scalar_type(wp.vec3f) is wp.float32 and wcompat.scalar_type(wp.float64) is wp.float64
+    assert wcompat.scalar_type(L.mat34d) is wp.float64
+    assert wcompat.scalars_per_element(L.mat34f) == 12 and wcompat.scalars_per_element(wp.float32) == 1
+    assert wcompat.matrix_shape(L.mat34f) == (3, 4) and wcompat.matrix_shape(wp.vec2d) == (2,)
+    assert wcompat.matrix_shape(wp.float32) is None
+
+
 def test_gil_enabled(monkeypatch):
     assert wcompat.gil_enabled() == (getattr(sys, "_is_gil_enabled", lambda: True)())
     monkeypatch.setattr(sys, "_is_gil_enabled", lambda: False, raising=False)
