@@ -17,6 +17,9 @@ w = wp.array(np.array([[0.0, 0.0, np.pi / 2]]), dtype=wp.vec3d)
 R = wp.zeros(1, dtype=wp.mat33d)
 launch(lie_kernels.so3_exp[wp.float64], 1, [w], [R])
 assert np.allclose(R.numpy()[0], [[0, -1, 0], [1, 0, 0], [0, 0, 1]]), R.numpy()
+from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd
+image, depth = render_rgbd(make_room_scene(seed=0), np.eye(4), default_intrinsics(8, 6), 8, 6)
+assert image.shape == (1, 3, 6, 8) and (depth > 0).all()
 assert 'torch' not in sys.modules
 try:
     import kernels  # noqa: F401  - must not be installed as a top-level package
