@@ -13,6 +13,10 @@ derivatives cancel catastrophically near ``theta = 0``, and an expression evalua
 that is not taken still poisons Warp's adjoint (``0 * inf``). So each function branches on
 ``theta^2`` *before* taking a square root, and the small-angle branch uses Taylor series in
 ``theta^2`` only; below ``SMALL_ANGLE_SQ`` the truncation error is under 1e-15 relative.
+The threshold is chosen for float64: in float32 the closed forms just above it lose ~1e-5 of
+the gradients' relative accuracy (``(1 - A) / theta^2`` and ``D`` cancel), so the kernels of
+:mod:`.lie_kernels` evaluate these functions in float64 for float32 arrays too; do the same
+(convert with ``wp.vec3d`` / ``wp.mat33d``, round the result) when calling them from float32 code.
 """
 
 from typing import Any
