@@ -81,7 +81,13 @@ def so3_log(R: Tensor) -> Tensor:
     """Logarithm SO(3) -> so(3), the inverse of :func:`so3_exp` (angle in [0, pi]).
 
     Args:
-        R: (..., 3, 3) rotation matrices.
+        R: (..., 3, 3) rotation matrices. A matrix that is not one (|R^T R - I|_F > 1e-5 or
+            det R <= 0: scaled, sheared, a reflection, 0) stands for its nearest rotation in the
+            Frobenius norm (U V^T from the SVD, the last singular value signed); where several
+            are equally near (an orthogonal reflection) one of them, for 0 the identity. Finite
+            values and gradients for every finite R; the gradient is that of the nearest
+            rotation's log (its terms are left out where the nearest rotation is not unique).
+            Matrices within 1e-5 of a rotation are used as they are (no projection, no cost).
 
     Returns:
         (..., 3) rotation vectors. Stable near 0 (series) and near pi (axis from the symmetric
@@ -180,7 +186,8 @@ def se3_log(T: Tensor) -> Tensor:
     """The SE(3) Lie-group logarithm, inverse of :func:`se3_exp`.
 
     Args:
-        T: (..., 3, 4) or (..., 4, 4) poses (a 4x4's last row is ignored).
+        T: (..., 3, 4) or (..., 4, 4) poses (a 4x4's last row is ignored). A rotation block
+            that is not a rotation is replaced by its nearest rotation, as in :func:`so3_log`.
 
     Returns:
         (..., 6) twists [omega, u] with |omega| in [0, pi] and u = V(omega)^-1 t.
