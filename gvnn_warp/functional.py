@@ -243,11 +243,14 @@ def project_points(points: Tensor, K: Tensor, *, min_depth: float = MIN_DEPTH) -
         points: (B, ..., 3) points in the camera frame (metres).
         K: (B, 3, 3) or (3, 3) intrinsics; gradients flow to fx, fy, cx, cy and s (learnable
             intrinsics).
-        min_depth: points with Z <= min_depth (also NaN Z) are projected as if Z = min_depth,
-            so the result stays finite; test ``points[..., 2] > min_depth`` to tell them apart.
+        min_depth: the smallest Z (metres) a point may have to count (see docs/conventions.md).
 
     Returns:
-        (B, ..., 2) pixel coordinates (x, y).
+        (B, ..., 2) pixel coordinates (x, y). A point with finite Z > min_depth: its projection,
+        and its gradient. A point with Z <= min_depth (behind or too close to the camera): the
+        projection as if Z = min_depth, finite for finite X, Y, and no gradient (zero to the
+        point and to K). A point whose Z is NaN or infinite (e.g. from a NaN depth): NaN (x, y),
+        and no gradient. ``points[..., 2] > min_depth`` (False for NaN) marks the valid ones.
     """
     chk = ArgCheck("project_points")
     chk.tensor("points", points, "B ... 3")
