@@ -324,13 +324,16 @@ def warp_frame_depth(
         min_depth: depths and moved points must have z > min_depth (metres) to be used.
 
     Returns:
-        warped: (B, C, H, W); 0 where the depth or the moved point is invalid.
+        warped: (B, C, H, W); 0 where the depth or the moved point is invalid; where the
+            projection falls outside the image, the padded sample (as ``grid_sample``).
         valid: (B, 1, H, W) bool, true where the depth is finite and > min_depth, the moved point
             has z > min_depth, and its projection lies inside the image (within 1e-3 px of the
             pixel-centre rectangle [0, W-1] x [0, H-1]). Identity pose: all true, warped == image.
 
     Gradients flow to image, depth, pose and K; they are finite for every finite pose and
-    every depth value (0, negative, NaN, inf included), and zero through invalid depths.
+    every depth value (0, negative, NaN, inf included). Pixels with an invalid depth or moved
+    point pass no gradient; pixels projecting outside the image pass the padded sample's (as
+    ``grid_sample`` does), though ``valid`` is false there: mask the loss with ``valid``.
     """
     chk = ArgCheck("warp_frame_depth")
     chk.tensor("image", image, "B C H W")
