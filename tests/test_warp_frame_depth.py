@@ -181,7 +181,12 @@ def test_each_class_of_pixel_value_gradient_and_valid(padding_mode):
     ref, u, v, z = _torch_warp(image, torch.where(depth_ok, depth, 1.0), pose, K, padding_mode)
     front = depth_ok[:, 0] & (z > 1e-3)
     inside = front & (u >= -1e-3) & (u <= W - 1 + 1e-3) & (v >= -1e-3) & (v <= H - 1 + 1e-3)
-    classes = {"invalid_depth": ~depth_ok[:, 0], "behind": depth_ok[:, 0] & ~front, "outside": front & ~inside, "inside": inside}
+    classes = {
+        "invalid_depth": ~depth_ok[:, 0],
+        "behind": depth_ok[:, 0] & ~front,
+        "outside": front & ~inside,
+        "inside": inside,
+    }
     assert all(m.any() for m in classes.values())
     assert classes["outside"][0, :, 0].all()  # the just-outside column
 
