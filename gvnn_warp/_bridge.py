@@ -71,7 +71,7 @@ def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
 
 
 # The type of Warp's bare array descriptors (what ``wp.from_torch(..., return_ctype=True)`` returns)
-_ARRAY_T = type(wp.from_torch(torch.zeros(1), dtype=wp.float32, return_ctype=True))
+_ARRAY_T = type(wp.from_torch(torch.zeros(1, dtype=torch.float32), dtype=wp.float32, return_ctype=True))
 
 
 @functools.cache
