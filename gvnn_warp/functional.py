@@ -80,7 +80,13 @@ def so3_log(R: Tensor) -> Tensor:
     """Logarithm SO(3) -> so(3), the inverse of :func:`so3_exp` (angle in [0, pi]).
 
     Args:
-        R: (..., 3, 3) rotation matrices.
+        R: (..., 3, 3) rotation matrices. A matrix that is not one (|R^T R - I|_F > 1e-5 or
+            det R <= 0: scaled, sheared, a reflection, 0) stands for its nearest rotation in the
+            Frobenius norm (U V^T from the SVD, the last singular value signed); where several
+            are equally near (an orthogonal reflection) one of them, for 0 the identity. Finite
+            values and gradients for every finite R; the gradient is that of the nearest
+            rotation's log (its terms are left out where the nearest rotation is not unique).
+            Matrices within 1e-5 of a rotation are used as they are (no projection, no cost).
 
     Returns:
         (..., 3) rotation vectors. Stable near 0 (series) and near pi (axis from the symmetric
@@ -179,7 +185,8 @@ def se3_log(T: Tensor) -> Tensor:
     """The SE(3) Lie-group logarithm, inverse of :func:`se3_exp`.
 
     Args:
-        T: (..., 3, 4) or (..., 4, 4) poses (a 4x4's last row is ignored).
+        T: (..., 3, 4) or (..., 4, 4) poses (a 4x4's last row is ignored). A rotation block
+            that is not a rotation is replaced by its nearest rotation, as in :func:`so3_log`.
 
     Returns:
         (..., 6) twists [omega, u] with |omega| in [0, pi] and u = V(omega)^-1 t.
@@ -235,11 +242,14 @@ def project_points(points: Tensor, K: Tensor, *, min_depth: float = MIN_DEPTH) -
         points: (B, ..., 3) points in the camera frame (metres).
         K: (B, 3, 3) or (3, 3) intrinsics; gradients flow to fx, fy, cx, cy and s (learnable
             intrinsics).
-        min_depth: points with Z <= min_depth (also NaN Z) are projected as if Z = min_depth,
-            so the result stays finite; test ``points[..., 2] > min_depth`` to tell them apart.
+        min_depth: the smallest Z (metres) a point may have to count (see docs/conventions.md).
 
     Returns:
-        (B, ..., 2) pixel coordinates (x, y).
+        (B, ..., 2) pixel coordinates (x, y). A point with finite Z > min_depth: its projection,
+        and its gradient. A point with Z <= min_depth (behind or too close to the camera): the
+        projection as if Z = min_depth, finite for finite X, Y, and no gradient (zero to the
+        point and to K). A point whose Z is NaN or infinite (e.g. from a NaN depth): NaN (x, y),
+        and no gradient. ``points[..., 2] > min_depth`` (False for NaN) marks the valid ones.
     """
     chk = ArgCheck("project_points")
     chk.tensor("points", points, "B ... 3")
@@ -313,13 +323,16 @@ def warp_frame_depth(
         min_depth: depths and moved points must have z > min_depth (metres) to be used.
 
     Returns:
-        warped: (B, C, H, W); 0 where the depth or the moved point is invalid.
+        warped: (B, C, H, W); 0 where the depth or the moved point is invalid; where the
+            projection falls outside the image, the padded sample (as ``grid_sample``).
         valid: (B, 1, H, W) bool, true where the depth is finite and > min_depth, the moved point
             has z > min_depth, and its projection lies inside the image (within 1e-3 px of the
             pixel-centre rectangle [0, W-1] x [0, H-1]). Identity pose: all true, warped == image.
 
     Gradients flow to image, depth, pose and K; they are finite for every finite pose and
-    every depth value (0, negative, NaN, inf included), and zero through invalid depths.
+    every depth value (0, negative, NaN, inf included). Pixels with an invalid depth or moved
+    point pass no gradient; pixels projecting outside the image pass the padded sample's (as
+    ``grid_sample`` does), though ``valid`` is false there: mask the loss with ``valid``.
     """
     chk = ArgCheck("warp_frame_depth")
     chk.tensor("image", image, "B C H W")

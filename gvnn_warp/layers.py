@@ -5,6 +5,7 @@ Shapes and conventions are those of the functions (see ``docs/conventions.md``).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -35,11 +36,16 @@ class Sim3(nn.Module):
 
 
 class _Intrinsics(nn.Module):
-    """Holds K (3, 3) or (B, 3, 3) as a buffer, or as a learnable parameter."""
+    """Holds K (3, 3) or (B, 3, 3) as a buffer, or as a learnable parameter.
+
+    K keeps the dtype it is given (a tensor's or NumPy array's; anything else, e.g. a list,
+    becomes float32), never torch's default dtype: give it the dtype of the data, or convert the
+    layer with ``.to(dtype)``."""
 
     def __init__(self, K: Tensor, learnable: bool = False):
         super().__init__()
-        K = torch.as_tensor(K).clone()
+        typed = isinstance(K, (torch.Tensor, np.ndarray))
+        K = (torch.as_tensor(K) if typed else torch.as_tensor(K, dtype=torch.float32)).clone()
         if learnable:
             self.K = nn.Parameter(K)
         else:

@@ -6,7 +6,8 @@ starting from 0 (see ``docs/conventions.md``).
 
 :func:`project_moved_ray` is the per-pixel move -> project step of the 3D spatial transformer
 (with :func:`row_rays` computed once per image row) with a hand-shaped Warp adjoint
-(``@wp.func_grad``); the other functions are differentiated by Warp automatically.
+(``@wp.func_grad``); so is :func:`project_clamped` (no gradient from clamped points); the other
+functions are differentiated by Warp automatically.
 """
 
 from typing import Any
@@ -42,10 +43,58 @@ def project(K: Any, p: Any):
 
 
 @wp.func
-def project_clamped(K: Any, p: Any, min_depth: Any):
-    """project() with Z replaced by min_depth where Z <= min_depth (or is NaN): always finite."""
-    z = wp.where(p[2] > min_depth, p[2], min_depth)
-    return project(K, wp.vector(p[0], p[1], z))
+def project_grad(K: Any, p: Any, adj_ret: Any):
+    """The adjoint of :func:`project`: given ``adj_ret`` = d loss / d (u, v), returns
+    d loss / d (K, p). For hand-written adjoints; the caller guarantees Z > 0."""
+    zero = type(p[2])(0.0)
+    inv_z = type(p[2])(1.0) / p[2]
+    xn = p[0] * inv_z
+    yn = p[1] * inv_z
+    gu = adj_ret[0]
+    gv = adj_ret[1]
+    gxn = K[0, 0] * gu
+    gyn = K[0, 1] * gu + K[1, 1] * gv
+    g_K = wp.matrix_from_rows(
+        wp.vector(gu * xn, gu * yn, gu), wp.vector(zero, gv * yn, gv), wp.vector(zero, zero, zero)
+    )
+    return g_K, wp.vector(gxn * inv_z, gyn * inv_z, -(xn * gxn + yn * gyn) * inv_z)
+
+
+def _make_project_clamped(T, project_clamped=None):
+    """float type ``T`` overload of project_clamped (Warp custom adjoints need concrete types);
+    the parameter named like the function is the overload made before (see sampler.py)."""
+    vec2 = wp.types.vector(2, T)
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+
+    @wp.func
+    def project_clamped(K: mat33, p: vec3, min_depth: T):
+        """project() with Z replaced by min_depth where Z <= min_depth (or is NaN): always finite
+        (for finite X, Y). Such a value only stands in for a point the caller rejects: no gradient
+        flows from it (to p or K); elsewhere the gradient is project()'s."""
+        z = wp.where(p[2] > min_depth, p[2], min_depth)
+        return project(K, wp.vector(p[0], p[1], z))
+
+    @wp.func_grad(project_clamped)
+    def adj_project_clamped(K: mat33, p: vec3, min_depth: T, adj_ret: vec2):
+        front = p[2] > min_depth
+        g_K, g_p = project_grad(K, wp.vector(p[0], p[1], wp.where(front, p[2], T(1.0))), adj_ret)
+        wp.adjoint[K] += wp.where(front, g_K, mat33())
+        wp.adjoint[p] += wp.where(front, g_p, vec3())
+
+    return project_clamped
+
+
+project_clamped = _make_project_clamped(wp.float64, _make_project_clamped(wp.float32))
+
+
+@wp.func
+def project_point(K: Any, p: Any, min_depth: Any):
+    """The projection layer's rule (``gvnn_warp.project_points``): :func:`project_clamped` where
+    Z is finite (no gradient where Z <= min_depth), NaN where Z is NaN or infinite (no pixel;
+    no gradient)."""
+    nan = type(min_depth)(wp.nan)
+    return wp.where(wp.isfinite(p[2]), project_clamped(K, p, min_depth), wp.vector(nan, nan))
 
 
 @wp.func

@@ -45,7 +45,7 @@ def _project_points(
 ):
     i = wp.tid() + offset  # flat (b, point)
     p = points[i]
-    pixels[i] = camera.project_clamped(K[i // P], p, type(p[0])(min_depth))
+    pixels[i] = camera.project_point(K[i // P], p, type(p[0])(min_depth))
 
 
 # Adjoint scopes (see :meth:`.launch.FloatKernel.set_parallel`): per-point inputs are written back

@@ -13,6 +13,10 @@ derivatives cancel catastrophically near ``theta = 0``, and an expression evalua
 that is not taken still poisons Warp's adjoint (``0 * inf``). So each function branches on
 ``theta^2`` *before* taking a square root, and the small-angle branch uses Taylor series in
 ``theta^2`` only; below ``SMALL_ANGLE_SQ`` the truncation error is under 1e-15 relative.
+The threshold is chosen for float64: in float32 the closed forms just above it lose ~1e-5 of
+the gradients' relative accuracy (``(1 - A) / theta^2`` and ``D`` cancel), so the kernels of
+:mod:`.lie_kernels` evaluate these functions in float64 for float32 arrays too; do the same
+(convert with ``wp.vec3d`` / ``wp.mat33d``, round the result) when calling them from float32 code.
 """
 
 from typing import Any
@@ -26,6 +30,9 @@ SMALL_ANGLE_SQ = 1.0e-4
 # so3_log switches to the symmetric-part (axis) formula when cos(theta) < NEAR_PI_COS
 # (theta > ~154 deg), where sin(theta) -> 0 makes theta / sin(theta) ill-conditioned.
 NEAR_PI_COS = -0.9
+# so3_log takes a matrix as a rotation when |R^T R - I|_F <= ROTATION_TOL and det R > 0 (a
+# float32-rounded rotation is ~3e-7 off); any other matrix is first replaced by its nearest rotation.
+ROTATION_TOL = 1.0e-5
 
 
 @wp.func
@@ -94,14 +101,116 @@ def so3_left_jacobian_inv(w: Any):
 
 
 @wp.func
+def _max_abs(M: Any):
+    """The largest |entry| of a 3x3 matrix."""
+    r0 = wp.max(wp.max(wp.abs(M[0, 0]), wp.abs(M[0, 1])), wp.abs(M[0, 2]))
+    r1 = wp.max(wp.max(wp.abs(M[1, 0]), wp.abs(M[1, 1])), wp.abs(M[1, 2]))
+    r2 = wp.max(wp.max(wp.abs(M[2, 0]), wp.abs(M[2, 1])), wp.abs(M[2, 2]))
+    return wp.max(wp.max(r0, r1), r2)
+
+
+def _make_nearest_rotation(T, nearest_rotation=None):
+    """float type ``T`` overload of nearest_rotation (Warp custom adjoints need concrete types);
+    the parameter named like the function is the overload made before (see camera.py)."""
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+
+    @wp.func
+    def nearest_rotation(M: mat33):
+        """The rotation nearest to M in the Frobenius norm (special orthogonal Procrustes): U V^T
+        from the SVD M = U diag(s) V^T with U, V rotations and s_3 signed (Warp's svd3). Where
+        several rotations are equally near (an orthogonal reflection) it is one of them; for M = 0
+        the identity. M is scaled by its largest entry first (same rotation), so no finite M
+        overflows.
+
+        The adjoint is that of the polar factor: dR = U W V^T with W_ij = (P_ij - P_ji) / (s_i +
+        s_j), P = U^T dM V; terms whose s_i + s_j vanishes (no unique nearest rotation) are left
+        out, so gradients stay finite.
+        """
+        m = _max_abs(M)
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(M / wp.where(m > T(0.0), m, T(1.0)), U, s, V)
+        return wp.where(m > T(0.0), U * wp.transpose(V), wp.identity(n=3, dtype=T))
+
+    @wp.func_grad(nearest_rotation)
+    def adj_nearest_rotation(M: mat33, adj_ret: mat33):
+        m = _max_abs(M)
+        scale = wp.where(m > T(0.0), m, T(1.0))
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(M / scale, U, s, V)
+        H = wp.transpose(U) * adj_ret * V
+        tiny = T(1.0e-12) * wp.abs(s[0])
+        zero = T(0.0)
+        d01 = s[0] + s[1]
+        d02 = s[0] + s[2]
+        d12 = s[1] + s[2]
+        k01 = wp.where(d01 > tiny, (H[0, 1] - H[1, 0]) / wp.where(d01 > tiny, d01, T(1.0)), zero)
+        k02 = wp.where(d02 > tiny, (H[0, 2] - H[2, 0]) / wp.where(d02 > tiny, d02, T(1.0)), zero)
+        k12 = wp.where(d12 > tiny, (H[1, 2] - H[2, 1]) / wp.where(d12 > tiny, d12, T(1.0)), zero)
+        Kskew = wp.matrix_from_rows(vec3(zero, k01, k02), vec3(-k01, zero, k12), vec3(-k02, -k12, zero))
+        wp.adjoint[M] += U * Kskew * wp.transpose(V) / scale
+
+    return nearest_rotation
+
+
+nearest_rotation = _make_nearest_rotation(wp.float64, _make_nearest_rotation(wp.float32))
+
+
+def _make_is_rotation(T, is_rotation=None):
+    """float type ``T`` overload of is_rotation, with an empty adjoint (a test has no gradient,
+    and Warp would otherwise differentiate it too, at a cost, and get 0 * inf = NaN where the
+    squares overflow)."""
+    mat33 = wp.types.matrix((3, 3), T)
+
+    @wp.func
+    def is_rotation(R: mat33):
+        """|R^T R - I|_F <= ROTATION_TOL and det R > 0 (False for NaN entries)."""
+        c0 = wp.vector(R[0, 0], R[1, 0], R[2, 0])
+        c1 = wp.vector(R[0, 1], R[1, 1], R[2, 1])
+        c2 = wp.vector(R[0, 2], R[1, 2], R[2, 2])
+        d0 = wp.dot(c0, c0) - T(1.0)
+        d1 = wp.dot(c1, c1) - T(1.0)
+        d2 = wp.dot(c2, c2) - T(1.0)
+        o01 = wp.dot(c0, c1)
+        o02 = wp.dot(c0, c2)
+        o12 = wp.dot(c1, c2)
+        e2 = d0 * d0 + d1 * d1 + d2 * d2 + T(2.0) * (o01 * o01 + o02 * o02 + o12 * o12)
+        tol = T(ROTATION_TOL)
+        return e2 <= tol * tol and wp.dot(c0, wp.cross(c1, c2)) > T(0.0)
+
+    @wp.func_grad(is_rotation)
+    def adj_is_rotation(R: mat33, adj_ret: bool):
+        pass
+
+    return is_rotation
+
+
+is_rotation = _make_is_rotation(wp.float64, _make_is_rotation(wp.float32))
+
+
+@wp.func
 def so3_log(R: Any):
     """Logarithm SO(3) -> so(3), angle in [0, pi]; inverse of so3_exp.
 
     Written from the antisymmetric part v = sin(theta) axis and c = cos(theta) = (tr R - 1)/2,
-    so it is defined (and smooth) for any 3x3 matrix near SO(3), which finite differences need.
-    Three regimes: small angle (Taylor of asin(s)/s), generic (atan2), near pi (the axis from
-    the symmetric part R + R^T = 2 cos I + 2 (1 - cos) a a^T, signed by v).
+    so it is defined (and smooth) for any 3x3 matrix near SO(3) (:func:`is_rotation`), which
+    finite differences need. Three regimes: small angle (Taylor of asin(s)/s), generic (atan2),
+    near pi (the axis from the symmetric part R + R^T = 2 cos I + 2 (1 - cos) a a^T, signed by v).
+    Any other finite matrix (scaled, sheared, a reflection, 0) gives the log of its
+    :func:`nearest_rotation`, never NaN.
     """
+    if not is_rotation(R):
+        R = nearest_rotation(R)
+    return _so3_log_near(R)
+
+
+@wp.func
+def _so3_log_near(R: Any):
+    """so3_log of a matrix near SO(3)."""
     one = type(R[0, 0])(1.0)
     half = type(R[0, 0])(0.5)
     v = vee(R)

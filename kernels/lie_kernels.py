@@ -2,6 +2,12 @@
 
 Each kernel: element index -> load -> one ``@wp.func`` call -> store. Arrays are 1-D (one
 element per batch item); see :mod:`.launch` for the ``offset`` convention and overloads.
+
+The functions are evaluated in float64 for every array type (loads are converted to float64,
+results rounded to the output's type on store): a float32 op's values and gradients are then
+the float64 ones rounded to float32, for every angle (float32 arithmetic alone loses up to ~1e-5
+of the gradients' relative accuracy near 0 and pi: sums of large terms that cancel). Converting
+costs little next to the loads and stores.
 """
 
 from typing import Any
@@ -11,23 +17,46 @@ import warp as wp
 from . import lie
 from .kinds import FloatKernel
 
+mat34d = wp.types.matrix(shape=(3, 4), dtype=wp.float64)
+
+
+@wp.func
+def _vec3_as(v: Any, x: Any):
+    """v as a 3-vector of the float type of the scalar x."""
+    return wp.vector(v, length=3, dtype=type(x))
+
+
+@wp.func
+def _mat33_as(M: Any, x: Any):
+    """M (3x3) as a matrix of the float type of the scalar x."""
+    return wp.matrix(M, shape=(3, 3), dtype=type(x))
+
+
+@wp.func
+def _mat34_as(M: Any, x: Any):
+    """M (3x4) as a matrix of the float type of the scalar x."""
+    return wp.matrix(M, shape=(3, 4), dtype=type(x))
+
 
 @wp.kernel
 def _so3_exp(offset: int, omega: wp.array(dtype=Any), R: wp.array(dtype=Any)):
     i = wp.tid() + offset
-    R[i] = lie.so3_exp(omega[i])
+    w = omega[i]
+    R[i] = _mat33_as(lie.so3_exp(wp.vec3d(w)), w[0])
 
 
 @wp.kernel
 def _so3_log(offset: int, R: wp.array(dtype=Any), omega: wp.array(dtype=Any)):
     i = wp.tid() + offset
-    omega[i] = lie.so3_log(R[i])
+    Ri = R[i]
+    omega[i] = _vec3_as(lie.so3_log(wp.mat33d(Ri)), Ri[0, 0])
 
 
 @wp.kernel
 def _quaternion_to_matrix(offset: int, q: wp.array(dtype=Any), R: wp.array(dtype=Any)):
     i = wp.tid() + offset
-    R[i] = lie.quat_wxyz_to_matrix(q[i])
+    qi = q[i]
+    R[i] = _mat33_as(lie.quat_wxyz_to_matrix(wp.vec4d(qi)), qi[0])
 
 
 @wp.kernel
@@ -35,13 +64,15 @@ def _euler_to_matrix(
     offset: int, angles: wp.array(dtype=Any), a0: int, a1: int, a2: int, R: wp.array(dtype=Any)
 ):
     i = wp.tid() + offset
-    R[i] = lie.euler_to_matrix(angles[i], a0, a1, a2)
+    a = angles[i]
+    R[i] = _mat33_as(lie.euler_to_matrix(wp.vec3d(a), a0, a1, a2), a[0])
 
 
 @wp.kernel
 def _se3_to_matrix(offset: int, omega: wp.array(dtype=Any), t: wp.array(dtype=Any), T: wp.array(dtype=Any)):
     i = wp.tid() + offset
-    T[i] = lie.se3_to_pose(omega[i], t[i])
+    w = omega[i]
+    T[i] = _mat34_as(lie.se3_to_pose(wp.vec3d(w), wp.vec3d(t[i])), w[0])
 
 
 @wp.kernel
@@ -53,22 +84,25 @@ def _sim3_to_matrix(
     T: wp.array(dtype=Any),
 ):
     i = wp.tid() + offset
-    T[i] = lie.sim3_to_pose(omega[i], t[i], sigma[i])
+    w = omega[i]
+    T[i] = _mat34_as(lie.sim3_to_pose(wp.vec3d(w), wp.vec3d(t[i]), wp.float64(sigma[i])), w[0])
 
 
 @wp.kernel
 def _se3_exp(offset: int, omega: wp.array(dtype=Any), u: wp.array(dtype=Any), T: wp.array(dtype=Any)):
     i = wp.tid() + offset
-    T[i] = lie.se3_exp(omega[i], u[i])
+    w = omega[i]
+    T[i] = _mat34_as(lie.se3_exp(wp.vec3d(w), wp.vec3d(u[i])), w[0])
 
 
 @wp.kernel
 def _se3_log(offset: int, T: wp.array(dtype=Any), omega: wp.array(dtype=Any), u: wp.array(dtype=Any)):
     i = wp.tid() + offset
-    Ti = T[i]
+    Tf = T[i]
+    Ti = mat34d(Tf)
     w = lie.se3_log_omega(Ti)
-    omega[i] = w
-    u[i] = lie.se3_log_u(Ti, w)
+    omega[i] = _vec3_as(w, Tf[0, 0])
+    u[i] = _vec3_as(lie.se3_log_u(Ti, w), Tf[0, 0])
 
 
 # Every element reads and writes only its own batch item: any split is exact.

@@ -62,15 +62,41 @@ def test_project_points_near_and_below_min_depth():
     # just above the minimum depth: ordinary projection, finite gradients that pass gradcheck
     pts = torch.tensor([[[0.01, -0.02, 2e-3], [0.5, 0.1, 1.5e-3]]], dtype=torch.float64, requires_grad=True)
     assert gradcheck(G.project_points, (pts, K.unsqueeze(0)))
-    # at / below it (and NaN z): finite, projected at z = min_depth, no gradient to z
-    bad = torch.tensor([[[0.1, 0.2, 0.0], [0.1, 0.2, -3.0], [0.1, 0.2, float("nan")]]], dtype=torch.float64)
-    bad.requires_grad_()
-    out = G.project_points(bad, K)
-    assert torch.isfinite(out).all()
-    ref = G.project_points(torch.tensor([[[0.1, 0.2, 1e-3]]], dtype=torch.float64), K)
-    torch.testing.assert_close(out, ref.expand(1, 3, 2))
-    out.sum().backward()
-    assert torch.isfinite(bad.grad).all() and (bad.grad[..., 2] == 0).all()
+    # at / below it: finite, projected as if z = min_depth; no larger a gradient (to the point or
+    # to K) than the same point at z = 1 m gets (it was fx / min_depth = 1e5 times the upstream)
+    xy = torch.tensor([[0.1, 0.2], [-0.3, 0.05], [0.2, -0.4]], dtype=torch.float64)
+    for z in (1e-3, 5e-4, 0.0, -3.0):
+        bad = torch.cat([xy, torch.full((3, 1), z, dtype=torch.float64)], -1)[None].requires_grad_()
+        Kb = K[None].clone().requires_grad_()
+        out = G.project_points(bad, Kb)
+        assert torch.isfinite(out).all()
+        ref = G.project_points(torch.cat([xy, torch.full((3, 1), 1e-3, dtype=torch.float64)], -1)[None], K)
+        torch.testing.assert_close(out, ref)
+        up = torch.tensor([[[1.0, -2.0], [0.5, 1.0], [-1.5, 0.3]]], dtype=torch.float64)
+        (out * up).sum().backward()
+        at1 = torch.cat([xy, torch.ones(3, 1, dtype=torch.float64)], -1)[None].requires_grad_()
+        K1 = K[None].clone().requires_grad_()
+        (G.project_points(at1, K1) * up).sum().backward()
+        assert (bad.grad.norm(dim=-1) <= at1.grad.norm(dim=-1)).all(), (z, bad.grad)
+        assert Kb.grad.norm() <= K1.grad.norm(), (z, Kb.grad)
+
+
+def test_project_points_non_finite_depth_gives_nan_pixels():
+    # a point whose z is NaN or infinite (e.g. from a NaN depth) is no pixel: NaN out, and it adds
+    # nothing to any gradient (it used to come out as an ordinary, finite pixel)
+    K = intrinsics(32, 24).requires_grad_()
+    pts = torch.tensor(
+        [[[0.1, 0.2, float("nan")], [0.1, 0.2, float("inf")], [0.1, 0.2, -float("inf")], [0.3, -0.1, 2.0]]],
+        dtype=torch.float64, requires_grad=True,
+    )
+    out = G.project_points(pts, K)
+    assert torch.isnan(out[0, :3]).all() and torch.isfinite(out[0, 3]).all()
+    ok = torch.isfinite(out)
+    torch.where(ok, out, 0.0).sum().backward()
+    assert (pts.grad[0, :3] == 0).all() and torch.isfinite(pts.grad).all()
+    K_ref = K.detach().clone().requires_grad_()
+    G.project_points(pts[:, 3:].detach(), K_ref).sum().backward()
+    torch.testing.assert_close(K.grad, K_ref.grad)
 
 
 def test_shared_K_gradient_is_the_sum():

@@ -4,6 +4,7 @@ closed forms, kornia) and float64 finite differences, including 0, 1e-8 and pi -
 import math
 
 import kornia
+import numpy as np
 import pytest
 import torch
 from refs import ANGLES, rotvec_with_angle, skew, tol
@@ -177,3 +178,107 @@ def test_batch_dims_and_empty():
     e = torch.zeros(0, 3, requires_grad=True)
     G.so3_exp(e).sum().backward()
     assert e.grad.shape == (0, 3)
+
+
+def _sweep_inputs(n=400, seed=11):
+    """Angles log-spaced over [1e-3, pi] (pi included), plus pi - 1e-7 ... pi - 1e-1, random axes.
+    Near pi the logs stay within float32 rounding of float64 all the way (pi - 1e-7 is the
+    closest a float32 matrix can tell apart from pi)."""
+    g = torch.Generator().manual_seed(seed)
+    theta = torch.cat([
+        torch.logspace(-3, math.log10(math.pi), n, dtype=torch.float64),
+        math.pi - torch.logspace(-7, -1, 7, dtype=torch.float64),
+    ])
+    axis = torch.nn.functional.normalize(torch.randn(len(theta), 3, generator=g, dtype=torch.float64), dim=-1)
+    w = axis * theta[:, None]
+    t = torch.randn(len(theta), 3, generator=g, dtype=torch.float64)
+    sigma = 0.3 * torch.randn(len(theta), 1, generator=g, dtype=torch.float64)
+    half = theta[:, None] / 2
+    return theta, {
+        "so3_exp": (G.so3_exp, w),
+        "so3_log": (G.so3_log, G.so3_exp(w)),
+        "quaternion_to_matrix": (G.quaternion_to_matrix, torch.cat([half.cos(), axis * half.sin()], -1)),
+        "euler_to_matrix": (lambda a: G.euler_to_matrix(a, "ZYX"), w),
+        "se3_to_matrix": (G.se3_to_matrix, torch.cat([w, t], -1)),
+        "sim3_to_matrix": (G.sim3_to_matrix, torch.cat([w, t, sigma], -1)),
+        "se3_exp": (G.se3_exp, torch.cat([w, t], -1)),
+        "se3_log": (G.se3_log, G.se3_exp(torch.cat([w, t], -1))),
+    }
+
+
+@pytest.mark.parametrize("name", list(_sweep_inputs(n=1)[1]))
+def test_float32_gradients_match_float64_for_every_angle(name):
+    # The float32 op's gradient against the float64 op's at the same input (the float32 one) and the
+    # same upstream gradient (representable in float32): norm-wise relative error per element. Near
+    # the small-angle threshold (1e-2) float32 closed forms used to lose ~1e-5 (se3_exp, se3_log).
+    theta, ops = _sweep_inputs()
+    fn, x = ops[name]
+    x32 = x.float()
+    up = torch.randn(fn(x32).shape, generator=torch.Generator().manual_seed(5), dtype=torch.float64).float()
+    grads = []
+    for xi, u in ((x32, up), (x32.double(), up.double())):
+        xi = xi.clone().requires_grad_()
+        (fn(xi) * u).sum().backward()
+        grads.append(xi.grad.double().flatten(1))
+    err = (grads[0] - grads[1]).norm(dim=1) / grads[1].norm(dim=1)
+    assert err.max() < 1e-6, f"{name}: worst relative error {err.max():.2e} at |omega| = {theta[err.argmax()]:.9g}"
+
+
+def _nearest_rotation_np(M):
+    """Special orthogonal Procrustes with numpy: the rotation nearest to M (Frobenius)."""
+    u, _, vt = np.linalg.svd(M)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def _log_np(R):
+    """Reference log of a rotation whose angle is well inside (0, pi)."""
+    theta = math.acos(np.clip((np.trace(R) - 1) / 2, -1, 1))
+    return theta / (2 * math.sin(theta)) * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+
+
+def _non_rotations():
+    """(name, matrix, unique): matrices that are not rotations; ``unique`` where a single rotation
+    is nearest (and its angle is well inside (0, pi), for the reference log)."""
+    rng = np.random.default_rng(8)
+    R = ref_so3_exp(torch.tensor([0.3, -0.8, 0.5], dtype=torch.float64)).numpy()
+    shear = np.eye(3) + np.array([[0.0, 0.4, 0.0], [0.0, 0.0, -0.2], [0.1, 0.0, 0.0]])
+    cases = [
+        ("zero", np.zeros((3, 3)), False),
+        ("reflection_z", np.diag([1.0, 1.0, -1.0]), False),
+        ("minus_identity", -np.eye(3), False),
+        ("rotated_reflection", R @ np.diag([1.0, -1.0, 1.0]), False),
+        ("rank_one", np.outer([1.0, 2.0, 0.5], [0.3, -1.0, 2.0]), False),
+        ("scaled_0.5", 0.5 * R, True),
+        ("scaled_3", 3.0 * R, True),
+        ("stretched", R @ np.diag([1.3, 1.0, 0.8]), True),
+        ("sheared", R @ shear, True),
+        ("sheared_reflection", R @ shear @ np.diag([1.0, 1.0, -1.0]), True),
+        ("rotation_plus_noise", R + 0.05 * rng.standard_normal((3, 3)), True),
+    ]
+    for k in range(4):
+        M = rng.standard_normal((3, 3))
+        cases.append((f"random_{k}", M, 0.2 < np.linalg.norm(_log_np(_nearest_rotation_np(M))) < 2.9))
+    return cases
+
+
+@pytest.mark.parametrize("name, M, unique", _non_rotations(), ids=[c[0] for c in _non_rotations()])
+def test_so3_log_of_non_rotations_is_the_log_of_the_nearest_rotation(name, M, unique, dtype):
+    Rn = _nearest_rotation_np(M)
+    Mt = torch.tensor(M, dtype=dtype, requires_grad=True)
+    w = G.so3_log(Mt)
+    assert torch.isfinite(w).all(), f"{name}: {w}"
+    # exp(log(M)) is a rotation as near to M as the nearest one (any of them, where several are)
+    R_back = ref_so3_exp(w.detach().double()).numpy()
+    atol = 1e-5 if dtype == torch.float32 else 1e-9
+    assert abs(np.linalg.norm(R_back - M) - np.linalg.norm(Rn - M)) < atol * max(1.0, np.linalg.norm(M))
+    if unique:
+        np.testing.assert_allclose(w.detach().double().numpy(), _log_np(Rn), rtol=0, atol=atol)
+    (w * torch.tensor([0.3, -1.2, 0.7], dtype=dtype)).sum().backward()
+    assert torch.isfinite(Mt.grad).all(), f"{name}: {Mt.grad}"
+    if unique and dtype == torch.float64:
+        assert gradcheck(G.so3_log, (Mt.detach().clone().requires_grad_(),))
+    # se3_log reads its rotation block the same way
+    T = torch.cat([Mt.detach(), torch.tensor([[1.0], [-2.0], [0.5]], dtype=dtype)], -1)
+    torch.testing.assert_close(G.se3_log(T)[:3], w.detach())
+

@@ -142,3 +142,70 @@ def test_inputs_not_modified_and_layout_independent():
     depth_t = depth.transpose(2, 3).contiguous().transpose(2, 3)
     pose_sl = torch.cat([pose, torch.zeros_like(pose)], -1)[..., :4]
     torch.testing.assert_close(G.warp_frame_depth(image_cl, depth_t, pose_sl, K)[0], out, rtol=0, atol=0)
+
+
+def _torch_warp(image, depth, pose, K, padding_mode):
+    """Reference in plain torch (unproject, move, project, grid_sample) for pixels whose depth is
+    valid and whose moved point is in front; elsewhere its values are meaningless."""
+    B, C, H, W = image.shape
+    y, x = torch.meshgrid(torch.arange(H, dtype=depth.dtype), torch.arange(W, dtype=depth.dtype), indexing="ij")
+    d = depth[:, 0]
+    ry = (y - K[1, 2]) / K[1, 1]
+    rx = (x - K[0, 2] - K[0, 1] * ry) / K[0, 0]
+    p = torch.stack([rx * d, ry * d, d], -1)  # (B, H, W, 3)
+    q = torch.einsum("bij,bhwj->bhwi", pose[:, :, :3], p) + pose[:, None, None, :, 3]
+    u = K[0, 0] * q[..., 0] / q[..., 2] + K[0, 1] * q[..., 1] / q[..., 2] + K[0, 2]
+    v = K[1, 1] * q[..., 1] / q[..., 2] + K[1, 2]
+    grid = torch.stack([u / (W - 1), v / (H - 1)], -1) * 2 - 1
+    return F.grid_sample(image, grid, align_corners=True, padding_mode=padding_mode), u, v, q[..., 2]
+
+
+@pytest.mark.parametrize("padding_mode", ["zeros", "border"])
+def test_each_class_of_pixel_value_gradient_and_valid(padding_mode):
+    # Four classes of pixels (docs/conventions.md): (a) invalid depth and (b) moved point at or
+    # behind min_depth: output 0, zero gradient to everything; (c) projection outside the image:
+    # valid is False but the output is the padded sample, with its gradient (grid_sample's);
+    # (d) inside: valid, ordinary.
+    H, W = 6, 8
+    K = intrinsics(W, H)
+    g = torch.Generator().manual_seed(12)
+    image = torch.rand(2, 2, H, W, generator=g, dtype=torch.float64)
+    depth = torch.full((2, 1, H, W), 2.0, dtype=torch.float64)
+    depth[0, 0, 1, 3] = float("nan")
+    depth[0, 0, 2, 5] = 0.0
+    depth[0, 0, 4, 2] = 0.01  # shifted by -80 px: far outside (no tap inside)
+    pose = torch.eye(3, 4, dtype=torch.float64).repeat(2, 1, 1)
+    pose[0, 0, 3] = -0.4 * 2.0 / K[0, 0]  # every pixel moves 0.4 px left: column 0 lands at x = -0.4
+    pose[1, 2, 3] = -10.0  # batch item 1: every moved point is behind the camera
+    depth_ok = torch.isfinite(depth) & (depth > 1e-3)
+    ref, u, v, z = _torch_warp(image, torch.where(depth_ok, depth, 1.0), pose, K, padding_mode)
+    front = depth_ok[:, 0] & (z > 1e-3)
+    inside = front & (u >= -1e-3) & (u <= W - 1 + 1e-3) & (v >= -1e-3) & (v <= H - 1 + 1e-3)
+    classes = {
+        "invalid_depth": ~depth_ok[:, 0],
+        "behind": depth_ok[:, 0] & ~front,
+        "outside": front & ~inside,
+        "inside": inside,
+    }
+    assert all(m.any() for m in classes.values())
+    assert classes["outside"][0, :, 0].all()  # the just-outside column
+
+    args = [t.clone().requires_grad_() for t in (image, depth, pose, K)]
+    warped, valid = G.warp_frame_depth(*args, padding_mode=padding_mode)
+    assert torch.equal(valid[:, 0], inside)
+    assert (warped.permute(1, 0, 2, 3)[:, ~front] == 0).all()
+    torch.testing.assert_close(warped.permute(1, 0, 2, 3)[:, front], ref.permute(1, 0, 2, 3)[:, front])
+    w = torch.randn(warped.shape, generator=g, dtype=torch.float64)
+    for name, mask in classes.items():
+        m = mask[:, None].expand_as(warped)
+        ours = [t.clone().requires_grad_() for t in (image, depth, pose, K)]
+        (G.warp_frame_depth(*ours, padding_mode=padding_mode)[0] * w * m).sum().backward()
+        if name in ("invalid_depth", "behind"):
+            assert all((t.grad == 0).all() for t in ours), name
+            continue
+        theirs = [t.clone().requires_grad_() for t in (image, torch.where(depth_ok, depth, 1.0), pose, K)]
+        (_torch_warp(*theirs, padding_mode)[0] * w * m).sum().backward()
+        for a, b in zip(ours, theirs):
+            torch.testing.assert_close(a.grad, b.grad, msg=name)
+        if name == "outside" and padding_mode == "zeros":
+            assert ours[0].grad.abs().sum() > 0 and ours[2].grad.abs().sum() > 0  # a loss here moves the pose

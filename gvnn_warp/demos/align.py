@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"rendered 2 views {width}x{height} in {time.perf_counter() - t0:.2f} s; true motion "
           f"{args.rotation_deg:.1f} deg, {args.translation_cm:.1f} cm")
 
-    xi = torch.zeros(1, 6, requires_grad=True)
+    xi = torch.zeros(1, 6, dtype=torch.float32, requires_grad=True)
     optim = torch.optim.Adam([xi], lr=0.01)
     bar = tqdm(total=args.levels * args.steps, desc="align", unit="step", mininterval=0.5, disable=None)
     for level in reversed(range(args.levels)):
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     bar.close()
 
     with torch.no_grad():
-        before, valid0 = G.warp_frame_depth(live, depth, torch.eye(3, 4)[None], K)
+        before, valid0 = G.warp_frame_depth(live, depth, torch.eye(3, 4, dtype=torch.float32)[None], K)
         after, valid1 = G.warp_frame_depth(live, depth, G.se3_to_matrix(xi), K)
     rot0, trans0 = pose_error(np.eye(4)[:3], T_gt)
     rot1, trans1 = pose_error(G.se3_to_matrix(xi.detach())[0].double().numpy(), T_gt)

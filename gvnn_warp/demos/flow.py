@@ -242,9 +242,9 @@ def _fit(args: argparse.Namespace, t_start: float) -> int:
     # params = identity + q * S: the linear terms move a pixel by x * a, so they are scaled by
     # 1 / s (s ~ half the image size) to give every entry of q a comparable effect in pixels.
     s = 0.5 * max(W, H)
-    identity = torch.tensor([1.0, 0, 0, 0, 1, 0]).view(1, 6, 1, 1)
-    S = torch.tensor([1 / s, 1 / s, 1.0, 1 / s, 1 / s, 1.0]).view(1, 6, 1, 1)
-    q = torch.zeros(1, 6, H, W, requires_grad=True)
+    identity = torch.tensor([1.0, 0, 0, 0, 1, 0], dtype=torch.float32).view(1, 6, 1, 1)
+    S = torch.tensor([1 / s, 1 / s, 1.0, 1 / s, 1 / s, 1.0], dtype=torch.float32).view(1, 6, 1, 1)
+    q = torch.zeros(1, 6, H, W, dtype=torch.float32, requires_grad=True)
     opt = torch.optim.Adam([q], lr=0.1)
     smooth_weight = 0.02  # photometric: Cauchy, scale 0.1 (intensities in [0, 1]); smoothness: Huber on q
     # coarse to fine: blur sigmas of both frames, and the step at which each stage starts

@@ -218,7 +218,7 @@ def _predict(model: CascadeVO, ps: PairSet, idx: Tensor, refine: int = 0, chunk:
             ref, live, ref_d, live_d, _, _ = ps.batch(idx[i : i + chunk])
             out.append(model(ref, live, ref_d, live_d, ps.K, refine=refine))
     model.train(was_training)
-    return torch.cat(out) if out else torch.zeros(0, model.out_dim)
+    return torch.cat(out) if out else torch.zeros(0, model.out_dim, dtype=torch.float32)
 
 
 def evaluate(pred: Tensor, ps: PairSet, gt_warp: Tensor, gt_valid: Tensor, idx: Tensor) -> dict:
@@ -453,7 +453,7 @@ def _evaluate_and_report(
     from .plots import plot_panel, plot_training_curve
 
     t0 = time.perf_counter()
-    zero = torch.zeros(len(eval_idx), model.out_dim)
+    zero = torch.zeros(len(eval_idx), model.out_dim, dtype=torch.float32)
     trained = _predict(model, eval_set, eval_idx, cfg.refine)
     train_idx = _even_subset(len(train_set), cfg.n_eval)
     ev = {
@@ -461,7 +461,9 @@ def _evaluate_and_report(
         "trained": evaluate(trained, eval_set, eval_gt, eval_valid, eval_idx),
     }
     ev_train = {
-        "identity": evaluate(torch.zeros(len(train_idx), model.out_dim), train_set, train_gt, train_valid, train_idx),
+        "identity": evaluate(
+            torch.zeros(len(train_idx), model.out_dim, dtype=torch.float32), train_set, train_gt, train_valid, train_idx
+        ),
         "trained": evaluate(
             _predict(model, train_set, train_idx, cfg.refine), train_set, train_gt, train_valid, train_idx
         ),
