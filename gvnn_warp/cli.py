@@ -1,26 +1,103 @@
-"""The ``gvnn-warp`` command line: demos of the layers on data made at run time."""
+"""The gvnn-warp command line: demos of the layers on data made at run time.
+
+Every command checks its arguments before it starts (a bad one gets a one-line error after the
+usage line and exit status 2), checks that the packages it needs are installed, and exits with one
+line and status 130 on Ctrl-C.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
+import os
 import sys
 
-# subcommand modules in gvnn_warp.demos; each has add_parser(subparsers) and its own run(args)
+from .demos._args import HelpFormatter, UsageError, plain_text
+
+# subcommand modules in gvnn_warp.demos; each has add_parser(subparsers), its own run(args), and
+# optionally REQUIRES: the importable packages it needs beyond gvnn_warp's own dependencies
 DEMOS = ("align", "flow", "vo")
 
+# what to tell a user who lacks a package a command needs
+INSTALL_HINTS = {
+    "torch": "PyTorch, which is not installed: pip install 'gvnn_warp[torch]' (for the CPU-only build, first: "
+    "pip install torch --index-url https://download.pytorch.org/whl/cpu)",
+}
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gvnn-warp", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in DEMOS:
-        importlib.import_module(f"gvnn_warp.demos.{name}").add_parser(sub)
+INTERRUPTED_STATUS = 130  # 128 + SIGINT, as a shell reports a process ended by Ctrl-C
+
+
+def tidy_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Help without markup and with every option's default (see ``HelpFormatter``)."""
+    parser.formatter_class = HelpFormatter
+    parser.description = plain_text(parser.description)
     return parser
 
 
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gvnn-warp", description=__doc__.split("\n\n")[0], formatter_class=HelpFormatter
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in DEMOS:
+        module = importlib.import_module(f"gvnn_warp.demos.{name}")
+        module.add_parser(sub)
+        p = tidy_parser(sub.choices[name])
+        p.set_defaults(_parser=p, _requires=tuple(getattr(module, "REQUIRES", ())))
+    for action in sub._choices_actions:  # the one-line summaries in `gvnn-warp --help`
+        action.help = plain_text(action.help)
+    return parser
+
+
+def missing_packages(names) -> list[str]:
+    return [n for n in names if importlib.util.find_spec(n) is None]
+
+
+def announce_compiles() -> None:
+    """Print one line on stderr before Warp first compiles a kernel module in this process (a
+    cold kernel cache: the first run, or a new gvnn_warp or Warp version); nothing when every
+    module comes from the cache. Only rank 0 prints under torchrun."""
+    from ._warp_setup import on_first_compile
+
+    if os.environ.get("RANK", "0") != "0":
+        return
+    import warp as wp
+
+    def notify():
+        print(f"gvnn-warp: compiling kernels, once (a few seconds per module; cached in "
+              f"{wp.config.kernel_cache_dir})", file=sys.stderr, flush=True)
+
+    on_first_compile(notify)
+
+
+def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requires=()) -> int:
+    """Run ``args.func(args)``: the packages in ``requires`` are checked first (one line, status 1,
+    if one is missing); a ``UsageError`` is printed after the usage line (status 2); Ctrl-C ends
+    the command with one line and status 130."""
+    missing = missing_packages(requires)
+    if missing:
+        hints = "; ".join(INSTALL_HINTS.get(n, f"{n}, which is not installed") for n in missing)
+        print(f"{parser.prog}: error: this command needs {hints}", file=sys.stderr)
+        return 1
+    try:
+        announce_compiles()
+        return args.func(args)
+    except UsageError as e:
+        parser.error(str(e))
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: interrupted", file=sys.stderr, flush=True)
+        return INTERRUPTED_STATUS
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("gvnn-warp: interrupted", file=sys.stderr)
+        return INTERRUPTED_STATUS
+    return run_command(args._parser, args, args._requires)
 
 
 if __name__ == "__main__":
