@@ -24,6 +24,12 @@ DEFAULT_BACKEND = L.thread_backend()
 BACKENDS = [DEFAULT_BACKEND, "python"] if DEFAULT_BACKEND != "python" else ["python"]
 
 
+# Tests whose result cannot depend on the backend set in this process (they run their own
+# subprocess, or go through every backend themselves) run once: a direct parametrization of
+# "backend" overrides the autouse fixture's parameters.
+once = pytest.mark.parametrize("backend", [DEFAULT_BACKEND])
+
+
 def use_backend(name):
     L.use_openmp(name.removeprefix("openmp:") if name.startswith("openmp:") else None)
 
@@ -243,7 +249,8 @@ def test_inferred_kernels_are_safe():
         assert torch.equal(total, results[0][0]) and torch.equal(gx, results[0][1])
 
 
-def test_env_var_in_subprocess(tmp_path):
+@once
+def test_env_var_in_subprocess(tmp_path, backend):
     import subprocess
     import sys
 
@@ -253,7 +260,8 @@ def test_env_var_in_subprocess(tmp_path):
     assert out.stdout.strip().splitlines()[-1] == "3"
 
 
-def test_torch_openmp_team_is_the_default():
+@once
+def test_torch_openmp_team_is_the_default(backend):
     if "parallel backend: OpenMP" not in torch.__config__.parallel_info() or os.environ.get("GVNN_WARP_OPENMP") == "0":
         pytest.skip("torch does not run on OpenMP here, or it was turned off")
     assert DEFAULT_BACKEND.startswith("openmp:")
@@ -274,7 +282,8 @@ def test_pool_runs_on_several_threads(backend):
     assert len(ids) == 2 and threading.get_native_id() in ids
 
 
-def test_backends_give_bitwise_equal_results():
+@once
+def test_backends_give_bitwise_equal_results(backend):
     image, depth, pose, K = wfd_inputs(1, 3, 97, 131, torch.float32, seed=5)
     L.set_num_threads(2)
     results = {}
@@ -309,12 +318,14 @@ def _run(code, **env):
     return out.stdout.strip().splitlines()[-1]
 
 
-def test_openmp_can_be_turned_off_by_env_var():
+@once
+def test_openmp_can_be_turned_off_by_env_var(backend):
     code = "import torch, gvnn_warp as G; G.so3_exp(torch.zeros(1, 3)); print(G.kernels.launch.thread_backend())"
     assert _run(code, GVNN_WARP_OPENMP="0") == "python"
 
 
-def test_forked_child_runs_threaded_launches():
+@once
+def test_forked_child_runs_threaded_launches(backend):
     """libgomp's team does not survive a fork: a child's launches fall back to Python threads and
     give the parent's results. (torch's own parallel ops hang in such a child unless it sets
     torch.set_num_threads(1) first, as DataLoader workers do; so does this child.)"""
