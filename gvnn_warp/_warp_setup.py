@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import warp as wp
 
-__all__ = ["CUDA_DRIVER_WARNING", "init_warp_quietly", "on_first_compile"]
+__all__ = ["CUDA_DRIVER_WARNING", "cancel_first_compile", "init_warp_quietly", "on_first_compile"]
 
 CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
 
@@ -88,3 +88,9 @@ def on_first_compile(notify: Callable[[], None]) -> bool:
         run_codegen._gvnn_warp_hook = True
         Module._run_codegen = run_codegen
     return True
+
+
+def cancel_first_compile() -> None:
+    """Forget a pending :func:`on_first_compile` callback (the hook itself stays, doing nothing)."""
+    with _hook_lock:
+        _listeners.clear()

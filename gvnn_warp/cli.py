@@ -80,6 +80,8 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
         hints = "; ".join(INSTALL_HINTS.get(n, f"{n}, which is not installed") for n in missing)
         print(f"{parser.prog}: error: this command needs {hints}", file=sys.stderr)
         return 1
+    from ._warp_setup import cancel_first_compile
+
     try:
         announce_compiles()
         return args.func(args)
@@ -88,6 +90,8 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr, flush=True)
         return INTERRUPTED_STATUS
+    finally:
+        cancel_first_compile()  # the notice is the command's, not of later library use in this process
 
 
 def main(argv: list[str] | None = None) -> int:
