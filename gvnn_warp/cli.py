@@ -11,7 +11,9 @@ import argparse
 import importlib
 import importlib.util
 import os
+import signal
 import sys
+import threading
 
 from .demos._args import HelpFormatter, UsageError, plain_text
 
@@ -26,6 +28,7 @@ INSTALL_HINTS = {
 }
 
 INTERRUPTED_STATUS = 130  # 128 + SIGINT, as a shell reports a process ended by Ctrl-C
+EXIT_GRACE_SECONDS = 5.0  # after Ctrl-C, the process ends within this time whatever it was doing
 
 
 def tidy_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -71,6 +74,38 @@ def announce_compiles() -> None:
     on_first_compile(notify)
 
 
+class _CtrlC:
+    """SIGINT raises KeyboardInterrupt (as Python's default handler does) and also arms a timer that
+    ends the process with one line and status 130 if it is still running EXIT_GRACE_SECONDS later:
+    a KeyboardInterrupt raised while the main thread runs a callback from native code (a threaded
+    Warp launch on torch's OpenMP team) is printed and dropped by ctypes, and the command would go
+    on. Restores the previous handler on exit."""
+
+    def __init__(self, prog: str):
+        self.prog, self.reported, self.old = prog, False, None
+
+    def _handler(self, signum, frame):
+        timer = threading.Timer(EXIT_GRACE_SECONDS, self._force_exit)
+        timer.daemon = True
+        timer.start()
+        raise KeyboardInterrupt
+
+    def _force_exit(self):
+        if not self.reported:
+            print(f"{self.prog}: interrupted", file=sys.stderr, flush=True)
+        os._exit(INTERRUPTED_STATUS)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self.old = signal.signal(signal.SIGINT, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        if self.old is not None:
+            signal.signal(signal.SIGINT, self.old)
+        return False
+
+
 def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requires=()) -> int:
     """Run ``args.func(args)``: the packages in ``requires`` are checked first (one line, status 1,
     if one is missing); a ``UsageError`` is printed after the usage line (status 2); Ctrl-C ends
@@ -82,12 +117,15 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
         return 1
     from ._warp_setup import cancel_first_compile
 
+    ctrl_c = _CtrlC(parser.prog)
     try:
-        announce_compiles()
-        return args.func(args)
+        with ctrl_c:
+            announce_compiles()
+            return args.func(args)
     except UsageError as e:
         parser.error(str(e))
     except KeyboardInterrupt:
+        ctrl_c.reported = True
         print(f"{parser.prog}: interrupted", file=sys.stderr, flush=True)
         return INTERRUPTED_STATUS
     finally:

@@ -208,12 +208,51 @@ def test_ctrl_c_in_align_exits_130_with_one_line(tmp_path):
         time.sleep(0.5)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise AssertionError(f"still running 60 s after Ctrl-C; stderr: {proc.communicate()[1][-3000:]}") from None
     finally:
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "gvnn-warp align: interrupted", err
     assert "Traceback" not in err
+
+
+SWALLOWS_CTRL_C = """
+import argparse, sys, time
+from gvnn_warp import cli
+cli.EXIT_GRACE_SECONDS = 1.0
+
+def run(args):
+    print("ready", flush=True)
+    t = time.time()
+    while time.time() - t < 60:
+        try:
+            time.sleep(0.05)
+        except KeyboardInterrupt:
+            pass  # as ctypes does with an exception raised in a callback from native code
+    return 0
+
+p = argparse.ArgumentParser(prog="gvnn-warp demo")
+p.set_defaults(func=run)
+sys.exit(cli.run_command(p, p.parse_args([])))
+"""
+
+
+def test_ctrl_c_ends_a_command_that_swallows_keyboard_interrupt():
+    proc = subprocess.Popen([sys.executable, "-c", SWALLOWS_CTRL_C], env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        t0 = time.time()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and err == "gvnn-warp demo: interrupted\n", err
+    assert time.time() - t0 < 20
 
 
 def test_commands_without_torch_say_what_to_install(tmp_path):

@@ -144,6 +144,7 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = tidy_parser(argparse.ArgumentParser(prog="gvnn-warp vo", description=description(__doc__)))
     add_arguments(parser)
+    parser.set_defaults(func=run)
     try:
         args = parser.parse_args(argv)
     except KeyboardInterrupt:
