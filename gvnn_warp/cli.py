@@ -18,13 +18,16 @@ import threading
 from .demos._args import HelpFormatter, UsageError, plain_text
 
 # subcommand modules in gvnn_warp.demos; each has add_parser(subparsers), its own run(args), and
-# optionally REQUIRES: the importable packages it needs beyond gvnn_warp's own dependencies
+# optionally REQUIRES: the importable packages it needs, checked before it starts
 DEMOS = ("align", "flow", "vo")
 
 # what to tell a user who lacks a package a command needs
 INSTALL_HINTS = {
     "torch": "PyTorch, which is not installed: pip install 'gvnn_warp[torch]' (for the CPU-only build, first: "
     "pip install torch --index-url https://download.pytorch.org/whl/cpu)",
+    # plain dependencies of gvnn_warp: missing only from a broken installation
+    "matplotlib": "matplotlib, which is not installed: pip install matplotlib",
+    "tqdm": "tqdm, which is not installed: pip install tqdm",
 }
 
 INTERRUPTED_STATUS = 130  # 128 + SIGINT, as a shell reports a process ended by Ctrl-C

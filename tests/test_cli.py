@@ -379,3 +379,16 @@ def test_flow_figure_colour_bars_have_units():
         assert min(t.get_fontsize() for t in _texts(fig)) >= 9
     finally:
         plt.close(fig)
+
+
+@pytest.mark.parametrize("command", cli.DEMOS)
+def test_missing_figure_library_is_reported_before_work(command, tmp_path, capsys, monkeypatch):
+    """matplotlib is a dependency; in a broken installation without it a command stops at once
+    (it used to train for minutes and then fail writing the figure)."""
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    argv = [command, *(a.format(out=tmp_path / "o") for a in _VALID[command])]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert err == f"gvnn-warp {command}: error: this command needs matplotlib, which is not installed: " \
+                  "pip install matplotlib\n"
+    assert not (tmp_path / "o").exists()

@@ -20,7 +20,7 @@ from ._args import UsageError, description, finite_float, image_size, output_dir
 
 __all__ = ["add_parser", "run"]
 
-REQUIRES = ("torch",)  # checked by gvnn_warp.cli before run()
+REQUIRES = ("torch", "matplotlib", "tqdm")  # checked by gvnn_warp.cli before run()
 
 MIN_LEVEL_SIZE = 4  # pixels along the shorter side of the coarsest pyramid level
 MAX_STEPS = 100_000

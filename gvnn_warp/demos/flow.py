@@ -30,7 +30,7 @@ _SIZE = image_size(32)
 
 __all__ = ["add_parser", "run"]
 
-REQUIRES = ("torch",)  # checked by gvnn_warp.cli before run()
+REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 
 DEFAULT_SIZE = "160x120"
 DEFAULT_STEPS = 300

@@ -41,7 +41,7 @@ _SIZE = image_size(32, MAX_SIDE)
 
 __all__ = ["add_parser", "run"]
 
-REQUIRES = ("torch",)  # checked by gvnn_warp.cli before run()
+REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 
 
 def _losses() -> tuple[str, ...]:
