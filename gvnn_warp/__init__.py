@@ -14,6 +14,12 @@ import warp as _wp
 # warnings. Set ``warp.config.log_level = warp.LOG_INFO`` after importing gvnn_warp to see them.
 _wp.config.log_level = max(_wp.config.log_level, _wp.LOG_WARNING)
 
+from ._warp_setup import init_warp_quietly  # noqa: E402
+
+# Warp's native library prints a warning about the missing NVIDIA CUDA driver on every machine
+# without one; gvnn_warp runs on the CPU, so Warp is initialised here with that one line dropped.
+init_warp_quietly()
+
 __version__ = "0.1.0"
 
 from .kernels.launch import get_num_threads, set_num_threads  # noqa: E402  (pure Warp, no torch)

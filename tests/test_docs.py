@@ -42,3 +42,95 @@ def test_lazy_export_lists_match_modules():
     ]:
         public = {n for n in module.__all__ if n not in ("HOMOGRAPHY_MIN_DEN", "ROBUST_KINDS")}
         assert set(listed) == public, module.__name__
+
+
+# ----------------------------------------------------------------------------- README code blocks
+
+README = DOCS.parent / "README.md"
+
+
+def readme_blocks() -> list[tuple[str, str, bool]]:
+    """(language, code, marked as the pure-Warp example) of every fenced block in the README."""
+    import re
+
+    text = README.read_text()
+    blocks = []
+    for m in re.finditer(r"^( *)```(\w+)\n(.*?)^\1```", text, re.S | re.M):
+        indent = len(m.group(1))
+        code = "\n".join(line[indent:] for line in m.group(3).splitlines())
+        marked = text[: m.start()].rstrip().endswith("<!-- pure-warp-example -->")
+        blocks.append((m.group(2), code, marked))
+    return blocks
+
+
+def test_readme_python_blocks_run():
+    """Every Python block runs as pasted (the pure-Warp one in a torch-free process, in
+    test_pure_warp.py; the others here)."""
+    blocks = [(code, marked) for lang, code, marked in readme_blocks() if lang == "python"]
+    assert sum(marked for _, marked in blocks) == 1 and len(blocks) >= 2
+    for code, marked in blocks:
+        if not marked:
+            exec(compile(code, str(README), "exec"), {"__name__": "readme"})
+
+
+def _commands(code: str) -> list[list[str]]:
+    import shlex
+
+    out = []
+    for line in code.splitlines():
+        line = line.split(" #")[0].strip()
+        if line and not line.startswith("#"):
+            out += [shlex.split(part) for part in line.split("&&")]
+    return out
+
+
+def test_readme_shell_commands_are_valid():
+    """The shell blocks are checked, not run (the set-up reinstalls, the demos take minutes; CI runs
+    the set-up and test lines, which must be .ci/run's): each command's arguments are parsed by its
+    own parser, pip's requirements must match pyproject.toml."""
+    import tomllib
+    from packaging.requirements import Requirement
+
+    from gvnn_warp import cli
+    from gvnn_warp.demos import vo
+
+    ci = (DOCS.parent / ".ci" / "run").read_text()
+    project = tomllib.loads((DOCS.parent / "pyproject.toml").read_text())["project"]
+    torch_req = Requirement(project["optional-dependencies"]["torch"][0])
+    seen = set()
+    for lang, code, _ in readme_blocks():
+        if lang != "bash":
+            continue
+        for line in code.splitlines():
+            if "pytest" in line or "gvnn-warp align" in line:
+                assert line.strip() in ci, f"README line not run by CI: {line}"
+        for cmd in _commands(code):
+            prog = cmd[0].removeprefix(".venv/bin/")
+            if prog == "gvnn-warp":
+                cli.build_parser().parse_args(cmd[1:])
+            elif prog == "torchrun":
+                assert cmd[1:4] == ["--standalone", "--nproc_per_node=2", "-m"] and cmd[4] == "gvnn_warp.demos.vo"
+                parser = __import__("argparse").ArgumentParser()
+                vo.add_arguments(parser)
+                parser.parse_args(cmd[5:])
+            elif prog in ("python", "python3") and cmd[1:3] == ["-m", "venv"]:
+                assert cmd[3:] == [".venv"]
+            elif prog == "python" and cmd[1:3] == ["-m", "pytest"]:
+                pass  # checked against .ci/run above
+            elif prog == "python" and cmd[1:3] == ["-m", "benchmarks.run"]:
+                from benchmarks.run import build_parser
+
+                build_parser().parse_args(cmd[3:])
+            elif prog == "pip" and cmd[1] == "install":
+                for arg in cmd[2:]:
+                    if arg.startswith("torch=="):
+                        assert torch_req.specifier.contains(arg.split("==")[1]), (arg, torch_req)
+                    elif arg.startswith(".["):
+                        extras = arg[2:-1].split(",")
+                        assert set(extras) <= set(project["optional-dependencies"]), arg
+                    else:
+                        assert arg in ("-e", "--index-url", "https://download.pytorch.org/whl/cpu"), arg
+            else:
+                raise AssertionError(f"README command not checked by this test: {cmd}")
+            seen.add(prog)
+    assert {"gvnn-warp", "torchrun", "pip", "python"} <= seen

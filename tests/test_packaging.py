@@ -1,18 +1,30 @@
-"""The wheel built with ``python -m build`` installs into a fresh venv with its dependencies and
-works there: the pure-Warp kernels without torch, and the torch ops once torch is installed."""
+"""The wheel built with ``python -m build``: its files and metadata, and that it works when installed
+into a fresh venv - the pure-Warp kernels and the ``gvnn-warp`` script without torch (which then
+says what to install), the torch ops once torch is there.
 
+The dependencies are not downloaded and installed again (that took most of a minute, and reinstalling
+torch most of another): the wheel is installed with ``--no-deps`` and the test environment's packages
+are made visible to the fresh venv through a ``.pth`` file - first all but torch, then torch too.
+That pip installs what the metadata lists is pip's job; the metadata is checked here."""
+
+import email
 import subprocess
 import sys
+import sysconfig
+import zipfile
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+TORCH_PACKAGES = ("torch", "functorch", "torchgen")
 
 SMOKE_KERNELS = """
 import sys, numpy as np, warp as wp
 import gvnn_warp.kernels as gk
 from gvnn_warp.kernels import lie_kernels
 from gvnn_warp.kernels.launch import launch
-assert 'site-packages' in gk.__file__, gk.__file__
+assert gk.__file__.startswith(sys.prefix), (gk.__file__, sys.prefix)  # the wheel's copy, in the venv
 w = wp.array(np.array([[0.0, 0.0, np.pi / 2]]), dtype=wp.vec3d)
 R = wp.zeros(1, dtype=wp.mat33d)
 launch(lie_kernels.so3_exp[wp.float64], 1, [w], [R])
@@ -26,10 +38,17 @@ try:
     raise SystemExit('a top-level "kernels" package was installed')
 except ImportError:
     pass
+try:
+    import torch  # noqa: F401
+    raise SystemExit('torch is visible: the environment is not torch-free')
+except ImportError:
+    pass
+print("kernels ok")
 """
 
 SMOKE_TORCH = """
-import torch, gvnn_warp as G
+import sys, torch, gvnn_warp as G
+assert G.__file__.startswith(sys.prefix), G.__file__
 img = torch.rand(1, 3, 8, 10, requires_grad=True)
 depth = torch.rand(1, 1, 8, 10) + 1
 K = torch.tensor([[9.0, 0, 4.5], [0, 9, 3.5], [0, 0, 1]])
@@ -37,21 +56,81 @@ warped, valid = G.warp_frame_depth(img, depth, torch.eye(4)[None], K)
 assert valid.all() and torch.allclose(warped, img, atol=1e-5)
 warped.sum().backward()
 assert torch.allclose(img.grad, torch.ones_like(img), atol=1e-5)
+print("torch ok")
 """
 
 
-def _run(*cmd, cwd=None):
-    subprocess.run([str(c) for c in cmd], check=True, cwd=cwd, capture_output=True, text=True)
+def _run(*cmd, cwd=None, check=True):
+    res = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, timeout=300)
+    if check:
+        assert res.returncode == 0, res.stderr[-3000:]
+    return res
 
 
-def test_wheel_installs_into_fresh_venv(tmp_path):
-    dist = tmp_path / "dist"
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    dist = tmp_path_factory.mktemp("dist")
     _run(sys.executable, "-m", "build", "--wheel", "--outdir", dist, ROOT)
-    (wheel,) = dist.glob("gvnn_warp-*.whl")
+    (whl,) = dist.glob("gvnn_warp-*.whl")
+    return whl
+
+
+def test_wheel_files_and_metadata(wheel):
+    import tomllib
+    from packaging.requirements import Requirement
+
+    names = zipfile.ZipFile(wheel).namelist()
+    kernels = sorted(p.name for p in (ROOT / "kernels").glob("*.py"))
+    assert sorted(n.split("/")[-1] for n in names if n.startswith("gvnn_warp/kernels/")) == kernels
+    assert not [n for n in names if n.startswith("kernels/")]  # never a top-level "kernels"
+    for pkg in ("gvnn_warp", "gvnn_warp/demos", "gvnn_warp/vo"):
+        assert f"{pkg}/__init__.py" in names
+    assert "gvnn_warp/py.typed" in names
+    (license_file,) = [n for n in names if n.endswith("dist-info/licenses/LICENSE")]
+    assert "BSD 3-Clause" in zipfile.ZipFile(wheel).read(license_file).decode()
+    (meta_name,) = [n for n in names if n.endswith("dist-info/METADATA")]
+    meta = email.message_from_bytes(zipfile.ZipFile(wheel).read(meta_name))
+    assert meta["License-Expression"] == "BSD-3-Clause"
+    requires = [Requirement(r) for r in meta.get_all("Requires-Dist")]
+    plain = {r.name.lower() for r in requires if r.marker is None}
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert plain == {Requirement(r).name.lower() for r in project["dependencies"]}
+    assert {"warp-lang", "numpy", "matplotlib", "tqdm", "pillow"} <= plain  # what every command needs
+    (torch_req,) = [r for r in requires if r.name == "torch"]
+    assert torch_req.marker is not None and torch_req.marker.evaluate({"extra": "torch"})
+    entry_points = zipfile.ZipFile(wheel).read(meta_name.replace("METADATA", "entry_points.txt")).decode()
+    assert "gvnn-warp = gvnn_warp.cli:main" in entry_points
+
+
+def _dependency_view(dest: Path) -> Path:
+    """A folder of links to every package of this test environment but torch and gvnn_warp."""
+    dest.mkdir()
+    for entry in Path(sysconfig.get_paths()["purelib"]).iterdir():
+        name = entry.name.lower()
+        if name.startswith(TORCH_PACKAGES) or name.startswith(("gvnn_warp", "__editable__")) or name.endswith(".pth"):
+            continue
+        (dest / entry.name).symlink_to(entry)
+    return dest
+
+
+def test_wheel_works_in_a_fresh_venv_without_and_with_torch(wheel, tmp_path):
     venv = tmp_path / "venv"
-    _run(sys.executable, "-m", "venv", venv)
-    py = venv / "bin" / "python"
-    _run(py, "-m", "pip", "install", "-q", wheel)
-    _run(py, "-c", SMOKE_KERNELS, cwd=tmp_path)
-    _run(py, "-m", "pip", "install", "-q", "torch==2.13.0")
-    _run(py, "-c", SMOKE_TORCH, cwd=tmp_path)
+    _run(sys.executable, "-m", "venv", "--without-pip", venv)
+    py, script = venv / "bin" / "python", venv / "bin" / "gvnn-warp"
+    _run(sys.executable, "-m", "pip", "--python", py, "install", "-q", "--no-deps", "--no-index", wheel)
+    site = Path(_run(py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])").stdout.strip())
+    pth = site / "test_dependencies.pth"
+    pth.write_text(f"{_dependency_view(tmp_path / 'deps')}\n")
+
+    # without torch: the kernels work, the script starts and says what a command needs
+    assert _run(py, "-c", SMOKE_KERNELS, cwd=tmp_path).stdout.strip() == "kernels ok"
+    assert "align" in _run(script, "--help", cwd=tmp_path).stdout
+    res = _run(script, "align", "--out", tmp_path / "out", cwd=tmp_path, check=False)
+    assert res.returncode == 1, res.stderr
+    assert res.stderr.startswith("gvnn-warp align: error: this command needs PyTorch") and res.stderr.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+
+    # with torch
+    pth.write_text(pth.read_text() + f"{sysconfig.get_paths()['purelib']}\n")
+    assert _run(py, "-c", SMOKE_TORCH, cwd=tmp_path).stdout.strip() == "torch ok"
+    assert "--motion" in _run(script, "vo", "--help", cwd=tmp_path).stdout

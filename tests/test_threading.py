@@ -24,6 +24,12 @@ DEFAULT_BACKEND = L.thread_backend()
 BACKENDS = [DEFAULT_BACKEND, "python"] if DEFAULT_BACKEND != "python" else ["python"]
 
 
+# Tests whose result cannot depend on the backend set in this process (they run their own
+# subprocess, or go through every backend themselves) run once: a direct parametrization of
+# "backend" overrides the autouse fixture's parameters.
+once = pytest.mark.parametrize("backend", [DEFAULT_BACKEND])
+
+
 def use_backend(name):
     L.use_openmp(name.removeprefix("openmp:") if name.startswith("openmp:") else None)
 
@@ -279,7 +285,8 @@ def test_declared_atomics_and_gathers_are_safe():
         assert torch.equal(total, results[0][0]) and torch.equal(gx, results[0][1])
 
 
-def test_env_var_in_subprocess(tmp_path):
+@once
+def test_env_var_in_subprocess(tmp_path, backend):
     import subprocess
     import sys
 
@@ -312,7 +319,8 @@ def test_pool_runs_on_several_threads(backend):
     assert len(ids) == 2 and threading.get_native_id() in ids
 
 
-def test_backends_give_bitwise_equal_results():
+@once
+def test_backends_give_bitwise_equal_results(backend):
     image, depth, pose, K = wfd_inputs(1, 3, 97, 131, torch.float32, seed=5)
     L.set_num_threads(2)
     results = {}
@@ -347,12 +355,14 @@ def _run(code, **env):
     return out.stdout.strip().splitlines()[-1]
 
 
-def test_openmp_can_be_turned_off_by_env_var():
+@once
+def test_openmp_can_be_turned_off_by_env_var(backend):
     code = "import torch, gvnn_warp as G; G.so3_exp(torch.zeros(1, 3)); print(G.kernels.launch.thread_backend())"
     assert _run(code, GVNN_WARP_OPENMP="0") == "python"
 
 
-def test_forked_child_runs_threaded_launches():
+@once
+def test_forked_child_runs_threaded_launches(backend):
     """libgomp's team does not survive a fork: a child's launches fall back to Python threads and
     give the parent's results. (torch's own parallel ops hang in such a child unless it sets
     torch.set_num_threads(1) first, as DataLoader workers do; so does this child.)"""

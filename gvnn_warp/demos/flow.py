@@ -24,28 +24,31 @@ import sys
 import time
 from pathlib import Path
 
-from ._args import image_size, positive_int
+from ._args import bounded_int, description, image_size, output_dir, seed
 
 _SIZE = image_size(32)
 
 __all__ = ["add_parser", "run"]
 
-DEFAULT_SIZE = (160, 120)
+REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
+
+DEFAULT_SIZE = "160x120"
 DEFAULT_STEPS = 300
+MAX_STEPS = 100_000
+bounded_steps = bounded_int(1, MAX_STEPS)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "flow",
         help="fit a per-pixel affine optic flow between two synthetic frames (M-estimator + smoothness)",
-        description=__doc__.split("\n\n")[0],
+        description=description(__doc__),
     )
-    p.add_argument("--out", required=True, help="output directory for flow.png")
-    p.add_argument("--steps", type=positive_int, default=DEFAULT_STEPS, help=f"Adam steps (default {DEFAULT_STEPS})")
-    p.add_argument(
-        "--size", type=_SIZE, default=DEFAULT_SIZE, help=f"image size WxH (default {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})"
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the texture and the true flow (default 0)")
+    p.add_argument("--out", type=output_dir, required=True, metavar="DIR",
+                   help="directory for flow.png (made if missing)")
+    p.add_argument("--steps", type=bounded_steps, default=DEFAULT_STEPS, metavar="N", help="Adam steps")
+    p.add_argument("--size", type=_SIZE, default=DEFAULT_SIZE, metavar="WxH", help="image size WxH")
+    p.add_argument("--seed", type=seed, default=0, metavar="S", help="seed of the texture and the true flow")
     p.set_defaults(func=run)
     return p
 
@@ -154,7 +157,9 @@ def _flow_rgb(flow, max_mag: float):
     return hsv_to_rgb(np.stack([hue, sat, np.ones_like(hue)], -1))
 
 
-def _figure(path: Path, f1, f2, warped, est, truth, epe_map, stats) -> None:
+def figure(f1, f2, warped, est, truth, epe_map, stats):
+    """The matplotlib figure of ``flow.png`` (see the module docstring); residual and error panels
+    carry colour bars with their units."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -170,24 +175,29 @@ def _figure(path: Path, f1, f2, warped, est, truth, epe_map, stats) -> None:
     res_after = (warped - f2)[0].abs().mean(0).numpy()
     vmax = float(res_before.max())
     epe_max = max(float(np.quantile(epe_map, 0.99)), 0.1)  # a few border pixels would dominate
+    residual_unit = "|residual|, mean over RGB (intensity, 0-1)"
+    residual = dict(cmap="magma", vmin=0, vmax=vmax)
 
-    fig, ax = plt.subplots(2, 4, figsize=(16, 6.6))
+    fig, ax = plt.subplots(2, 4, figsize=(16, 7), layout="constrained")
     panels = [
-        (rgb(f1), "frame 1", {}),
-        (rgb(f2), "frame 2 = frame 1 moved by the true flow", {}),
-        (rgb(warped), "frame 1 warped by the estimated flow", {}),
-        (res_after, f"|residual| after (mean {res_after.mean():.4f})", dict(cmap="magma", vmin=0, vmax=vmax)),
-        (_flow_rgb(truth_np, max_mag), f"true flow (max {max_mag:.2f} px)", {}),
-        (_flow_rgb(est_np, max_mag), "estimated per-pixel affine flow", {}),
-        (epe_map, f"end-point error, px (mean {stats['epe']:.3f})", dict(cmap="viridis", vmin=0, vmax=epe_max)),
-        (res_before, f"|residual| before (mean {res_before.mean():.4f})", dict(cmap="magma", vmin=0, vmax=vmax)),
+        (rgb(f1), "frame 1", {}, None),
+        (rgb(f2), "frame 2 = frame 1 moved by the true flow", {}, None),
+        (rgb(warped), "frame 1 warped by the estimated flow", {}, None),
+        (res_after, f"|frame 2 - warped| (mean {res_after.mean():.4f})", residual, residual_unit),
+        (_flow_rgb(truth_np, max_mag), f"true flow (max {max_mag:.2f} px)", {}, None),
+        (_flow_rgb(est_np, max_mag), "estimated per-pixel affine flow", {}, None),
+        (epe_map, f"end-point error (mean {stats['epe']:.3f} px)", dict(cmap="viridis", vmin=0, vmax=epe_max),
+         "end-point error, px"),
+        (res_before, f"|frame 2 - frame 1| (mean {res_before.mean():.4f})", residual, residual_unit),
     ]
-    for a, (img, title, kw) in zip(ax.ravel(), panels, strict=True):
+    for a, (img, title, kw, unit) in zip(ax.ravel(), panels, strict=True):
         im = a.imshow(img, **kw)
-        a.set_title(title, fontsize=10)
+        a.set_title(title, fontsize=11)
         a.axis("off")
-        if kw:
-            fig.colorbar(im, ax=a, fraction=0.036, pad=0.02)
+        if unit:
+            extend = "max" if kw["cmap"] == "viridis" else "neither"  # the EPE scale is clipped at its 99th percentile
+            bar = fig.colorbar(im, ax=a, fraction=0.046, pad=0.02, extend=extend)
+            bar.set_label(unit, fontsize=9)
     # colour-wheel key in the corner of the true-flow panel
     n = 41
     gy, gx = np.mgrid[-1 : 1 : n * 1j, -1 : 1 : n * 1j]
@@ -200,10 +210,17 @@ def _figure(path: Path, f1, f2, warped, est, truth, epe_map, stats) -> None:
     fig.suptitle(
         f"gvnn-warp flow: per-pixel affine flow fitted in {stats['steps']} Adam steps "
         f"(Cauchy photometric + Huber smoothness); EPE {stats['epe']:.3f} px vs {stats['epe_zero']:.3f} px "
-        f"for zero flow",
-        fontsize=11,
+        f"for zero flow\nflow colours: hue = direction, saturation = magnitude (white = 0, full = "
+        f"{max_mag:.2f} px; key in the corner)",
+        fontsize=12,
     )
-    fig.tight_layout()
+    return fig
+
+
+def _figure(path: Path, *args) -> None:
+    import matplotlib.pyplot as plt
+
+    fig = figure(*args)
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
@@ -232,7 +249,7 @@ def _fit(args: argparse.Namespace, t_start: float) -> int:
 
     W, H = args.size
     steps = args.steps
-    out_dir = Path(args.out)
+    out_dir = args.out
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(args.seed)
 
@@ -301,8 +318,6 @@ def _fit(args: argparse.Namespace, t_start: float) -> int:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="python -m gvnn_warp.demos.flow")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    ns = parser.parse_args(["flow", *sys.argv[1:]])
-    raise SystemExit(ns.func(ns))
+    from gvnn_warp.cli import main
+
+    sys.exit(main(["flow", *sys.argv[1:]]))

@@ -5,12 +5,13 @@ Usage::
     gvnn-warp vo --motion so3|se3 --out DIR [--steps N] [--size WxH] [--seed S] [--resume]
                  [--loss l1|l2|huber|cauchy|geman_mcclure|tukey] [--batch-size B] [--lr LR]
 
-    torchrun --nproc_per_node=2 -m gvnn_warp.demos.vo --motion so3 --out DIR   # DDP over gloo
-
 Writes ``DIR/checkpoint.pt`` (atomically, every 50 steps / 30 s, on Ctrl-C / SIGTERM and at the
 end; ``--resume`` continues from it), ``DIR/metrics.json`` (training loss per step, held-out
 rotation / translation errors and photometric residual of the identity and the trained network),
 ``DIR/training_curve.png`` and ``DIR/registration.png``.
+
+On two processes (DistributedDataParallel over gloo; the batch is split between them), with the
+same options: ``torchrun --standalone --nproc_per_node=2 -m gvnn_warp.demos.vo --motion so3 --out DIR``
 """
 
 from __future__ import annotations
@@ -24,36 +25,59 @@ import sys
 # is first imported (this module does not import torch at import time).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from ._args import image_size, nonnegative_int, positive_float, positive_int
+from ._args import (
+    UsageError,
+    bounded_int,
+    description,
+    image_size,
+    output_dir,
+    positive_float,
+    positive_int,
+    seed,
+)
 
-_SIZE = image_size(32)
+MAX_SIDE = 1024  # larger frames make the network and the rendered data set too big for a demo
+_SIZE = image_size(32, MAX_SIDE)
 
 __all__ = ["add_parser", "run"]
 
+REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
+
+
+def _losses() -> tuple[str, ...]:
+    # the choices of --loss without importing torch (gvnn_warp.vo.loss.LOSSES; a test checks they agree)
+    from gvnn_warp.kernels.robust import KINDS
+
+    return ("l1", "l2", *KINDS)
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from gvnn_warp.vo.loss import LOSSES
-
     p.add_argument("--motion", required=True, choices=("so3", "se3"),
                    help="so3: pure rotation (3 outputs); se3: rotation and translation (6 outputs)")
-    p.add_argument("--out", required=True, help="output directory (checkpoint, metrics.json, figures)")
-    p.add_argument("--steps", type=positive_int, default=None, help="total training steps (default per motion)")
-    p.add_argument("--size", type=_SIZE, default=None, help="image size WxH (default 128x96; e.g. 320x240)")
-    p.add_argument("--seed", type=nonnegative_int, default=None,
-                   help="seed of weights, trajectories and batches (default 0)")
+    p.add_argument("--out", type=output_dir, required=True, metavar="DIR",
+                   help="output directory (checkpoint, metrics.json, figures; made if missing)")
+    p.add_argument("--steps", type=bounded_int(1, 10_000_000), default=None, metavar="N",
+                   help="total training steps (default: 2800 for so3, 1800 for se3)")
+    p.add_argument("--size", type=_SIZE, default=None, metavar="WxH", help="image size WxH (default: 128x96)")
+    p.add_argument("--seed", type=seed, default=None, metavar="S",
+                   help="seed of weights, trajectories and batches (default: 0)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.pt")
-    p.add_argument("--loss", choices=LOSSES, default=None,
-                   help="per-pixel penalty: l1 (default), l2, or an M-estimator (gvnn_warp.perpixel)")
-    p.add_argument("--loss-scale", type=positive_float, default=None, help="M-estimator scale (default 0.1)")
-    p.add_argument("--batch-size", type=positive_int, default=None, help="global batch size (default 16)")
-    p.add_argument("--lr", type=positive_float, default=None, help="peak Adam learning rate (default 1e-3)")
-    p.add_argument("--trajectories", type=positive_int, default=None,
-                   help="training trajectories to render (default 8 for so3, 16 for se3; held-out: 2 others)")
-    p.add_argument("--frames", type=positive_int, default=None, help="frames per trajectory (default 80)")
-    p.add_argument("--stages", type=positive_int, default=None,
+    p.add_argument("--loss", choices=_losses(), default=None,
+                   help="per-pixel penalty: l1, l2, or an M-estimator of gvnn_warp.perpixel (default: l1)")
+    p.add_argument("--loss-scale", type=positive_float, default=None, metavar="X",
+                   help="M-estimator scale, intensity units (default: 0.1)")
+    p.add_argument("--batch-size", type=positive_int, default=None, metavar="B",
+                   help="global batch size, split between torchrun's ranks (default: 16)")
+    p.add_argument("--lr", type=positive_float, default=None, metavar="LR",
+                   help="peak Adam learning rate (default: 1e-3)")
+    p.add_argument("--trajectories", type=bounded_int(1, 1000), default=None, metavar="N",
+                   help="training trajectories to render (default: 8 for so3, 16 for se3; held-out: 2 others)")
+    p.add_argument("--frames", type=bounded_int(2, 10_000), default=None, metavar="N",
+                   help="frames per trajectory; se3 pairs frames up to 3 apart, so it needs at least 4 (default: 80)")
+    p.add_argument("--stages", type=bounded_int(1, 8), default=None, metavar="N",
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
                         "the pose so far (default: 1 for so3, 2 for se3)")
-    p.add_argument("--refine", type=nonnegative_int, default=None,
+    p.add_argument("--refine", type=bounded_int(0, 20), default=None, metavar="N",
                    help="when predicting, apply the last stage this many more times to the re-warped live image "
                         "(default: 0 for so3, 2 for se3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -63,7 +87,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "vo",
         help="train a siamese VO network through the 3D spatial transformer (paper's application)",
-        description=__doc__.split("\n\n")[0],
+        description=description(__doc__),
     )
     add_arguments(p)
     p.set_defaults(func=run)
@@ -75,7 +99,7 @@ def _config(args: argparse.Namespace):
 
     return default_config(
         args.motion,
-        args.out,
+        str(args.out),
         steps=args.steps,
         size=args.size,
         seed=args.seed,
@@ -93,13 +117,14 @@ def _config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from gvnn_warp.vo.train import ConfigError, train
+    from gvnn_warp.vo.train import ConfigError, check_config, train
 
-    try:
+    try:  # every check that needs several options, or the checkpoint to resume, before any work
         cfg = _config(args)
-        metrics = train(cfg)
-    except ConfigError as e:  # inconsistent options, e.g. --refine with a single stage, or --resume
-        raise SystemExit(f"gvnn-warp vo: error: {e}") from None
+        check_config(cfg)
+    except ConfigError as e:  # e.g. --refine with a single stage, or --resume of another run
+        raise UsageError(str(e)) from None
+    metrics = train(cfg)
     if metrics.get("interrupted"):
         return 130
     if metrics:
@@ -115,9 +140,16 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (``python -m gvnn_warp.demos.vo ...``, also under torchrun)."""
-    parser = argparse.ArgumentParser(prog="gvnn-warp vo", description=__doc__.split("\n\n")[0])
+    from gvnn_warp.cli import run_command, tidy_parser
+
+    parser = tidy_parser(argparse.ArgumentParser(prog="gvnn-warp vo", description=description(__doc__)))
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    parser.set_defaults(func=run)
+    try:
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        return 130
+    return run_command(parser, args, REQUIRES)
 
 
 if __name__ == "__main__":

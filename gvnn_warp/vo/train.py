@@ -33,10 +33,15 @@ from .data import PairSet, render_split, split_seeds
 from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, warp_live
 from .model import CascadeVO
 
-__all__ = ["CHECKPOINT", "METRICS", "VOConfig", "default_config", "evaluate", "train"]
+__all__ = ["CHECKPOINT", "METRICS", "VOConfig", "check_config", "default_config", "evaluate", "train"]
 
 CHECKPOINT = "checkpoint.pt"
 METRICS = "metrics.json"
+# Checkpoints hold only tensors, dicts, lists, tuples, str, int, float, bool and None, so that they
+# load with torch.load(weights_only=True) (no pickled code). Format 1 (no "format" key) held numpy
+# arrays and is refused with a message.
+CHECKPOINT_FORMAT = 2
+MAX_DATA_BYTES = 8 * 2**30  # rendered frames and ground-truth warps kept in memory
 
 
 @dataclass
@@ -116,9 +121,68 @@ def default_config(motion: str, out: str, **overrides) -> VOConfig:
     if len(cfg.stage_scales) < 2 and overrides.get("refine") is None:
         cfg.refine = 0  # the per-motion default refines with a second stage; a single network cannot
     if cfg.refine < 0 or (cfg.refine and len(cfg.stage_scales) < 2):
-        raise ConfigError(f"refine must be >= 0 and needs at least 2 stages, got refine={cfg.refine!r} "
-                         f"with {len(cfg.stage_scales)} stage(s)")
+        raise ConfigError(f"--refine {cfg.refine!r} must be >= 0 and needs a cascade of at least 2 networks "
+                          f"(--stages), got {len(cfg.stage_scales)}")
     return cfg
+
+
+def n_pairs(cfg: VOConfig, n_traj: int) -> int:
+    """Pairs rendered from ``n_traj`` trajectories (see :mod:`.data`)."""
+    per_traj = sum(max(0, cfg.n_frames - g) for g in cfg.gaps)
+    return n_traj * per_traj * (2 if cfg.both_directions else 1)
+
+
+def _data_bytes(cfg: VOConfig) -> int:
+    """Memory of the rendered frames (RGB + depth, float32) and ground-truth warps (RGB + mask)."""
+    W, H = cfg.size
+    frames = (cfg.n_train_traj + cfg.n_eval_traj) * cfg.n_frames
+    pairs = n_pairs(cfg, cfg.n_train_traj) + n_pairs(cfg, cfg.n_eval_traj)
+    return W * H * (frames * 4 * 4 + pairs * (3 * 4 + 1))
+
+
+def check_config(cfg: VOConfig, world: int | None = None) -> dict | None:
+    """Every check of ``cfg`` that can be made before rendering: the options together, the number of
+    ranks (``world``, default: ``WORLD_SIZE``), and, with ``cfg.resume``, the checkpoint in
+    ``cfg.out``. Raises :class:`ConfigError`; returns the checkpoint to resume from (or None)."""
+    world = world if world is not None else int(os.environ.get("WORLD_SIZE", "1"))
+    gap = max(cfg.gaps)
+    if cfg.n_frames <= gap:
+        raise ConfigError(f"--frames {cfg.n_frames} is too few: {cfg.motion} pairs frames up to {gap} apart, so "
+                          f"each trajectory needs at least {gap + 1} frames")
+    if cfg.batch_size % world:
+        raise ConfigError(f"--batch-size {cfg.batch_size} must be divisible by the {world} ranks")
+    n_train = n_pairs(cfg, cfg.n_train_traj)
+    if n_train < cfg.batch_size:
+        raise ConfigError(f"{n_train} training pairs are fewer than --batch-size {cfg.batch_size}: "
+                          "render more (--trajectories, --frames) or use a smaller batch")
+    if _data_bytes(cfg) > MAX_DATA_BYTES:
+        raise ConfigError(f"this run would keep {_data_bytes(cfg) / 2**30:.0f} GiB of rendered frames and warps in "
+                          f"memory (at most {MAX_DATA_BYTES / 2**30:.0f}): use a smaller --size, fewer --frames "
+                          "or --trajectories")
+    return _resume_checkpoint(cfg)
+
+
+def _resume_checkpoint(cfg: VOConfig) -> dict | None:
+    """The checkpoint in ``cfg.out`` if ``cfg.resume`` and it exists; ConfigError if it cannot be
+    resumed with ``cfg`` (another format, other data or network)."""
+    path = Path(cfg.out) / CHECKPOINT
+    if not (cfg.resume and path.exists()):
+        return None
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # pickle.UnpicklingError for pickled objects other than tensors and containers
+        raise ConfigError(f"cannot resume: {path} is not a checkpoint this gvnn_warp can load safely "
+                          f"({type(e).__name__}; written by an older version?): start a new run in another "
+                          "directory") from None
+    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+        raise ConfigError(f"cannot resume: {path} was written by another gvnn_warp version (checkpoint format "
+                          f"{ck.get('format', 1) if isinstance(ck, dict) else '?'}, this one reads "
+                          f"{CHECKPOINT_FORMAT}): start a new run in another directory")
+    for key in RESUME_KEYS:
+        if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
+            raise ConfigError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "
+                              f"this run {getattr(cfg, key)!r} (repeat the options the run was started with)")
+    return ck
 
 
 # ----------------------------------------------------------------------------- distributed
@@ -154,13 +218,20 @@ def _atomic_write_text(text: str, path: Path) -> None:
 
 
 def _rng_state() -> dict:
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    """The global generators' states as tensors and plain Python values (see CHECKPOINT_FORMAT)."""
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    numpy_state = {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                   "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+    return {"torch": torch.get_rng_state(), "numpy": numpy_state, "python": random.getstate()}
 
 
 def _set_rng_state(state: dict) -> None:
     torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
-    random.setstate(state["python"])
+    n = state["numpy"]
+    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached_gaussian"]))
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -282,18 +353,7 @@ def train(cfg: VOConfig) -> dict:
         out.mkdir(parents=True, exist_ok=True)
 
     ckpt_path = out / CHECKPOINT
-    ck = None
-    if cfg.resume and ckpt_path.exists():  # checked before anything is rendered
-        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
-        if "stage_scales" not in ck["config"]:
-            raise ConfigError(f"cannot resume: {ckpt_path} was written by an older gvnn_warp (no CascadeVO); "
-                              "start a new run in another directory")
-        for key in RESUME_KEYS:
-            if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
-                raise ConfigError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "
-                                  f"this run {getattr(cfg, key)!r} (repeat the options the run was started with)")
-    if cfg.batch_size % world:
-        raise ConfigError(f"--batch-size {cfg.batch_size} must be divisible by the {world} ranks")
+    ck = check_config(cfg, world)  # before anything is rendered
     local_batch = cfg.batch_size // world
     W, H = cfg.size
 
@@ -311,9 +371,6 @@ def train(cfg: VOConfig) -> dict:
     t_data = time.perf_counter() - t0
     _log(rank, f"vo {cfg.motion}: {len(train_set)} training pairs, {len(eval_set)} held-out pairs at "
          f"{W}x{H}, rendered in {t_data:.1f} s")
-    if len(train_set) < cfg.batch_size:
-        raise ConfigError(f"{len(train_set)} training pairs are fewer than --batch-size {cfg.batch_size}: "
-                          "render more (--trajectories, --frames) or use a smaller batch")
     eval_idx = _even_subset(len(eval_set), cfg.n_eval)
     panel_idx = eval_idx[_even_subset(len(eval_idx), cfg.n_panel + 2)[1:-1]][: cfg.n_panel]
 
@@ -345,6 +402,7 @@ def train(cfg: VOConfig) -> dict:
             return
         _atomic_save(
             {
+                "format": CHECKPOINT_FORMAT,
                 "config": dataclasses.asdict(cfg),
                 "model": model.state_dict(),
                 "optimizer": opt.state_dict(),

@@ -1,0 +1,394 @@
+"""The gvnn-warp command line: every bad argument is refused with one line before any work,
+Ctrl-C ends every command with one line and status 130, commands say what they need, help texts
+are plain and show defaults; Warp's CUDA-driver line is not shown and a cold kernel cache is
+announced once."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from gvnn_warp import cli
+from gvnn_warp.demos import _args
+
+BAD = "BAD"  # replaced by the path of an existing file
+FILE_CHILD = "BAD/sub"  # a directory below that file
+
+
+def _bad_cases():
+    cases = {
+        "align": [
+            (["--out", BAD], "argument --out: '{BAD}' exists and is not a directory"),
+            (["--out", FILE_CHILD], "argument --out: cannot make directory"),
+            (["--size", "5000x5000"], "argument --size: each side must be between 16 and 4096 pixels"),
+            (["--size", "15x40"], "argument --size: each side must be between 16"),
+            (["--size", "160"], "argument --size: size must be WxH"),
+            (["--steps", "0"], "argument --steps: expected a positive integer, got '0'"),
+            (["--steps", "2.5"], "argument --steps: expected a positive integer"),
+            (["--steps", "50000", "--levels", "3"], "--steps 50000 x --levels 3 is more than 100000 steps"),
+            (["--levels", "0"], "argument --levels: expected a positive integer"),
+            (["--size", "16x16", "--levels", "4"], "--levels 4 is too many for 16x16"),
+            (["--rotation-deg", "nan"],
+             "argument --rotation-deg: expected a number from -180 to 180 degrees, got 'nan'"),
+            (["--rotation-deg", "inf"], "argument --rotation-deg: expected a number from -180 to 180"),
+            (["--rotation-deg", "181"], "argument --rotation-deg: expected a number from -180 to 180"),
+            (["--rotation-deg", "four"], "argument --rotation-deg: expected a number"),
+            (["--translation-cm", "nan"], "argument --translation-cm: expected a number from -50 to 50 cm"),
+            (["--translation-cm=-1e9"], "argument --translation-cm: expected a number from -50 to 50 cm"),
+            (["--seed", "-1"], "argument --seed: expected an integer from 0 to 4294967295"),
+            (["--seed", str(2**32)], "argument --seed: expected an integer from 0 to 4294967295"),
+        ],
+        "flow": [
+            (["--out", BAD], "argument --out: '{BAD}' exists and is not a directory"),
+            (["--steps", "0"], "argument --steps: expected an integer from 1 to 100000"),
+            (["--steps", "100001"], "argument --steps: expected an integer from 1 to 100000"),
+            (["--size", "31x40"], "argument --size: each side must be between 32 and 4096"),
+            (["--size", "100000x100000"], "argument --size: each side must be between 32 and 4096"),
+            (["--seed", "-1"], "argument --seed: expected an integer from 0"),
+            (["--seed", "x"], "argument --seed: expected an integer from 0"),
+        ],
+        "vo": [
+            (["--out", BAD], "argument --out: '{BAD}' exists and is not a directory"),
+            (["--steps", "0"], "argument --steps: expected an integer from 1 to 10000000"),
+            (["--size", "2000x2000"], "argument --size: each side must be between 32 and 1024"),
+            (["--seed", "-1"], "argument --seed: expected an integer from 0 to 4294967295"),
+            (["--loss", "l3"], "argument --loss: invalid choice: 'l3'"),
+            (["--loss-scale", "nan"], "argument --loss-scale: expected a positive number, got 'nan'"),
+            (["--loss-scale", "0"], "argument --loss-scale: expected a positive number"),
+            (["--lr", "inf"], "argument --lr: expected a positive number, got 'inf'"),
+            (["--lr", "-1"], "argument --lr: expected a positive number"),
+            (["--batch-size", "0"], "argument --batch-size: expected a positive integer"),
+            (["--batch-size", "64", "--trajectories", "1", "--frames", "10"],
+             "18 training pairs are fewer than --batch-size 64"),
+            (["--trajectories", "0"], "argument --trajectories: expected an integer from 1 to 1000"),
+            (["--frames", "1"], "argument --frames: expected an integer from 2 to 10000, got '1'"),
+            (["--frames", "3", "--motion", "se3"], "--frames 3 is too few: se3 pairs frames up to 3 apart"),
+            (["--stages", "0"], "argument --stages: expected an integer from 1 to 8"),
+            (["--refine", "-1"], "argument --refine: expected an integer from 0 to 20"),
+            (["--stages", "1", "--refine", "2"], "--refine 2 must be >= 0 and needs a cascade of at least 2"),
+            (["--size", "1024x1024", "--trajectories", "200"], "GiB of rendered frames and warps in memory"),
+            (["--motion", "se2"], "argument --motion: invalid choice: 'se2'"),
+        ],
+    }
+    for command, rows in cases.items():
+        for extra, message in rows:
+            yield pytest.param(command, extra, message, id=f"{command}{' '.join(extra)}")
+
+
+def _argv(command, extra, out):
+    base = {"align": ["align"], "flow": ["flow"], "vo": ["vo", "--motion", "so3"]}[command]
+    if "--out" not in extra:
+        base += ["--out", str(out)]
+    return base + extra
+
+
+@pytest.mark.parametrize("command, extra, message", list(_bad_cases()))
+def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, message, tmp_path, capsys):
+    bad_file = tmp_path / "a_file"
+    bad_file.write_text("not a directory")
+    out = tmp_path / "out"
+    extra = [a.replace(BAD, str(bad_file)) for a in extra]
+    with pytest.raises(SystemExit) as exc:
+        cli.main(_argv(command, extra, out))
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert lines[0].startswith(f"usage: gvnn-warp {command} ")
+    assert lines[-1].startswith(f"gvnn-warp {command}: error: "), err
+    assert message.format(BAD=bad_file) in lines[-1], err
+    assert "Traceback" not in err
+    assert not out.exists()  # nothing was made: no work started
+    assert bad_file.read_text() == "not a directory"
+
+
+def test_validators():
+    with pytest.raises(argparse.ArgumentTypeError, match="finite"):
+        _args.finite_float()("nan")
+    assert _args.finite_float(-1, 1)("-1") == -1.0
+    assert _args.image_size(16, 64)("64x16") == (64, 16)
+    with pytest.raises(argparse.ArgumentTypeError):
+        _args.image_size(16, 64)("65x16")
+    assert _args.bounded_int(2, 3)("3") == 3
+    with pytest.raises(argparse.ArgumentTypeError):
+        _args.bounded_int(2, 3)("4")
+    assert _args.positive_int("7") == 7 and _args.nonnegative_int("0") == 0
+    assert _args.plain_text("``a`` :mod:`b.c` **d**") == "a b.c d"
+
+
+def test_output_dir_accepts_new_and_existing_directories(tmp_path):
+    assert _args.output_dir(str(tmp_path)) == tmp_path
+    assert _args.output_dir(str(tmp_path / "x" / "y")) == tmp_path / "x" / "y"
+    assert not (tmp_path / "x").exists()  # checked, not made
+
+
+# ----------------------------------------------------------------------------- help
+
+
+def _subparsers():
+    parser = cli.build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return parser, sub.choices
+
+
+def test_help_is_plain_text_with_defaults_and_descriptions():
+    parser, commands = _subparsers()
+    assert set(commands) == set(cli.DEMOS)
+    for name, p in [("", parser), *commands.items()]:
+        text = p.format_help()
+        for markup in ("``", ":mod:", ":func:", "**"):
+            assert markup not in text, (name, markup)
+        assert p.description and len(p.description) > 40, name  # align had none
+        if not name:
+            continue
+        for action in p._actions:
+            if not action.option_strings or action.required or action.nargs == 0:
+                continue  # -h, --out/--motion, flags
+            help_line = p._get_formatter()._expand_help(action)
+            assert "default" in help_line, (name, action.dest, help_line)
+
+
+def test_readme_torchrun_line_is_the_help_one():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    line = "torchrun --standalone --nproc_per_node=2 -m gvnn_warp.demos.vo"
+    assert line in readme
+    _, commands = _subparsers()
+    assert line in commands["vo"].format_help().replace("\n", " ")
+
+
+def test_vo_loss_choices_match_the_losses():
+    from gvnn_warp.demos.vo import _losses
+    from gvnn_warp.vo.loss import LOSSES
+
+    assert _losses() == LOSSES
+
+
+# ----------------------------------------------------------------------------- Ctrl-C, missing packages
+
+
+_VALID = {"align": ["--out", "{out}"], "flow": ["--out", "{out}"], "vo": ["--motion", "so3", "--out", "{out}"]}
+
+
+@pytest.mark.parametrize("command", cli.DEMOS)
+def test_keyboard_interrupt_anywhere_in_a_command(command, tmp_path, capsys, monkeypatch):
+    """The handling is cli's, so every command (new ones too) gets it."""
+    import importlib
+
+    module = importlib.import_module(f"gvnn_warp.demos.{command}")
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "run", interrupted)
+    argv = [command, *(a.format(out=tmp_path / "o") for a in _VALID[command])]
+    assert cli.main(argv) == 130
+    assert capsys.readouterr().err == f"gvnn-warp {command}: interrupted\n"
+
+
+def _env():
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    return env
+
+
+def test_ctrl_c_in_align_exits_130_with_one_line(tmp_path):
+    cmd = [sys.executable, "-m", "gvnn_warp.cli", "align", "--out", str(tmp_path), "--size", "32x24",
+           "--levels", "1", "--steps", "100000"]
+    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()  # printed once the views are rendered, as gradient descent starts
+        assert line.startswith("rendered 2 views"), line + proc.stderr.read()
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise AssertionError(f"still running 60 s after Ctrl-C; stderr: {proc.communicate()[1][-3000:]}") from None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "gvnn-warp align: interrupted", err
+    assert "Traceback" not in err
+
+
+SWALLOWS_CTRL_C = """
+import argparse, sys, time
+from gvnn_warp import cli
+cli.EXIT_GRACE_SECONDS = 1.0
+
+def run(args):
+    print("ready", flush=True)
+    t = time.time()
+    while time.time() - t < 60:
+        try:
+            time.sleep(0.05)
+        except KeyboardInterrupt:
+            pass  # as ctypes does with an exception raised in a callback from native code
+    return 0
+
+p = argparse.ArgumentParser(prog="gvnn-warp demo")
+p.set_defaults(func=run)
+sys.exit(cli.run_command(p, p.parse_args([])))
+"""
+
+
+def test_ctrl_c_ends_a_command_that_swallows_keyboard_interrupt():
+    proc = subprocess.Popen([sys.executable, "-c", SWALLOWS_CTRL_C], env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        t0 = time.time()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and err == "gvnn-warp demo: interrupted\n", err
+    assert time.time() - t0 < 20
+
+
+def test_commands_without_torch_say_what_to_install(tmp_path):
+    """Without torch, gvnn-warp still starts (help, argument errors) and a command that needs torch
+    stops before any work with one line naming what to install."""
+    code = f"""
+import sys
+sys.modules["torch"] = None  # as if torch were not installed
+from gvnn_warp.cli import main
+try:
+    main(["--help"])
+except SystemExit as e:
+    assert e.code == 0, e.code
+rc = main(["vo", "--motion", "so3", "--out", {str(tmp_path / "o")!r}])
+assert rc == 1, rc
+assert "torch" not in sys.modules or sys.modules["torch"] is None
+print("ok")
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("ok")
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1, res.stderr
+    assert err[0].startswith("gvnn-warp vo: error: this command needs PyTorch")
+    assert "pip install 'gvnn_warp[torch]'" in err[0] and "download.pytorch.org/whl/cpu" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------- Warp's start-up
+
+
+def test_no_cuda_driver_warning():
+    code = "import gvnn_warp, warp as wp; wp.zeros(1); print(wp.get_device())"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "CUDA driver" not in res.stderr, res.stderr
+
+
+def test_init_filter_keeps_other_stderr_lines(capfd):
+    from gvnn_warp._warp_setup import init_warp_quietly
+
+    def fake_init():
+        os.write(2, b"Warp CUDA warning: Could not find or load the NVIDIA CUDA driver. GPU execution ...\n")
+        os.write(2, b"another warning\n")
+
+    init_warp_quietly(fake_init)
+    assert capfd.readouterr().err == "another warning\n"
+
+
+def test_cold_kernel_cache_is_announced_once(tmp_path):
+    code = """
+import sys
+import warp as wp
+from gvnn_warp.cli import announce_compiles
+
+announce_compiles()
+for scale in (1.0, 2.0):  # two kernel modules, compiled one after the other
+    @wp.kernel(module="unique")
+    def fill(a: wp.array(dtype=float), s: float):
+        a[wp.tid()] = s
+
+    a = wp.zeros(2)
+    wp.launch(fill, 2, [a, scale])
+    assert a.numpy()[0] == scale
+print("done")
+"""
+    script = tmp_path / "kernels.py"  # Warp reads a kernel's source from its file
+    script.write_text(code)
+    env = dict(os.environ, WARP_CACHE_PATH=str(tmp_path / "cache"))
+    runs = [subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=300)
+            for _ in range(2)]
+    for r in runs:
+        assert r.returncode == 0 and r.stdout.strip() == "done", r.stderr
+    assert runs[0].stderr.count("compiling kernels, once") == 1, runs[0].stderr
+    assert str(tmp_path / "cache") in runs[0].stderr
+    assert "compiling" not in runs[1].stderr, runs[1].stderr  # warm cache: silent
+
+
+# ----------------------------------------------------------------------------- figures
+
+
+def _texts(fig):
+    import matplotlib.text
+
+    return [t for t in fig.findobj(matplotlib.text.Text) if t.get_text().strip()]
+
+
+def _colorbar_labels(fig):
+    return [ax.get_ylabel() for ax in fig.axes if ax.get_label() == "<colorbar>"]
+
+
+def test_align_figure_has_a_labelled_colour_bar():
+    import matplotlib.pyplot as plt
+
+    from gvnn_warp.demos.align import figure
+
+    g = torch.Generator().manual_seed(0)
+    ref, live, before, after = (torch.rand(3, 24, 32, generator=g) for _ in range(4))
+    valid = torch.ones(1, 24, 32, dtype=torch.bool)
+    fig = figure(ref, live, before, after, valid, valid, errors=((4.0, 0.08), (0.1, 0.005)))
+    try:
+        labels = _colorbar_labels(fig)
+        assert len(labels) == 1 and "intensity" in labels[0]
+        assert min(t.get_fontsize() for t in _texts(fig)) >= 9
+        assert any("pose error 0.10 deg, 0.50 cm" in t.get_text() for t in _texts(fig))
+    finally:
+        plt.close(fig)
+
+
+def test_flow_figure_colour_bars_have_units():
+    import matplotlib.pyplot as plt
+
+    from gvnn_warp.demos.flow import figure
+
+    g = torch.Generator().manual_seed(0)
+    f1, f2, warped = (torch.rand(1, 3, 24, 32, generator=g) for _ in range(3))
+    est, truth = (torch.randn(1, 2, 24, 32, generator=g) for _ in range(2))
+    fig = figure(f1, f2, warped, est, truth, torch.rand(24, 32, generator=g).numpy(),
+                 {"epe": 0.1, "epe_zero": 1.0, "steps": 3})
+    try:
+        labels = _colorbar_labels(fig)
+        assert len(labels) == 3
+        assert sum("px" in lab for lab in labels) == 1 and sum("intensity" in lab for lab in labels) == 2
+        assert min(t.get_fontsize() for t in _texts(fig)) >= 9
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize("command", cli.DEMOS)
+def test_missing_figure_library_is_reported_before_work(command, tmp_path, capsys, monkeypatch):
+    """matplotlib is a dependency; in a broken installation without it a command stops at once
+    (it used to train for minutes and then fail writing the figure)."""
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    argv = [command, *(a.format(out=tmp_path / "o") for a in _VALID[command])]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert err == f"gvnn-warp {command}: error: this command needs matplotlib, which is not installed: " \
+                  "pip install matplotlib\n"
+    assert not (tmp_path / "o").exists()
