@@ -118,3 +118,153 @@ def twist_jacobian(p: Any, gp: Any):
     delta = [omega, t]: dP/domega = -[P]x, dP/dt = I, so J = [P x gp, gp]."""
     c = wp.cross(p, gp)
     return c[0], c[1], c[2], gp[0], gp[1], gp[2]
+
+
+# ----------------------------------------------------------------------------- one pixel's penalty
+
+
+@wp.func
+def pixel_penalty_grad(
+    live: wp.array(dtype=Any),
+    g_live: wp.array(dtype=Any),
+    ref: wp.array(dtype=Any),
+    g_ref: wp.array(dtype=Any),
+    live0: int,
+    ref_i: int,
+    C: int,
+    hw: int,
+    H: int,
+    W: int,
+    u: Any,
+    v: Any,
+    kind: int,
+    c: Any,
+    adj: Any,
+):
+    """The adjoint of :func:`pixel_penalty` where active: given ``adj`` = d loss / d (its value),
+    adds d loss / d live (the four taps of every channel) into ``g_live`` and d loss / d ref into
+    ``g_ref`` (null arrays, with no elements, are left alone) and returns (d loss / du, d loss / dv):
+    with g = adj rho'(r_c), d/du = g d live_c/du (the bilinear interpolant's derivative)."""
+    zero = type(u)(0.0)
+    big = type(u)(1.0e30)
+    i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = taps(u, v, H, W)
+    wx0 = type(u)(1.0) - wx1
+    wy0 = type(u)(1.0) - wy1
+    scatter = g_live.shape[0] > 0
+    to_ref = g_ref.shape[0] > 0
+    gu = zero
+    gv = zero
+    for ch in range(C):
+        base = live0 + ch * hw
+        val, dx, dy = interpolate(
+            read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
+            read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
+        )
+        r = val - ref[ref_i + ch * hw]
+        if wp.abs(r) + wp.abs(dx) + wp.abs(dy) < big:  # finite residual and derivatives
+            g = adj * penalty_grad(r, kind, c)
+            gu += g * dx
+            gv += g * dy
+            if scatter:
+                if k00:
+                    g_live[base + i00] += g * (wx0 * wy0)
+                if k10:
+                    g_live[base + i10] += g * (wx1 * wy0)
+                if k01:
+                    g_live[base + i01] += g * (wx0 * wy1)
+                if k11:
+                    g_live[base + i11] += g * (wx1 * wy1)
+            if to_ref:
+                g_ref[ref_i + ch * hw] -= g
+    return gu, gv
+
+
+def _make_pixel_penalty(T, pixel_penalty=None):
+    """float type ``T`` overload of pixel_penalty (Warp custom adjoints need concrete types); the
+    parameter named like the function is the overload made before (see sampler.py)."""
+
+    @wp.func
+    def pixel_penalty(
+        live: wp.array(dtype=T),
+        ref: wp.array(dtype=T),
+        live0: int,
+        ref_i: int,
+        C: int,
+        hw: int,
+        H: int,
+        W: int,
+        u: T,
+        v: T,
+        kind: int,
+        c: T,
+        active: wp.bool,
+    ):
+        """sum over channels ch of rho(live_ch(u, v) - ref[ref_i + ch hw]) where ``active``, else 0.
+
+        ``live`` and ``ref`` are flat (B, C, H, W); ``live0`` is the flat offset of the batch
+        item's first live plane, ``ref_i`` that of the reference pixel in its first plane. When
+        active, the caller guarantees -1 < u < W and -1 < v < H. Residuals that are not finite
+        (NaN/inf intensities) count 0. Gradients (hand-written adjoint, below): to u, v, live
+        (scattered to the four taps) and ref; none to the rest.
+        """
+        total = T(0.0)
+        if active:
+            big = T(1.0e30)
+            i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = taps(u, v, H, W)
+            for ch in range(C):
+                base = live0 + ch * hw
+                val, dx, dy = interpolate(
+                    read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
+                    read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
+                )
+                r = val - ref[ref_i + ch * hw]
+                total += wp.where(wp.abs(r) + wp.abs(dx) + wp.abs(dy) < big, penalty(r, kind, c), T(0.0))
+        return total
+
+    @wp.func_grad(pixel_penalty)
+    def adj_pixel_penalty(
+        live: wp.array(dtype=T),
+        ref: wp.array(dtype=T),
+        live0: int,
+        ref_i: int,
+        C: int,
+        hw: int,
+        H: int,
+        W: int,
+        u: T,
+        v: T,
+        kind: int,
+        c: T,
+        active: wp.bool,
+        adj_ret: T,
+    ):
+        if active:
+            gu, gv = pixel_penalty_grad(
+                live, wp.adjoint[live], ref, wp.adjoint[ref], live0, ref_i, C, hw, H, W, u, v, kind, c, adj_ret
+            )
+            wp.adjoint[u] += gu
+            wp.adjoint[v] += gv
+
+    @wp.func_replay(pixel_penalty)
+    def replay_pixel_penalty(
+        live: wp.array(dtype=T),
+        ref: wp.array(dtype=T),
+        live0: int,
+        ref_i: int,
+        C: int,
+        hw: int,
+        H: int,
+        W: int,
+        u: T,
+        v: T,
+        kind: int,
+        c: T,
+        active: wp.bool,
+    ):
+        # the backward pass needs no value of it: skip re-sampling every channel
+        return T(0.0)
+
+    return pixel_penalty
+
+
+pixel_penalty = _make_pixel_penalty(wp.float64, _make_pixel_penalty(wp.float32))

@@ -225,3 +225,60 @@ def _record(kernel: wp.Kernel, n: int, row_pixels: int, args: list) -> list:
         cmd = wp.launch(kernel, dim=n, inputs=[0, *args], device="cpu", record_cmd=True)
         return [cmd.launch]
     return [lambda: _launch.launch(kernel, n, args, [])]
+
+
+#: penalties of :func:`photometric_error`
+ERROR_KINDS = ("l1", "l2", "huber", "cauchy", "geman_mcclure", "tukey")
+
+
+def photometric_error(
+    ref_image: wp.array,
+    ref_depth: wp.array,
+    live_image: wp.array,
+    pose: wp.array,
+    K: wp.array,
+    *,
+    robust: str = "l1",
+    scale: float = 1.0,
+    min_depth: float = MIN_DEPTH,
+) -> tuple[wp.array, wp.array]:
+    """The mean robust photometric error of the reference frame warped into the live image.
+
+    For every reference pixel u with a valid depth whose moved point P = pose * (depth K^-1
+    [u, 1]) has z > min_depth and projects inside the live image (the ``valid`` rule of
+    ``warp_frame_depth``, docs/conventions.md), r_c = live_c(project(P)) - ref_c(u) per channel
+    (bilinear sample); error = mean over those pixels and all channels of rho(r_c), count = the
+    number of those pixels (error 0 where count is 0). Residuals that are not finite (NaN/inf
+    intensities) count 0.
+
+    Args:
+        ref_image, live_image: (B, C, H, W) intensities.
+        ref_depth: (B, 1, H, W) depth of the reference frame; 0, negative, NaN or inf: skipped.
+        pose: (B,) 3x4 matrices mapping reference-camera points into the live camera.
+        K: (B,) 3x3 intrinsics.
+        robust: "l1" (|r|, default), "l2" (r^2 / 2), "huber", "cauchy", "geman_mcclure", "tukey"
+            (``gvnn_warp.robust_rho`` with ``scale``).
+        scale: the M-estimator's scale (ignored by "l1" and "l2").
+
+    Returns:
+        error (B,) and count (B,) (float, integer-valued). ``error`` has a gradient buffer when an
+        input does, so the call can be recorded on a ``wp.Tape``: one row-blocked kernel and a
+        reduction over rows, differentiated by Warp (gradients to both images, depth, pose, K).
+    """
+    fn = "photometric_error"
+    B, C, H, W, ft = _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth)
+    _check_penalty(fn, robust, scale, ERROR_KINDS)
+    grad = any(a.requires_grad for a in (ref_image, ref_depth, live_image, pose, K))
+    row_sum = wp.zeros(B * H, dtype=ft, device="cpu", requires_grad=grad)
+    row_count = wp.zeros(B * H, dtype=ft, device="cpu")
+    error = wp.zeros(B, dtype=ft, device="cpu", requires_grad=grad)
+    count = wp.zeros(B, dtype=ft, device="cpu")
+    wp.launch(
+        pk.photometric_rows[ft], dim=B * H,
+        inputs=[0, ref_image.flatten(), ref_depth.flatten(), live_image.flatten(), pose, K, C, H, W,
+                KINDS[robust], float(scale), float(min_depth)],
+        outputs=[row_sum, row_count], device="cpu",
+    )
+    wp.launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C], outputs=[error, count],
+              device="cpu")
+    return error, count
