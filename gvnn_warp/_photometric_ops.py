@@ -76,7 +76,7 @@ def photometric_normal_equations(
     rows_d = _descriptor(rows, "scalar", wp_float64)
     if H * W > 0:
         _launch.launch(
-            pk.normal_equations_rows[int(depth_term)][ft], B * H,
+            pk.normal_equations_lanes[int(depth_term)][ft], B * H,
             [*arrays, C, H, W, kind, scale, min_depth, depth_weight, rows_d], [],
         )
     else:

@@ -550,3 +550,23 @@ def test_torch_functions_bad_arguments():
         photometric_normal_equations(ref, depth, live, pose, K, live_depth=live_depth[..., :5])
     with pytest.raises(ValueError, match=r"gvnn_warp\.PhotometricLoss: argument 'robust'"):
         PhotometricLoss(robust="huberr")
+
+
+def test_normal_equations_lanes_kernel_equals_scalar_kernel():
+    # the 8-lane row kernel (used) against the plain one-pixel-at-a-time kernel, row by row,
+    # with a width that is not a multiple of 8 (masked tail lanes)
+    from gvnn_warp.kernels import photometric_kernels as pk
+
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=13, seed=15)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    B, C, H, W = ref.shape
+    for use_depth in (0, 1):
+        rows = []
+        for kernels in (pk.normal_equations_rows, pk.normal_equations_lanes):
+            out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
+            wp.launch(kernels[use_depth][wp.float64], dim=B * H,
+                      inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
+                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, out])
+            rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
+        np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
+        assert rows[0][:, 28].sum() > 0
