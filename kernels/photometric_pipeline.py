@@ -209,7 +209,7 @@ def photometric_normal_equations(
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     rows_kernel = pk.normal_equations_lanes[int(live_depth is not None and depth_weight > 0)][ft]
     out._cmds = _record(rows_kernel, B * H, W, inputs) + _record(
-        pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1 << 30, [out._rows, H, *outputs]
+        pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1, [out._rows, H, *outputs]
     )
     if key is None:
         key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
