@@ -39,7 +39,7 @@ from .lie import (
     transform_point,
     vee,
 )
-from .photometric_pipeline import NormalEquations, photometric_normal_equations
+from .photometric_pipeline import NormalEquations, photometric_error, photometric_normal_equations
 from .pipeline import masked_squared_error, warp_frame_depth
 from .sampler import bilinear, normalized_to_pixel, sample_position
 
@@ -57,6 +57,7 @@ __all__ = [
     "masked_squared_error",
     "normalized_to_pixel",
     "photometric",
+    "photometric_error",
     "photometric_kernels",
     "photometric_normal_equations",
     "photometric_pipeline",
