@@ -71,7 +71,10 @@ def get_num_threads() -> int:
             pass
     if _default_num_threads is not None:
         return max(1, int(_default_num_threads()))
-    return os.cpu_count() or 1
+    return _CPU_COUNT
+
+
+_CPU_COUNT = os.cpu_count() or 1  # read once: the call costs ~20 us here, and launches ask often
 
 
 def _drain(fn: Callable[[int], None], tasks, errors: list) -> None:
@@ -210,6 +213,13 @@ def pool() -> _Pool | _OpenMPPool:
     return _pool
 
 
+def python_pool() -> _Pool:
+    """gvnn_warp's own pool of Python threads, whatever :func:`pool` is. For callers that replay
+    recorded launches in a tight loop (the fused normal equations): on a loaded host, torch's
+    OpenMP team spin-waits and cost them several times more than these threads."""
+    return _python_pool
+
+
 def use_openmp(library: str | None, reason: str | None = None) -> None:
     """Run threaded launches on the thread team of the GNU OpenMP runtime (``GOMP_parallel``) found
     through ``library`` (an already loaded ``libgomp``, or a library linked against it: the torch
@@ -242,6 +252,7 @@ __all__ = [
     "backend_reason",
     "get_num_threads",
     "pool",
+    "python_pool",
     "set_default_num_threads",
     "set_num_threads",
     "thread_backend",
