@@ -42,6 +42,12 @@ photometric_mean = warp_op(
     lambda s, n, H, C: s.shape[0] // H,
 )
 
+# op -> (its public function in gvnn_warp, its layer); tests/test_ops_registry.py checks them
+PUBLIC = {
+    "photometric_rows": ("photometric_error", "PhotometricLoss"),
+    "photometric_mean": ("photometric_error", "PhotometricLoss"),
+}
+
 
 def _ne_shapes(ref_image):
     B = ref_image.shape[0]

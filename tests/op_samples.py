@@ -6,6 +6,7 @@ every launch into many pieces).
 """
 
 import torch
+from gvnn_warp.kernels.photometric import KINDS as PHOTOMETRIC_CODES
 from gvnn_warp.kernels.robust import KINDS as ROBUST_CODES
 from refs import intrinsics
 
@@ -60,4 +61,8 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "robust_rho": (u(n, scale=3), ROBUST_CODES["cauchy"], 0.5),
         "robust_psi": (u(n, scale=3), ROBUST_CODES["tukey"], 2.0),
         "smoothness": (u(B, 3, H, W), H, W, ROBUST_CODES["huber"], 0.3, 0.01, 0.02),
+        # gvnn_warp._photometric_ops (reference and live images, depth, pose, K; penalty cauchy)
+        "photometric_rows": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, C, H, W,
+                             PHOTOMETRIC_CODES["cauchy"], 0.5, 1e-3),
+        "photometric_mean": (r(B * H), torch.randint(0, W + 1, (B * H,), generator=g).to(f64), H, C),
     }

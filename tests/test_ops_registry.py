@@ -7,7 +7,7 @@ from gvnn_warp.kernels import kinds
 from op_samples import op_samples
 
 import gvnn_warp
-from gvnn_warp import _bridge, _ops, _perpixel_ops
+from gvnn_warp import _bridge, _ops, _perpixel_ops, _photometric_ops
 
 API_DOC = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
 
@@ -15,7 +15,7 @@ API_DOC = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
 def missing_for(name, spec, public, samples):
     missing = []
     if name not in public:
-        return ["an entry in PUBLIC of _ops.py or _perpixel_ops.py (its public function and layer)"]
+        return ["an entry in PUBLIC of _ops.py, _perpixel_ops.py or _photometric_ops.py (public function, layer)"]
     function, layer = public[name]
     if function not in gvnn_warp.__all__ or not callable(getattr(gvnn_warp, function, None)):
         missing.append(f"public function gvnn_warp.{function} (functional.py or perpixel.py, listed in __init__.py)")
@@ -38,7 +38,7 @@ def missing_for(name, spec, public, samples):
 
 
 def test_every_op_has_everything():
-    public = {**_ops.PUBLIC, **_perpixel_ops.PUBLIC}
+    public = {**_ops.PUBLIC, **_perpixel_ops.PUBLIC, **_photometric_ops.PUBLIC}
     samples = op_samples()
     report = {}
     for name, spec in sorted(_bridge.OPS.items()):
