@@ -51,7 +51,9 @@ Import needs no torch; torch is imported only when a tensor comes in.
 
 from __future__ import annotations
 
+import functools
 import math
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,6 +70,7 @@ _ROBUST = ("huber", "cauchy", "geman_mcclure", "tukey", "l2")
 _MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
 _MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
 _LAMBDA_MAX = 1e8
+_POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
 
 
 def _fail(fn: str, exc: type[Exception], msg: str):
@@ -137,32 +140,78 @@ class Frame:
         return self._mean_depth
 
 
-def _so3_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(B, 3) rotation vectors -> (R (B, 3, 3), V (B, 3, 3)) of the SE(3) exponential."""
-    th2 = (w * w).sum(-1)
-    th = np.sqrt(th2)
-    small = th2 < 1e-8
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
-    c = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths * ths * ths))
-    z = np.zeros_like(th)
-    Wx = np.stack([z, -w[:, 2], w[:, 1], w[:, 2], z, -w[:, 0], -w[:, 1], w[:, 0], z], -1).reshape(-1, 3, 3)
-    W2 = Wx @ Wx
-    eye = np.eye(3)
-    R = eye + a[:, None, None] * Wx + b[:, None, None] * W2
-    V = eye + b[:, None, None] * Wx + c[:, None, None] * W2
-    return R, V
+def _se3_exp(w0: float, w1: float, w2: float, t0: float, t1: float, t2: float) -> np.ndarray:
+    """The SE(3) exponential of one twist [omega, t] as a (4, 4) float64 array (scalar math: this
+    runs once per trial and batch item, where numpy's per-call overhead would dominate)."""
+    th2 = w0 * w0 + w1 * w1 + w2 * w2
+    if th2 < 1e-8:
+        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = math.sqrt(th2)
+        sn = math.sin(th)
+        a, b, c = sn / th, (1.0 - math.cos(th)) / th2, (th - sn) / (th2 * th)
+    # W = hat(w); W^2 = w w^T - th2 I
+    q00, q11, q22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
+    q01, q02, q12 = w0 * w1, w0 * w2, w1 * w2
+    r = (1.0 + b * q00, -a * w2 + b * q01, a * w1 + b * q02,
+         a * w2 + b * q01, 1.0 + b * q11, -a * w0 + b * q12,
+         -a * w1 + b * q02, a * w0 + b * q12, 1.0 + b * q22)
+    v = (1.0 + c * q00, -b * w2 + c * q01, b * w1 + c * q02,
+         b * w2 + c * q01, 1.0 + c * q11, -b * w0 + c * q12,
+         -b * w1 + c * q02, b * w0 + c * q12, 1.0 + c * q22)
+    return np.array([
+        [r[0], r[1], r[2], v[0] * t0 + v[1] * t1 + v[2] * t2],
+        [r[3], r[4], r[5], v[3] * t0 + v[4] * t1 + v[5] * t2],
+        [r[6], r[7], r[8], v[6] * t0 + v[7] * t1 + v[8] * t2],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
 
 
-def _se3_exp(delta: np.ndarray) -> np.ndarray:
-    """(B, 6) twists [omega, t] -> (B, 4, 4) exp."""
-    R, V = _so3_exp(delta[:, :3])
-    T = np.zeros((delta.shape[0], 4, 4))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = (V @ delta[:, 3:, None])[..., 0]
-    T[:, 3, 3] = 1.0
-    return T
+def _recycle(pool: list, pyramid: _Pyramid) -> None:
+    if len(pool) < _POOL_SIZE:
+        pool.append(pyramid)
+
+
+class _Pyramid:
+    """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
+    once (a recorded launch replays in a few microseconds); reused through the aligner's pool."""
+
+    def __init__(self, aligner: DirectAligner, B: int, C: int, H: int, W: int, with_depth: bool):
+        Co = C if aligner.color else 1
+        self.key = (B, C, H, W, with_depth)
+        self.shapes = _pyramid.pyramid_shapes(H, W, aligner._levels_for(H, W))
+        self.images = [wp.empty((B, Co, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes]
+        self.depths = [wp.empty((B, 1, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes] if with_depth \
+            else None
+        empty = wp.empty(0, dtype=wp.float32, device="cpu")
+        depths = self.depths or [empty] * len(self.shapes)
+        f32 = wp.float32
+        self.weights = aligner._channel_weights(C)
+        n = B * H * W
+        self.level0 = wp.launch(
+            _pyramid.level0_kernel(C, Co)[f32], dim=n,
+            inputs=[0, empty, self.weights.flatten(), empty, H * W, int(with_depth)],
+            outputs=[self.images[0].flatten(), depths[0].flatten() if with_depth else empty],
+            device="cpu", record_cmd=True,
+        )
+        self.down = []
+        for k in range(1, len(self.shapes)):
+            (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
+            self.down.append(wp.launch(
+                _pyramid.downsample_kernel(Co)[f32], dim=B * ho * wo,
+                inputs=[0, self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
+                        h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
+                outputs=[self.images[k].flatten(), depths[k].flatten() if with_depth else empty],
+                device="cpu", record_cmd=True,
+            ))
+
+    def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
+        self.level0.set_param_at_index(1, wp.array(image.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+        if depth is not None:
+            self.level0.set_param_at_index(3, wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+        self.level0.launch()
+        for cmd in self.down:
+            cmd.launch()
 
 
 class DirectAligner:
@@ -251,7 +300,8 @@ class DirectAligner:
         self.min_valid_fraction = float(min_valid_fraction)
         self.depth_tolerance = float(depth_tolerance)
         self._weights: dict[int, wp.array] = {}
-        self._buffers: dict[tuple, dict] = {}  # per (B, H, W, C'): K per level, pose, outputs
+        self._buffers: dict[tuple, dict] = {}  # per (B, level shapes): K per level, pose, outputs
+        self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free _Pyramid buffers
 
     # ------------------------------------------------------------------------------ pyramids
 
@@ -300,29 +350,15 @@ class DirectAligner:
             if d.shape != (B, 1, H, W):
                 want = (B, 1, H, W) if batched else (1, H, W)
                 _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}")
-        n_levels = self._levels_for(H, W)
-        shapes = _pyramid.pyramid_shapes(H, W, n_levels)
-        Co = C if self.color else 1
-        images = [wp.empty((B, Co, h, w), dtype=wp.float32, device="cpu") for h, w in shapes]
-        depths = None if depth is None else [wp.empty((B, 1, h, w), dtype=wp.float32, device="cpu") for h, w in shapes]
-        src = wp.array(np.ascontiguousarray(img, dtype=np.float32), dtype=wp.float32, device="cpu")
-        empty = images[0].flatten()[:0]
-        dsrc = empty if depth is None else wp.array(np.ascontiguousarray(d, dtype=np.float32), dtype=wp.float32,
-                                                     device="cpu")
-        _launch.launch(
-            _pyramid.level0_kernel[wp.float32], B * H * W,
-            [src.flatten(), self._channel_weights(C).flatten(), dsrc.flatten(), C, Co, H * W, int(depth is not None)],
-            [images[0].flatten(), empty if depths is None else depths[0].flatten()],
-        )
-        for k in range(1, n_levels):
-            (h, w), (ho, wo) = shapes[k - 1], shapes[k]
-            _launch.launch(
-                _pyramid.downsample_kernel[wp.float32], B * ho * wo,
-                [images[k - 1].flatten(), empty if depths is None else depths[k - 1].flatten(), Co, h, w, ho, wo,
-                 self.depth_tolerance, int(depths is not None)],
-                [images[k].flatten(), empty if depths is None else depths[k].flatten()],
-            )
-        return Frame(images=images, depths=depths, batched=batched, torch=torch_in)
+        key = (B, C, H, W, depth is not None)
+        pool = self._frame_pool.setdefault(key, [])
+        pyr = pool.pop() if pool else _Pyramid(self, B, C, H, W, depth is not None)
+        pyr.fill(np.ascontiguousarray(img, dtype=np.float32),
+                 None if depth is None else np.ascontiguousarray(d, dtype=np.float32))
+        frame = Frame(images=pyr.images, depths=pyr.depths, batched=batched, torch=torch_in)
+        # the buffers go back to the pool when the frame is gone (a tracker drops one per frame)
+        weakref.finalize(frame, _recycle, pool, pyr)
+        return frame
 
     # ------------------------------------------------------------------------------ alignment
 
@@ -389,29 +425,29 @@ class DirectAligner:
         return out
 
     def _level_buffers(self, B: int, shapes) -> dict:
+        """Per (batch size, level shapes): the intrinsics of every level (wp.array (B,) of 3x3
+        float32), the pose buffer the system reads (wp.array (B,) of 3x4 float32, with its numpy
+        view), each level's mean focal length, and the system function."""
         key = (B, tuple(shapes))
         buf = self._buffers.get(key)
         if buf is None:
-            Ks = []
-            for level in range(len(shapes)):
-                Kl = _pyramid.scale_intrinsics(self.K, level).astype(np.float32)
-                Ks.append(wp.array(np.broadcast_to(Kl, (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu"))
+            Ks = [_pyramid.scale_intrinsics(self.K, level) for level in range(len(shapes))]
+            K_wp = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
+                    for Kl in Ks]
             pose = wp.zeros(B, dtype=_launch.mat34f, device="cpu")
-            buf = {"K": Ks, "pose": pose, "pose_np": pose.numpy().reshape(B, 3, 4),
-                   "f": [float(np.sqrt(abs(_pyramid.scale_intrinsics(self.K, k)[0, 0] *
-                                           _pyramid.scale_intrinsics(self.K, k)[1, 1]))) for k in range(len(shapes))]}
-            buf["system"] = self._make_system(B, shapes)
+            buf = {"pose_np": pose.numpy().reshape(B, 3, 4), "f": [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks],
+                   "system": self._make_system(B, shapes, pose, K_wp)}
             self._buffers[key] = buf
         return buf
 
-    def _make_system(self, B: int, shapes):
-        """Returns ``system(ref, live, level, pose, K) -> (JtWJ (B, 6, 6), JtWr (B, 6), cost (B,),
-        count (B,))`` as float64 numpy, evaluated by the fused Warp normal equations."""
+    def _make_system(self, B: int, shapes, pose: wp.array, K: list):
+        """Returns ``system(ref, live, level) -> (JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,))``
+        (float64 numpy; fresh arrays) at the pose in ``pose``, by the fused Warp normal equations."""
         from .kernels import photometric_normal_equations
 
-        def system(ref: Frame, live: Frame, level: int, pose: wp.array, K: wp.array):
+        def system(ref: Frame, live: Frame, level: int):
             JtWJ, JtWr, cost, count = photometric_normal_equations(
-                ref.images[level], ref.depths[level], live.images[level], pose, K,
+                ref.images[level], ref.depths[level], live.images[level], pose, K[level],
                 robust=self.robust, scale=self.scale,
                 live_depth=live.depths[level] if self.depth_weight > 0 else None,
                 depth_weight=self.depth_weight, min_depth=self.min_depth,
@@ -424,71 +460,80 @@ class DirectAligner:
     def _align(self, fn: str, ref: Frame, live: Frame, init):
         B = ref.batch
         T = self._init_pose(fn, init, B, ref.batched)
-        T0 = T.copy()
         shapes = [(int(a.shape[2]), int(a.shape[3])) for a in ref.images]
-        n_levels = len(shapes)
         buf = self._level_buffers(B, shapes)
         system = buf["system"]
         pose_np = buf["pose_np"]
-        pose = buf["pose"]
-        zmean = ref.mean_depth()
-        eye6 = np.eye(6)
+        zmean = ref.mean_depth().tolist()
+        diag = np.arange(6)
+        tol, lam_up, lam_down = self.tolerance, self.lm_up, self.lm_down
+        items = range(B)
         level_info = []
-        last_step = np.full(B, np.inf)
-        stopped = np.zeros(B, dtype=bool)
-        valid_ok = np.zeros(B, dtype=bool)
-        for level in range(n_levels - 1, -1, -1):
+        converged = [False] * B
+        for level in range(len(shapes) - 1, -1, -1):
             h, w = shapes[level]
             n_pix = float(h * w)
             min_count = max(_MIN_VALID_PIXELS, self.min_valid_fraction * n_pix)
-            K = buf["K"][level]
             f = buf["f"][level]
+            evaluate = functools.partial(system, ref, live, level)
             pose_np[:] = T[:, :3, :]
-            H, g, cost, count = system(ref, live, level, pose, K)
-            mean = cost / np.maximum(count, 1.0)
-            ok = count >= min_count
-            active = ok.copy()
-            lam = np.full(B, self.lm_lambda)
-            trials = np.zeros(B, dtype=np.int64)
-            last_step = np.full(B, np.inf)
-            stopped = np.zeros(B, dtype=bool)
+            H, g, cost, count = evaluate()
+            mean = [c / max(n, 1.0) for c, n in zip(cost.tolist(), count.tolist())]
+            count = count.tolist()
+            active = [n >= min_count for n in count]
+            ok = list(active)
+            lam = [self.lm_lambda] * B
+            trials = [0] * B
+            last_step = [math.inf] * B
             for _ in range(self.iterations[level]):
-                if not active.any():
+                if not any(active):
                     break
-                diag = np.diagonal(H, axis1=1, axis2=2)
-                A = H + (lam[:, None] * diag)[:, :, None] * eye6 + 1e-12 * (diag.sum(1) + 1.0)[:, None, None] * eye6
+                A = H.copy()
+                A[:, diag, diag] *= 1.0 + np.array(lam)[:, None]
+                A[:, diag, diag] += 1e-9 * (1.0 + H[:, diag, diag].sum(1, keepdims=True))
                 try:
-                    delta = -np.linalg.solve(A, g[..., None])[..., 0]
-                except np.linalg.LinAlgError:
-                    delta = np.zeros((B, 6))
-                good = np.all(np.isfinite(delta), axis=1)
-                delta = np.where((active & good)[:, None], delta, 0.0)
-                step = f * (np.sqrt((delta[:, :3] ** 2).sum(1)) + np.sqrt((delta[:, 3:] ** 2).sum(1)) / zmean)
-                Tn = _se3_exp(delta) @ T
+                    delta = np.linalg.solve(A, g[..., None])[..., 0].tolist()
+                except np.linalg.LinAlgError:  # a singular system: stop this level
+                    break
+                Tn = T.copy()
+                step = [0.0] * B
+                for b in items:
+                    d = delta[b]
+                    if active[b]:
+                        if not all(map(math.isfinite, d)):
+                            active[b] = False
+                            continue
+                        Tn[b] = _se3_exp(-d[0], -d[1], -d[2], -d[3], -d[4], -d[5]) @ T[b]
+                        step[b] = f * (math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                                       + math.sqrt(d[3] * d[3] + d[4] * d[4] + d[5] * d[5]) / zmean[b])
                 pose_np[:] = Tn[:, :3, :]
-                Hn, gn, costn, countn = system(ref, live, level, pose, K)
-                meann = costn / np.maximum(countn, 1.0)
-                accept = active & good & (countn >= min_count) & (meann < mean)
-                if accept.any():
-                    T[accept] = Tn[accept]
-                    H[accept] = Hn[accept]
-                    g[accept] = gn[accept]
-                    mean[accept] = meann[accept]
-                    count[accept] = countn[accept]
-                lam = np.where(accept, lam * self.lm_down, np.where(active, lam * self.lm_up, lam))
-                trials += active
-                last_step = np.where(active, step, last_step)
-                done = active & ((step < self.tolerance) | (lam > _LAMBDA_MAX) | ~good)
-                stopped |= done
-                active &= ~done
-            valid_ok = ok
-            level_info.append({"level": level, "size": (h, w), "iterations": trials if ref.batched else int(trials[0]),
-                               "cost": mean if ref.batched else float(mean[0]),
-                               "valid_fraction": count / n_pix if ref.batched else float(count[0] / n_pix)})
-        converged = valid_ok & (last_step < 10.0 * self.tolerance)
-        # items that never had enough valid pixels keep their initial pose
-        T = np.where(np.isfinite(T).all(axis=(1, 2))[:, None, None], T, T0)
-        info = {"converged": converged if ref.batched else bool(converged[0]), "levels": level_info}
+                Hn, gn, costn, countn = evaluate()
+                costn, countn = costn.tolist(), countn.tolist()
+                for b in items:
+                    if not active[b]:
+                        continue
+                    trials[b] += 1
+                    last_step[b] = step[b]
+                    meann = costn[b] / max(countn[b], 1.0)
+                    if countn[b] >= min_count and meann < mean[b]:
+                        T[b] = Tn[b]
+                        H[b] = Hn[b]
+                        g[b] = gn[b]
+                        mean[b] = meann
+                        count[b] = countn[b]
+                        lam[b] *= lam_down
+                    else:
+                        lam[b] *= lam_up
+                    if step[b] < tol or lam[b] > _LAMBDA_MAX:
+                        active[b] = False
+            converged = [ok[b] and last_step[b] < 10.0 * tol for b in items]
+            level_info.append({
+                "level": level, "size": (h, w),
+                "iterations": np.array(trials) if ref.batched else trials[0],
+                "cost": np.array(mean) if ref.batched else mean[0],
+                "valid_fraction": np.array(count) / n_pix if ref.batched else count[0] / n_pix,
+            })
+        info = {"converged": np.array(converged) if ref.batched else converged[0], "levels": level_info}
         out = T if ref.batched else T[0]
         if ref.torch:
             import torch

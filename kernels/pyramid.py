@@ -21,6 +21,7 @@ Shapes: images (B, C, H, W), depths (B, 1, H, W), float32 or float64 (one type p
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -33,7 +34,15 @@ wp.set_module_options({"enable_backward": False})
 #: default relative depth tolerance of the depth downsampling (see the module docstring)
 DEPTH_TOLERANCE = 0.05
 
-__all__ = ["DEPTH_TOLERANCE", "downsample", "prepare_level0", "pyramid_shapes", "scale_intrinsics"]
+__all__ = [
+    "DEPTH_TOLERANCE",
+    "downsample",
+    "downsample_kernel",
+    "level0_kernel",
+    "prepare_level0",
+    "pyramid_shapes",
+    "scale_intrinsics",
+]
 
 
 @wp.func
@@ -62,97 +71,125 @@ def _tap_count(d: Any, limit: Any, n: Any):
     return r
 
 
-@wp.kernel
-def _level0(
-    offset: int,
-    image: wp.array(dtype=Any),
-    weights: wp.array(dtype=Any),
-    depth: wp.array(dtype=Any),
-    C: int,
-    Co: int,
-    HW: int,
-    has_depth: int,
-    out_image: wp.array(dtype=Any),
-    out_depth: wp.array(dtype=Any),
-):
-    i = wp.tid() + offset  # flat (b, pixel)
-    b = i // HW
-    p = i - b * HW
-    finite = bool(True)  # noqa: UP018 - a typed variable Warp may reassign inside the loop
-    for co in range(Co):
-        v = out_image.dtype(0.0)
-        for c in range(C):
-            v += weights[co * C + c] * image[(b * C + c) * HW + p]
-        if not wp.isfinite(v):
+def _make_level0(C: int, Co: int):
+    """The base-level kernel for C input and Co output channels (loops over constants: unrolled)."""
+
+    def level0(
+        offset: int,
+        image: wp.array(dtype=Any),
+        weights: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        HW: int,
+        has_depth: int,
+        out_image: wp.array(dtype=Any),
+        out_depth: wp.array(dtype=Any),
+    ):
+        i = wp.tid() + offset  # flat (b, pixel)
+        b = i // HW
+        p = i - b * HW
+        finite = bool(True)  # noqa: UP018 - a typed variable Warp may reassign inside the loop
+        for co in range(Co):
             v = out_image.dtype(0.0)
-            finite = False
-        out_image[(b * Co + co) * HW + p] = v
-    if has_depth != 0:
-        d = _clean_depth(depth[i])
-        out_depth[i] = wp.where(finite, d, type(d)(0.0))
+            for c in range(C):
+                v += weights[co * C + c] * image[(b * C + c) * HW + p]
+            if not wp.isfinite(v):
+                v = out_image.dtype(0.0)
+                finite = False
+            out_image[(b * Co + co) * HW + p] = v
+        if has_depth != 0:
+            d = _clean_depth(depth[i])
+            out_depth[i] = wp.where(finite, d, type(d)(0.0))
+
+    kernel = wp.kernel(level0, module="unique", enable_backward=False)
+    # Forward-only: every element writes its own output pixel(s). The image and weights are read at
+    # other indices (every channel), so their adjoint scope would be "any" (no adjoint is built).
+    return FloatKernel(
+        kernel, image="scalar", weights="scalar", depth="scalar", out_image="scalar", out_depth="scalar"
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "element"})
 
 
-@wp.kernel
-def _downsample(
-    offset: int,
-    image: wp.array(dtype=Any),
-    depth: wp.array(dtype=Any),
-    C: int,
-    H: int,
-    W: int,
-    Ho: int,
-    Wo: int,
-    tolerance: float,
-    has_depth: int,
-    out_image: wp.array(dtype=Any),
-    out_depth: wp.array(dtype=Any),
-):
-    i = wp.tid() + offset  # flat (b, y', x') of the output
-    HWo = Ho * Wo
-    b = i // HWo
-    r = i - b * HWo
-    yo = r // Wo
-    xo = r - yo * Wo
-    p = (2 * yo) * W + 2 * xo  # top-left tap in its plane
-    HW = H * W
-    quarter = out_image.dtype(0.25)
-    for c in range(C):
-        base = (b * C + c) * HW + p
-        block = image[base] + image[base + 1] + image[base + W] + image[base + W + 1]
-        out_image[(b * C + c) * HWo + r] = quarter * block
-    if has_depth != 0:
-        base = b * HW + p
-        d0 = _clean_depth(depth[base])
-        d1 = _clean_depth(depth[base + 1])
-        d2 = _clean_depth(depth[base + W])
-        d3 = _clean_depth(depth[base + W + 1])
-        big = type(d0)(3.0e38)
-        dmin = big
-        if d0 > type(d0)(0.0):
-            dmin = d0
-        if d1 > type(d0)(0.0) and d1 < dmin:
-            dmin = d1
-        if d2 > type(d0)(0.0) and d2 < dmin:
-            dmin = d2
-        if d3 > type(d0)(0.0) and d3 < dmin:
-            dmin = d3
-        limit = dmin * (type(d0)(1.0) + type(d0)(tolerance))
-        s = _tap_sum(d3, limit, _tap_sum(d2, limit, _tap_sum(d1, limit, _tap_sum(d0, limit, type(d0)(0.0)))))
-        n = _tap_count(d3, limit, _tap_count(d2, limit, _tap_count(d1, limit, _tap_count(d0, limit, type(d0)(0.0)))))
-        out = type(d0)(0.0)
-        if n > type(d0)(0.0):
-            out = s / n
-        out_depth[i] = out
+def _make_downsample(C: int):
+    """The 2x2 downsampling kernel for C channels (see the module docstring)."""
+
+    def downsample(
+        offset: int,
+        image: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        H: int,
+        W: int,
+        Ho: int,
+        Wo: int,
+        tolerance: float,
+        has_depth: int,
+        out_image: wp.array(dtype=Any),
+        out_depth: wp.array(dtype=Any),
+    ):
+        i = wp.tid() + offset  # flat (b, y', x') of the output
+        HWo = Ho * Wo
+        b = i // HWo
+        r = i - b * HWo
+        yo = r // Wo
+        xo = r - yo * Wo
+        p = (2 * yo) * W + 2 * xo  # top-left tap in its plane
+        HW = H * W
+        quarter = out_image.dtype(0.25)
+        for c in range(C):
+            base = (b * C + c) * HW + p
+            block = image[base] + image[base + 1] + image[base + W] + image[base + W + 1]
+            out_image[(b * C + c) * HWo + r] = quarter * block
+        if has_depth != 0:
+            base = b * HW + p
+            d0 = _clean_depth(depth[base])
+            d1 = _clean_depth(depth[base + 1])
+            d2 = _clean_depth(depth[base + W])
+            d3 = _clean_depth(depth[base + W + 1])
+            dmin = type(d0)(3.0e38)
+            if d0 > type(d0)(0.0):
+                dmin = d0
+            if d1 > type(d0)(0.0) and d1 < dmin:
+                dmin = d1
+            if d2 > type(d0)(0.0) and d2 < dmin:
+                dmin = d2
+            if d3 > type(d0)(0.0) and d3 < dmin:
+                dmin = d3
+            limit = dmin * (type(d0)(1.0) + type(d0)(tolerance))
+            zero = type(d0)(0.0)
+            s = _tap_sum(d3, limit, _tap_sum(d2, limit, _tap_sum(d1, limit, _tap_sum(d0, limit, zero))))
+            n = _tap_count(d3, limit, _tap_count(d2, limit, _tap_count(d1, limit, _tap_count(d0, limit, zero))))
+            out = zero
+            if n > zero:
+                out = s / n
+            out_depth[i] = out
+
+    kernel = wp.kernel(downsample, module="unique", enable_backward=False)
+    # Forward-only: every element writes its own output pixel; inputs are read at 2x2 blocks ("any").
+    return FloatKernel(kernel, image="scalar", depth="scalar", out_image="scalar", out_depth="scalar").set_parallel(
+        scopes={"image": "any", "depth": "any"}
+    )
 
 
-# Forward-only kernels: every element writes its own output pixel(s). Inputs are read at other
-# indices (the 2x2 block, every channel), so their adjoint scope would be "any" (no adjoint is built).
-level0_kernel = FloatKernel(
-    _level0, image="scalar", weights="scalar", depth="scalar", out_image="scalar", out_depth="scalar"
-).set_parallel(scopes={"image": "any", "weights": "any", "depth": "element"})
-downsample_kernel = FloatKernel(
-    _downsample, image="scalar", depth="scalar", out_image="scalar", out_depth="scalar"
-).set_parallel(scopes={"image": "any", "depth": "any"})
+_KERNELS: dict[tuple, FloatKernel] = {}
+_KERNELS_LOCK = threading.Lock()
+
+
+def level0_kernel(C: int, Co: int) -> FloatKernel:
+    """The (cached) base-level kernel for C input and Co output channels; its arguments: (offset,
+    image, weights, depth, HW, has_depth, out_image, out_depth), flat arrays."""
+    with _KERNELS_LOCK:
+        k = _KERNELS.get(("level0", C, Co))
+        if k is None:
+            k = _KERNELS["level0", C, Co] = _make_level0(C, Co)
+        return k
+
+
+def downsample_kernel(C: int) -> FloatKernel:
+    """The (cached) downsampling kernel for C channels; its arguments: (offset, image, depth, H, W,
+    Ho, Wo, tolerance, has_depth, out_image, out_depth), flat arrays."""
+    with _KERNELS_LOCK:
+        k = _KERNELS.get(("down", C))
+        if k is None:
+            k = _KERNELS["down", C] = _make_downsample(C)
+        return k
 
 
 def pyramid_shapes(H: int, W: int, levels: int) -> list[tuple[int, int]]:
@@ -220,9 +257,9 @@ def prepare_level0(
             _expect(fn, name, tuple(a.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}", a.shape)
     empty = out_image.flatten()[:0]
     launch(
-        level0_kernel[ft],
+        level0_kernel(C, Co)[ft],
         B * H * W,
-        [image.flatten(), weights.flatten(), depth.flatten() if depth is not None else empty, C, Co, H * W,
+        [image.flatten(), weights.flatten(), depth.flatten() if depth is not None else empty, H * W,
          int(depth is not None)],
         [out_image.flatten(), out_depth.flatten() if out_depth is not None else empty],
     )
@@ -261,9 +298,9 @@ def downsample(
     _expect(fn, "tolerance", 0.0 <= tolerance < float("inf"), "a finite number >= 0", repr(tolerance))
     empty = out_image.flatten()[:0]
     launch(
-        downsample_kernel[ft],
+        downsample_kernel(C)[ft],
         B * Ho * Wo,
-        [image.flatten(), depth.flatten() if depth is not None else empty, C, H, W, Ho, Wo, float(tolerance),
+        [image.flatten(), depth.flatten() if depth is not None else empty, H, W, Ho, Wo, float(tolerance),
          int(depth is not None)],
         [out_image.flatten(), out_depth.flatten() if out_depth is not None else empty],
     )

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 import warp as wp
+from gvnn_warp.kernels import pyramid
 from odometry_refs import motion, pose_error, rendered_pair
 
-from gvnn_warp.kernels import pyramid
 from gvnn_warp.odometry import DirectAligner, Frame
 
 # ----------------------------------------------------------------------------- pyramid kernels
