@@ -68,9 +68,11 @@ __all__ = ["DirectAligner", "Frame"]
 _LUMA = (0.299, 0.587, 0.114)
 _ROBUST = ("huber", "cauchy", "geman_mcclure", "tukey", "l2")
 _MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
+_AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
 _MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
 _LAMBDA_MAX = 1e8
 _POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
+_SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per batch size and frame size
 
 
 def _fail(fn: str, exc: type[Exception], msg: str):
@@ -220,9 +222,11 @@ class DirectAligner:
     Args:
         K: (3, 3) intrinsics of the finest level (numpy or torch; float64 internally).
         levels: pyramid levels (1 = no pyramid); fewer are used if a level would have a side
-            below 4 pixels.
-        iterations: trials (normal-equation passes) per level: an int for every level, or a
-            sequence from the finest level (index 0) to the coarsest.
+            below 4 pixels. None (default): as many as keep the coarsest level's shorter side at
+            6 pixels or more (6 levels at 320x240, 7 at 640x480), which gives the widest basin.
+        iterations: the most trials (normal-equation passes after the first) per level: an int
+            for every level, or a sequence from the finest level (index 0) towards the coarsest,
+            whose last entry also holds for the levels beyond it.
         robust: the M-estimator of the residuals: "huber", "cauchy", "geman_mcclure", "tukey"
             (as in ``robust_rho``) or "l2".
         scale: the M-estimator's scale (in intensity units).
@@ -242,14 +246,14 @@ class DirectAligner:
         self,
         K,
         *,
-        levels: int = 4,
-        iterations=(4, 6, 10, 20),
+        levels: int | None = None,
+        iterations=(4, 6, 10, 20, 30),
         robust: str = "huber",
         scale: float = 0.05,
         depth_weight: float = 0.0,
         min_depth: float = MIN_DEPTH,
         color: bool = False,
-        tolerance: float = 0.01,
+        tolerance: float = 0.05,
         lm_lambda: float = 1e-4,
         lm_up: float = 4.0,
         lm_down: float = 0.25,
@@ -261,19 +265,18 @@ class DirectAligner:
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             _fail(fn, ValueError, f"argument 'K' must be finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
         self.K = K
-        if not isinstance(levels, (int, np.integer)) or isinstance(levels, bool) or levels < 1:
-            _fail(fn, ValueError, f"argument 'levels' must be an int >= 1, got {levels!r}")
-        self.levels = int(levels)
+        if levels is not None and (not isinstance(levels, (int, np.integer)) or isinstance(levels, bool) or levels < 1):
+            _fail(fn, ValueError, f"argument 'levels' must be None or an int >= 1, got {levels!r}")
+        self.levels = None if levels is None else int(levels)
         if isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool):
-            iterations = (int(iterations),) * self.levels
+            iterations = (int(iterations),)
         try:
             iterations = tuple(int(i) for i in iterations)
         except (TypeError, ValueError):
             _fail(fn, TypeError, f"argument 'iterations' must be an int or a sequence of ints, got {iterations!r}")
         if not iterations or min(iterations) < 0:
             _fail(fn, ValueError, f"argument 'iterations' must be >= 0, got {iterations!r}")
-        # shorter sequences repeat their last (coarsest) entry
-        self.iterations = tuple(iterations[min(k, len(iterations) - 1)] for k in range(self.levels))
+        self.iterations = iterations  # level l uses iterations[min(l, len - 1)]
         if robust not in _ROBUST:
             _fail(fn, ValueError, f"argument 'robust' must be one of {list(_ROBUST)}, got {robust!r}")
         self.robust = robust
@@ -307,6 +310,10 @@ class DirectAligner:
 
     def _levels_for(self, H: int, W: int) -> int:
         n = 1
+        if self.levels is None:  # auto: halve while the shorter side stays >= _AUTO_MIN_SIDE
+            while min(H >> n, W >> n) >= _AUTO_MIN_SIDE:
+                n += 1
+            return n
         while n < self.levels and min(H >> n, W >> n) >= _MIN_SIDE:
             n += 1
         return n
@@ -442,18 +449,34 @@ class DirectAligner:
 
     def _make_system(self, B: int, shapes, pose: wp.array, K: list):
         """Returns ``system(ref, live, level) -> (JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,))``
-        (float64 numpy; fresh arrays) at the pose in ``pose``, by the fused Warp normal equations."""
+        (float64 numpy copies) at the pose in ``pose``, by the fused Warp normal equations.
+
+        The outputs of every (level, reference pyramid, live pyramid) seen lately are kept, with
+        their numpy views: pyramids are pooled, so in frame-to-frame tracking the same few
+        combinations recur and each call re-launches the launches recorded the first time."""
         from .kernels import photometric_normal_equations
 
+        cache: dict[tuple, tuple] = {}
+        kw = {"robust": self.robust, "scale": self.scale, "depth_weight": self.depth_weight,
+              "min_depth": self.min_depth}
+        use_depth = self.depth_weight > 0
+
         def system(ref: Frame, live: Frame, level: int):
-            JtWJ, JtWr, cost, count = photometric_normal_equations(
-                ref.images[level], ref.depths[level], live.images[level], pose, K[level],
-                robust=self.robust, scale=self.scale,
-                live_depth=live.depths[level] if self.depth_weight > 0 else None,
-                depth_weight=self.depth_weight, min_depth=self.min_depth,
-            )
-            return (JtWJ.numpy().astype(np.float64).reshape(B, 6, 6), JtWr.numpy().astype(np.float64).reshape(B, 6),
-                    cost.numpy().astype(np.float64).reshape(B), count.numpy().astype(np.float64).reshape(B))
+            key = (level, id(ref.images[level]), id(live.images[level]))
+            entry = cache.get(key)
+            live_depth = live.depths[level] if use_depth else None
+            if entry is None:
+                if len(cache) >= _SYSTEM_CACHE:
+                    cache.pop(next(iter(cache)))
+                ne = photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
+                                                  K[level], live_depth=live_depth, **kw)
+                entry = cache[key] = (ne, tuple(a.numpy() for a in ne))
+            else:
+                photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
+                                             K[level], live_depth=live_depth, out=entry[0], **kw)
+            JtWJ, JtWr, cost, count = entry[1]
+            return (JtWJ.astype(np.float64), JtWr.astype(np.float64), cost.astype(np.float64),
+                    count.astype(np.float64))
 
         return system
 
@@ -485,7 +508,7 @@ class DirectAligner:
             lam = [self.lm_lambda] * B
             trials = [0] * B
             last_step = [math.inf] * B
-            for _ in range(self.iterations[level]):
+            for _ in range(self.iterations[min(level, len(self.iterations) - 1)]):
                 if not any(active):
                     break
                 A = H.copy()
