@@ -60,6 +60,7 @@ import numpy as np
 import warp as wp
 
 from .kernels import launch as _launch
+from .kernels import lm as _lm
 from .kernels import pyramid as _pyramid
 from .kernels.camera import MIN_DEPTH
 
@@ -140,33 +141,6 @@ class Frame:
             n = (d > 0).sum(1)
             self._mean_depth = np.where(n > 0, d.sum(1, dtype=np.float64) / np.maximum(n, 1), 1.0)
         return self._mean_depth
-
-
-def _se3_exp(w0: float, w1: float, w2: float, t0: float, t1: float, t2: float) -> np.ndarray:
-    """The SE(3) exponential of one twist [omega, t] as a (4, 4) float64 array (scalar math: this
-    runs once per trial and batch item, where numpy's per-call overhead would dominate)."""
-    th2 = w0 * w0 + w1 * w1 + w2 * w2
-    if th2 < 1e-8:
-        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = math.sqrt(th2)
-        sn = math.sin(th)
-        a, b, c = sn / th, (1.0 - math.cos(th)) / th2, (th - sn) / (th2 * th)
-    # W = hat(w); W^2 = w w^T - th2 I
-    q00, q11, q22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
-    q01, q02, q12 = w0 * w1, w0 * w2, w1 * w2
-    r = (1.0 + b * q00, -a * w2 + b * q01, a * w1 + b * q02,
-         a * w2 + b * q01, 1.0 + b * q11, -a * w0 + b * q12,
-         -a * w1 + b * q02, a * w0 + b * q12, 1.0 + b * q22)
-    v = (1.0 + c * q00, -b * w2 + c * q01, b * w1 + c * q02,
-         b * w2 + c * q01, 1.0 + c * q11, -b * w0 + c * q12,
-         -b * w1 + c * q02, b * w0 + c * q12, 1.0 + c * q22)
-    return np.array([
-        [r[0], r[1], r[2], v[0] * t0 + v[1] * t1 + v[2] * t2],
-        [r[3], r[4], r[5], v[3] * t0 + v[4] * t1 + v[5] * t2],
-        [r[6], r[7], r[8], v[6] * t0 + v[7] * t1 + v[8] * t2],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
 
 
 def _recycle(pool: list, pyramid: _Pyramid) -> None:
@@ -303,7 +277,7 @@ class DirectAligner:
         self.min_valid_fraction = float(min_valid_fraction)
         self.depth_tolerance = float(depth_tolerance)
         self._weights: dict[int, wp.array] = {}
-        self._buffers: dict[tuple, dict] = {}  # per (B, level shapes): K per level, pose, outputs
+        self._states: dict[tuple, _State] = {}  # per (B, level shapes)
         self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free _Pyramid buffers
 
     # ------------------------------------------------------------------------------ pyramids
@@ -431,135 +405,125 @@ class DirectAligner:
         out[:, :3, :] = T[:, :3, :]
         return out
 
-    def _level_buffers(self, B: int, shapes) -> dict:
-        """Per (batch size, level shapes): the intrinsics of every level (wp.array (B,) of 3x3
-        float32), the pose buffer the system reads (wp.array (B,) of 3x4 float32, with its numpy
-        view), each level's mean focal length, and the system function."""
+    def _state(self, B: int, shapes) -> _State:
         key = (B, tuple(shapes))
-        buf = self._buffers.get(key)
-        if buf is None:
-            Ks = [_pyramid.scale_intrinsics(self.K, level) for level in range(len(shapes))]
-            K_wp = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
-                    for Kl in Ks]
-            pose = wp.zeros(B, dtype=_launch.mat34f, device="cpu")
-            buf = {"pose_np": pose.numpy().reshape(B, 3, 4), "f": [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks],
-                   "system": self._make_system(B, shapes, pose, K_wp)}
-            self._buffers[key] = buf
-        return buf
-
-    def _make_system(self, B: int, shapes, pose: wp.array, K: list):
-        """Returns ``system(ref, live, level) -> (JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,))``
-        (float64 numpy copies) at the pose in ``pose``, by the fused Warp normal equations.
-
-        The outputs of every (level, reference pyramid, live pyramid) seen lately are kept, with
-        their numpy views: pyramids are pooled, so in frame-to-frame tracking the same few
-        combinations recur and each call re-launches the launches recorded the first time."""
-        from .kernels import photometric_normal_equations
-
-        cache: dict[tuple, tuple] = {}
-        kw = {"robust": self.robust, "scale": self.scale, "depth_weight": self.depth_weight,
-              "min_depth": self.min_depth}
-        use_depth = self.depth_weight > 0
-
-        def system(ref: Frame, live: Frame, level: int):
-            key = (level, id(ref.images[level]), id(live.images[level]))
-            entry = cache.get(key)
-            live_depth = live.depths[level] if use_depth else None
-            if entry is None:
-                if len(cache) >= _SYSTEM_CACHE:
-                    cache.pop(next(iter(cache)))
-                ne = photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
-                                                  K[level], live_depth=live_depth, **kw)
-                entry = cache[key] = (ne, tuple(a.numpy() for a in ne))
-            else:
-                photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
-                                             K[level], live_depth=live_depth, out=entry[0], **kw)
-            JtWJ, JtWr, cost, count = entry[1]
-            return (JtWJ.astype(np.float64), JtWr.astype(np.float64), cost.astype(np.float64),
-                    count.astype(np.float64))
-
-        return system
+        st = self._states.get(key)
+        if st is None:
+            st = self._states[key] = _State(self, B, shapes)
+        return st
 
     def _align(self, fn: str, ref: Frame, live: Frame, init):
         B = ref.batch
-        T = self._init_pose(fn, init, B, ref.batched)
+        T0 = self._init_pose(fn, init, B, ref.batched)
         shapes = [(int(a.shape[2]), int(a.shape[3])) for a in ref.images]
-        buf = self._level_buffers(B, shapes)
-        system = buf["system"]
-        pose_np = buf["pose_np"]
-        zmean = ref.mean_depth().tolist()
-        diag = np.arange(6)
-        tol, lam_up, lam_down = self.tolerance, self.lm_up, self.lm_down
-        items = range(B)
+        st = self._state(B, shapes)
+        st.T_np[:] = T0[:, :3, :]
+        st.zmean_np[:] = ref.mean_depth()
         level_info = []
-        converged = [False] * B
         for level in range(len(shapes) - 1, -1, -1):
-            h, w = shapes[level]
-            n_pix = float(h * w)
-            min_count = max(_MIN_VALID_PIXELS, self.min_valid_fraction * n_pix)
-            f = buf["f"][level]
-            evaluate = functools.partial(system, ref, live, level)
-            pose_np[:] = T[:, :3, :]
-            H, g, cost, count = evaluate()
-            mean = [c / max(n, 1.0) for c, n in zip(cost.tolist(), count.tolist())]
-            count = count.tolist()
-            active = [n >= min_count for n in count]
-            ok = list(active)
-            lam = [self.lm_lambda] * B
-            trials = [0] * B
-            last_step = [math.inf] * B
+            ne, lm_first, lm_next = st.runner(ref, live, level)
+            st.pose_np[:] = st.T_np
+            for cmd in ne:
+                cmd()
+            lm_first()
+            active = st.active_np
             for _ in range(self.iterations[min(level, len(self.iterations) - 1)]):
-                if not any(active):
+                if not active.any():
                     break
-                A = H.copy()
-                A[:, diag, diag] *= 1.0 + np.array(lam)[:, None]
-                A[:, diag, diag] += 1e-9 * (1.0 + H[:, diag, diag].sum(1, keepdims=True))
-                try:
-                    delta = np.linalg.solve(A, g[..., None])[..., 0].tolist()
-                except np.linalg.LinAlgError:  # a singular system: stop this level
-                    break
-                Tn = T.copy()
-                step = [0.0] * B
-                for b in items:
-                    d = delta[b]
-                    if active[b]:
-                        if not all(map(math.isfinite, d)):
-                            active[b] = False
-                            continue
-                        Tn[b] = _se3_exp(-d[0], -d[1], -d[2], -d[3], -d[4], -d[5]) @ T[b]
-                        step[b] = f * (math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                                       + math.sqrt(d[3] * d[3] + d[4] * d[4] + d[5] * d[5]) / zmean[b])
-                pose_np[:] = Tn[:, :3, :]
-                Hn, gn, costn, countn = evaluate()
-                costn, countn = costn.tolist(), countn.tolist()
-                for b in items:
-                    if not active[b]:
-                        continue
-                    trials[b] += 1
-                    last_step[b] = step[b]
-                    meann = costn[b] / max(countn[b], 1.0)
-                    if countn[b] >= min_count and meann < mean[b]:
-                        T[b] = Tn[b]
-                        H[b] = Hn[b]
-                        g[b] = gn[b]
-                        mean[b] = meann
-                        count[b] = countn[b]
-                        lam[b] *= lam_down
-                    else:
-                        lam[b] *= lam_up
-                    if step[b] < tol or lam[b] > _LAMBDA_MAX:
-                        active[b] = False
-            converged = [ok[b] and last_step[b] < 10.0 * tol for b in items]
+                for cmd in ne:
+                    cmd()
+                lm_next()
+            h, w = shapes[level]
+            frac = st.count_np / float(h * w)
             level_info.append({
                 "level": level, "size": (h, w),
-                "iterations": np.array(trials) if ref.batched else trials[0],
-                "cost": np.array(mean) if ref.batched else mean[0],
-                "valid_fraction": np.array(count) / n_pix if ref.batched else count[0] / n_pix,
+                "iterations": st.trials_np.copy() if ref.batched else int(st.trials_np[0]),
+                "cost": st.mean_np.copy() if ref.batched else float(st.mean_np[0]),
+                "valid_fraction": np.where(st.ok_np > 0, frac, 0.0) if ref.batched else
+                float(frac[0] if st.ok_np[0] else 0.0),
             })
-        info = {"converged": np.array(converged) if ref.batched else converged[0], "levels": level_info}
+        converged = (st.ok_np > 0) & (st.step_np < 10.0 * self.tolerance)
+        T = np.zeros((B, 4, 4))
+        T[:, :3, :] = st.T_np
+        T[:, 3, 3] = 1.0
+        info = {"converged": converged if ref.batched else bool(converged[0]), "levels": level_info}
         out = T if ref.batched else T[0]
         if ref.torch:
             import torch
 
             out = torch.from_numpy(out)
         return out, info
+
+
+class _State:
+    """Per (batch size, level shapes): the Levenberg-Marquardt state of :mod:`.kernels.lm` (with
+    numpy views), the intrinsics of every level, and per (level, reference pyramid, live pyramid)
+    the normal equations' outputs with the launches that fill them and the LM step launches,
+    recorded once: in frame-to-frame tracking pyramids are pooled, so the same few combinations
+    recur, and a trial costs a few recorded launches."""
+
+    def __init__(self, aligner: DirectAligner, B: int, shapes):
+        self.aligner = aligner
+        self.B = B
+        Ks = [_pyramid.scale_intrinsics(aligner.K, level) for level in range(len(shapes))]
+        self.K = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
+                  for Kl in Ks]
+        self.f = [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks]
+        self.min_count = [max(_MIN_VALID_PIXELS, aligner.min_valid_fraction * h * w) for h, w in shapes]
+
+        def arr(dtype, n=B):
+            a = wp.zeros(n, dtype=dtype, device="cpu")
+            return a, a.numpy()
+
+        self.pose, pose_np = arr(_launch.mat34f)
+        self.pose_np = pose_np.reshape(B, 3, 4)
+        self.T, T_np = arr(_launch.mat34d)
+        self.T_np = T_np.reshape(B, 3, 4)
+        self.Tn, _ = arr(_launch.mat34d)
+        self.H, _ = arr(wp.float64, B * 36)
+        self.g, _ = arr(wp.float64, B * 6)
+        self.zmean, self.zmean_np = arr(wp.float64)
+        self.mean, self.mean_np = arr(wp.float64)
+        self.count, self.count_np = arr(wp.float64)
+        self.lam, _ = arr(wp.float64)
+        self.step, self.step_np = arr(wp.float64)
+        self.trials, self.trials_np = arr(wp.int32)
+        self.active, self.active_np = arr(wp.int32)
+        self.ok, self.ok_np = arr(wp.int32)
+        self._runners: dict[tuple, tuple] = {}
+
+    def runner(self, ref: Frame, live: Frame, level: int):
+        """(normal-equation launches, first LM step, next LM step) for this pair at ``level``."""
+        use_depth = self.aligner.depth_weight > 0
+        key = (level, id(ref.images[level]), id(ref.depths[level]), id(live.images[level]),
+               id(live.depths[level]) if use_depth else None)
+        run = self._runners.get(key)
+        if run is None:
+            if len(self._runners) >= _SYSTEM_CACHE:
+                self._runners.pop(next(iter(self._runners)))
+            run = self._runners[key] = self._make_runner(ref, live, level, use_depth)
+        return run
+
+    def _make_runner(self, ref: Frame, live: Frame, level: int, use_depth: bool):
+        from .kernels import photometric_normal_equations
+
+        al = self.aligner
+        args = (ref.images[level], ref.depths[level], live.images[level], self.pose, self.K[level])
+        kw = {"robust": al.robust, "scale": al.scale, "depth_weight": al.depth_weight, "min_depth": al.min_depth,
+              "live_depth": live.depths[level] if use_depth else None}
+        ne = photometric_normal_equations(*args, **kw)
+        cmds = getattr(ne, "_cmds", None)
+        if not cmds:  # no recorded launches to replay: the public call with out= each time
+            cmds = [functools.partial(photometric_normal_equations, *args, out=ne, **kw)]
+        lm = []
+        for first in (1, 0):
+            lm.append(wp.launch(
+                _lm.lm_step, dim=self.B,
+                inputs=[ne.JtWJ.flatten(), ne.JtWr.flatten(), ne.cost, ne.count, self.zmean, first,
+                        self.min_count[level], self.f[level], al.tolerance, al.lm_lambda, al.lm_up, al.lm_down,
+                        _LAMBDA_MAX],
+                outputs=[self.T, self.Tn, self.pose, self.H, self.g, self.mean, self.count, self.lam, self.step,
+                         self.trials, self.active, self.ok],
+                device="cpu", record_cmd=True,
+            ).launch)
+        return tuple(cmds), lm[0], lm[1]
