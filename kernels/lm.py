@@ -14,7 +14,9 @@ A coarse-to-fine aligner (``gvnn_warp.odometry.DirectAligner``) evaluates the Ga
    Cholesky factorisation in float64) and writes the next trial pose ``exp(delta) T`` (left
    multiplied, ``delta = [omega, t]``, ``se3_exp``) into ``pose``, the float32 pose the normal
    equations read, and the step length ``f (|omega| + |t| / z)`` in pixels (``f`` the level's
-   focal length, ``z`` the item's typical depth).
+   focal length, ``z`` the item's typical depth). A step shorter than ``tol`` pixels is taken at
+   once, without evaluating it, and stops the item (it cannot change the outcome, and the
+   evaluation would cost a full pass over the level).
 
 State arrays (length B): ``T`` and ``Tn`` (3x4 float64: best and trial pose), ``H`` (B * 36) and
 ``g`` (B * 6) float64 (the best pose's system), ``mean``, ``count``, ``lam``, ``step`` float64,
@@ -164,6 +166,10 @@ def _lm_step(
         wp.float32(P[2, 0]), wp.float32(P[2, 1]), wp.float32(P[2, 2]), wp.float32(P[2, 3]),
     )
     step[b] = f * (wp.length(w) + wp.length(t) / zmean[b])
+    if step[b] < tol:
+        # a step this small cannot change the outcome: taken without another evaluation
+        T[b] = P
+        active[b] = 0
 
 
 #: the kernel (launch with dim = B on the CPU); arguments as in the module docstring
