@@ -269,3 +269,19 @@ def test_bad_inputs_raise():
     for call, exc, msg in cases:
         with pytest.raises(exc, match=msg):
             call()
+
+
+def test_readme_example_runs_and_module_needs_no_torch():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    start = text.index("```python", text.index("<!-- odometry-example -->")) + len("```python")
+    code = text[start : text.index("```", start)]
+    code += "\nimport sys\nassert 'torch' not in sys.modules, 'torch was imported'\n"
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    lines = out.strip().splitlines()
+    assert lines[0].startswith("True")
+    errors = [float(line.split("error ")[1].split()[0]) for line in lines if "error" in line]
+    assert len(errors) == 5 and max(errors) < 0.5, out
