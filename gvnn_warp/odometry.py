@@ -24,11 +24,17 @@ How it works
    the robust (IRLS) photometric residuals, for a left-multiplied update ``T <- exp(delta) T``,
    ``delta = [omega, t]``: the step solves ``(JtWJ + lambda diag(JtWJ)) delta = -JtWr``; it is
    accepted if the cost per valid pixel goes down (then ``lambda`` shrinks by ``lm_down``), else
-   rejected (``lambda`` grows by ``lm_up``). Every trial is one fused pass over the level.
+   rejected (``lambda`` grows by ``lm_up``). Every trial is one fused pass over the level. The
+   whole step (accept/reject, damping, the 6x6 solve, the pose update, the stop test) runs in a
+   Warp kernel (:mod:`gvnn_warp.kernels.lm`), so a trial is a few recorded launches.
 3. A level stops after ``iterations[l]`` trials, or when a step moves the image by less than
    ``tolerance`` pixels of that level: ``f_l (|omega| + |t| / z)`` with ``f_l`` the level's focal
    length and ``z`` the mean valid reference depth, or when ``lambda`` exceeds ``1e8`` (no step
-   lowers the cost).
+   lowers the cost), or (if ``min_decrease > 0``) when an accepted step lowered the cost per
+   pixel by less than that fraction. A step shorter than ``take_step / 2^l`` pixels of level
+   ``l`` (``take_step`` in pixels of the finest level; at least ``tolerance``) is taken without
+   evaluating it and ends the level: near the optimum a Gauss-Newton step is reliable, and the
+   evaluation would cost a full pass (at the finest level this halves the work).
 
 ``info`` (a dict) reports per level (coarse to fine) the trials made, the final cost per valid
 pixel and the fraction of the level's pixels that were valid, and ``converged``: the finest level
@@ -209,6 +215,10 @@ class DirectAligner:
         min_depth: depths at or below it count as missing (metres).
         color: keep every colour channel in the residual (C per pixel) instead of one intensity.
         tolerance: a level stops when a step moves the image by less than this many pixels.
+        take_step: steps shorter than this many finest-level pixels are taken unevaluated (see
+            the module docstring).
+        min_decrease: stop a level when an accepted step lowers the cost per pixel by less than
+            this fraction (0: never; it saves trials at coarse levels but narrows the basin).
         lm_lambda: initial Levenberg-Marquardt damping (relative to diag(JtWJ)); ``lm_up`` /
             ``lm_down``: its growth after a rejected / shrink after an accepted step.
         min_valid_fraction: fewest valid pixels (fraction of the level's) to trust a level.
@@ -228,6 +238,8 @@ class DirectAligner:
         min_depth: float = MIN_DEPTH,
         color: bool = False,
         tolerance: float = 0.05,
+        take_step: float = 0.5,
+        min_decrease: float = 0.0,
         lm_lambda: float = 1e-4,
         lm_up: float = 4.0,
         lm_down: float = 0.25,
@@ -259,7 +271,8 @@ class DirectAligner:
             if not (isinstance(v, (int, float)) and lo < v < math.inf):
                 _fail(fn, ValueError, f"argument '{name}' must be a finite number > {lo}, got {v!r}")
         for name, v in (("depth_weight", depth_weight), ("lm_lambda", lm_lambda),
-                        ("depth_tolerance", depth_tolerance)):
+                        ("depth_tolerance", depth_tolerance), ("take_step", take_step),
+                        ("min_decrease", min_decrease)):
             if not (isinstance(v, (int, float)) and 0.0 <= v < math.inf):
                 _fail(fn, ValueError, f"argument '{name}' must be a finite number >= 0, got {v!r}")
         if not (isinstance(lm_down, (int, float)) and 0.0 < lm_down <= 1.0):
@@ -271,6 +284,8 @@ class DirectAligner:
         self.min_depth = float(min_depth)
         self.color = bool(color)
         self.tolerance = float(tolerance)
+        self.min_decrease = float(min_decrease)
+        self.take_step = float(take_step)
         self.lm_lambda = float(lm_lambda)
         self.lm_up = float(lm_up)
         self.lm_down = float(lm_down)
@@ -520,8 +535,9 @@ class _State:
             lm.append(wp.launch(
                 _lm.lm_step, dim=self.B,
                 inputs=[ne.JtWJ.flatten(), ne.JtWr.flatten(), ne.cost, ne.count, self.zmean, first,
-                        self.min_count[level], self.f[level], al.tolerance, al.lm_lambda, al.lm_up, al.lm_down,
-                        _LAMBDA_MAX],
+                        self.min_count[level], self.f[level], al.tolerance, max(al.tolerance, al.take_step / 2**level),
+                        al.lm_lambda, al.lm_up, al.lm_down,
+                        _LAMBDA_MAX, al.min_decrease],
                 outputs=[self.T, self.Tn, self.pose, self.H, self.g, self.mean, self.count, self.lam, self.step,
                          self.trials, self.active, self.ok],
                 device="cpu", record_cmd=True,

@@ -87,10 +87,12 @@ def _lm_step(
     min_count: wp.float64,
     f: wp.float64,
     tol: wp.float64,
+    take: wp.float64,
     lam0: wp.float64,
     lam_up: wp.float64,
     lam_down: wp.float64,
     lam_max: wp.float64,
+    min_decrease: wp.float64,
     T: wp.array(dtype=mat34d),
     Tn: wp.array(dtype=mat34d),
     pose: wp.array(dtype=mat34f),
@@ -121,11 +123,13 @@ def _lm_step(
             return
         trials[b] = trials[b] + 1
         accept = n >= min_count and m < mean[b]
+        small = False
         if accept:
             lam[b] = lam[b] * lam_down
+            small = mean[b] - m < min_decrease * mean[b]
         else:
             lam[b] = lam[b] * lam_up
-        if step[b] < tol or lam[b] > lam_max:
+        if step[b] < tol or lam[b] > lam_max or small:
             active[b] = 0
     if accept:
         for k in range(36):
@@ -166,7 +170,7 @@ def _lm_step(
         wp.float32(P[2, 0]), wp.float32(P[2, 1]), wp.float32(P[2, 2]), wp.float32(P[2, 3]),
     )
     step[b] = f * (wp.length(w) + wp.length(t) / zmean[b])
-    if step[b] < tol:
+    if step[b] < take:
         # a step this small cannot change the outcome: taken without another evaluation
         T[b] = P
         active[b] = 0

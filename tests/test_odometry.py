@@ -148,7 +148,8 @@ def test_recovers_known_motion(relative):
     assert [lv["level"] for lv in info["levels"]] == [4, 3, 2, 1, 0]
     assert info["levels"][0]["size"] == (7, 10)
     for lv in info["levels"]:
-        assert lv["iterations"] >= 1 and 0.5 < lv["valid_fraction"] <= 1.0 and math.isfinite(lv["cost"])
+        assert lv["iterations"] >= 0 and 0.5 < lv["valid_fraction"] <= 1.0 and math.isfinite(lv["cost"])
+    assert info["levels"][0]["iterations"] >= 1  # the coarsest level had work to do
 
 
 def test_noise_and_missing_depth():
