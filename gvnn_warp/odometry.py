@@ -52,6 +52,11 @@ For frame-to-frame tracking, build each frame's pyramid once and reuse it::
         T_cur_prev, info = aligner.align_frames(prev, cur)
         prev = cur
 
+A frame's pyramid lives in buffers the aligner owns and reuses once the :class:`Frame` is gone
+(a tracker drops one frame per step), and each (level, frame pair) keeps its recorded launches,
+so steady-state tracking allocates nothing. One aligner is not meant to be used from several
+threads at once (use one aligner per thread).
+
 Import needs no torch; torch is imported only when a tensor comes in.
 """
 
@@ -325,7 +330,7 @@ class DirectAligner:
         The inputs are copied (later changes to them do not affect the frame)."""
         return self._prepare("prepare", "image", "depth", image, depth)
 
-    def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth) -> Frame:
+    def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth, use_depth: bool = True) -> Frame:
         torch_in = _is_torch(image)
         img = _as_numpy(fn, image_name, image, (3, 4))
         batched = img.ndim == 4
@@ -346,6 +351,8 @@ class DirectAligner:
             if d.shape != (B, 1, H, W):
                 want = (B, 1, H, W) if batched else (1, H, W)
                 _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}")
+        if not use_depth:
+            depth = None  # checked, but not needed
         key = (B, C, H, W, depth is not None)
         pool = self._frame_pool.setdefault(key, [])
         pyr = pool.pop() if pool else _Pyramid(self, B, C, H, W, depth is not None)
@@ -378,8 +385,7 @@ class DirectAligner:
         if live_depth is None and self.depth_weight > 0:
             _fail(fn, ValueError, "argument 'live_depth' must be given when depth_weight > 0")
         ref = self._prepare(fn, "ref_image", "ref_depth", ref_image, ref_depth)
-        live = self._prepare(fn, "live_image", "live_depth", live_image,
-                             live_depth if self.depth_weight > 0 else None)
+        live = self._prepare(fn, "live_image", "live_depth", live_image, live_depth, self.depth_weight > 0)
         if live.batched != ref.batched or live.images[0].shape != ref.images[0].shape:
             got = tuple(np.shape(live_image))
             want = tuple(ref.images[0].shape[:1] if ref.batched else ()) + (np.shape(ref_image)[-3],) + ref.shape
@@ -398,11 +404,14 @@ class DirectAligner:
             _fail(fn, ValueError, "argument 'ref' must be prepared with a depth")
         if self.depth_weight > 0 and live.depths is None:
             _fail(fn, ValueError, "argument 'live' must be prepared with a depth when depth_weight > 0")
-        if live.batched != ref.batched or tuple(live.images[0].shape) != tuple(ref.images[0].shape) or len(
-            live.images
-        ) != len(ref.images):
+        if live.batched != ref.batched or tuple(live.images[0].shape) != tuple(ref.images[0].shape):
             _fail(fn, ValueError, f"arguments 'ref' and 'live' must have the same shape, got "
                   f"{tuple(ref.images[0].shape)} and {tuple(live.images[0].shape)}")
+        n_levels = self._levels_for(*ref.shape)
+        grey_mismatch = not self.color and ref.images[0].shape[1] != 1
+        if len(ref.images) != n_levels or len(live.images) != n_levels or grey_mismatch:
+            _fail(fn, ValueError, "arguments 'ref' and 'live' must be prepared by an aligner with these levels and "
+                  "colour settings")
         return self._align(fn, ref, live, init)
 
     def _init_pose(self, fn: str, init, B: int, batched: bool) -> np.ndarray:
@@ -517,7 +526,7 @@ class _State:
             if len(self._runners) >= _SYSTEM_CACHE:
                 self._runners.pop(next(iter(self._runners)))
             run = self._runners[key] = self._make_runner(ref, live, level, use_depth)
-        return run
+        return run[:3]
 
     def _make_runner(self, ref: Frame, live: Frame, level: int, use_depth: bool):
         from .kernels import photometric_normal_equations
@@ -542,4 +551,7 @@ class _State:
                          self.trials, self.active, self.ok],
                 device="cpu", record_cmd=True,
             ).launch)
-        return tuple(cmds), lm[0], lm[1]
+        # the arrays stay referenced with their recorded launches: their ids (the cache key) and
+        # addresses cannot be reused by other arrays while the entry exists
+        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne)
+        return tuple(cmds), lm[0], lm[1], keep
