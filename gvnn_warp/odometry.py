@@ -84,6 +84,7 @@ _AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pix
 _MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
 _LAMBDA_MAX = 1e8
 _POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
+_GRAIN = 32768  # pyramid launches split over threads in pieces of at least this many pixels
 _SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per batch size and frame size
 
 
@@ -174,31 +175,57 @@ class _Pyramid:
         depths = self.depths or [empty] * len(self.shapes)
         f32 = wp.float32
         self.weights = aligner._channel_weights(C)
-        n = B * H * W
-        self.level0 = wp.launch(
-            _pyramid.level0_kernel(C, Co)[f32], dim=n,
-            inputs=[0, empty, self.weights.flatten(), empty, H * W, int(with_depth)],
-            outputs=[self.images[0].flatten(), depths[0].flatten() if with_depth else empty],
-            device="cpu", record_cmd=True,
+        threads = _launch.get_num_threads()
+        self.level0 = _Recorded(
+            _pyramid.level0_kernel(C, Co)[f32], B * H * W,
+            [empty, self.weights.flatten(), empty, H * W, int(with_depth)],
+            [self.images[0].flatten(), depths[0].flatten() if with_depth else empty], threads,
         )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
-            self.down.append(wp.launch(
-                _pyramid.downsample_kernel(Co)[f32], dim=B * ho * wo,
-                inputs=[0, self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
-                        h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
-                outputs=[self.images[k].flatten(), depths[k].flatten() if with_depth else empty],
-                device="cpu", record_cmd=True,
+            self.down.append(_Recorded(
+                _pyramid.downsample_kernel(Co)[f32], B * ho * wo,
+                [self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
+                 h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
+                [self.images[k].flatten(), depths[k].flatten() if with_depth else empty], threads,
             ))
 
     def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
-        self.level0.set_param_at_index(1, wp.array(image.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+        self.level0.set_arg(0, wp.array(image.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
         if depth is not None:
-            self.level0.set_param_at_index(3, wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
-        self.level0.launch()
-        for cmd in self.down:
-            cmd.launch()
+            self.level0.set_arg(2, wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+        self.level0()
+        for run in self.down:
+            run()
+
+
+class _Recorded:
+    """A per-element kernel ``kernel(offset, *inputs, *outputs)`` over [0, n) as recorded launches:
+    one, or above ``2 * _GRAIN`` elements one per thread over equal ranges, run on the thread pool
+    of :mod:`gvnn_warp.kernels.launch` (each element writes only its own outputs: any split gives
+    the same bits). Replaying a recorded launch costs a few microseconds."""
+
+    def __init__(self, kernel, n: int, inputs: list, outputs: list, threads: int):
+        pieces = max(1, min(threads, n // _GRAIN))
+        if getattr(_launch, "_pool", None) is None:
+            pieces = 1
+        bounds = [n * k // pieces for k in range(pieces + 1)]
+        self.cmds = [wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs], outputs=outputs,
+                               device="cpu", record_cmd=True) for k in range(pieces)]
+        self._runs = [c.launch for c in self.cmds]
+
+    def set_arg(self, index: int, value) -> None:
+        """Replace input ``index`` (0 = the first after ``offset``) in every piece."""
+        for c in self.cmds:
+            c.set_param_at_index(index + 1, value)
+
+    def __call__(self) -> None:
+        runs = self._runs
+        if len(runs) == 1:
+            runs[0]()
+        else:
+            _launch._pool.run(lambda k: runs[k](), len(runs), len(runs))
 
 
 class DirectAligner:

@@ -35,13 +35,11 @@ def _numpy_downsample(image, depth, tolerance):
     d = depth[:, :, : 2 * Ho, : 2 * Wo].astype(np.float64)
     d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
     taps = d.reshape(B, 1, Ho, 2, Wo, 2).transpose(0, 1, 2, 4, 3, 5).reshape(B, 1, Ho, Wo, 4)
-    out_d = np.zeros((B, 1, Ho, Wo))
-    for idx in np.ndindex(B, 1, Ho, Wo):
-        t = taps[idx]
-        v = t[t > 0]
-        if v.size:
-            near = v[v <= v.min() * (1 + tolerance)]
-            out_d[idx] = near.mean()
+    valid = taps > 0
+    dmin = np.where(valid, taps, np.inf).min(-1, keepdims=True)
+    near = valid & (taps <= dmin * (1 + tolerance))
+    n = near.sum(-1)
+    out_d = np.where(n > 0, (taps * near).sum(-1) / np.maximum(n, 1), 0.0)
     return out, out_d
 
 
@@ -89,6 +87,20 @@ def test_pyramid_kernels_match_numpy(ft):
     img, dep = wp.empty((1, 1, 1, 2), dtype=wtype, device="cpu"), wp.empty((1, 1, 1, 2), dtype=wtype, device="cpu")
     pyramid.downsample(arr(np.zeros((1, 1, 2, 4), ft)), arr(d), img, dep)
     np.testing.assert_allclose(dep.numpy()[0, 0, 0], [(1.0 + 1.02 + 1.01) / 3, 0.0], rtol=1e-6)
+
+
+def test_prepared_pyramid_matches_numpy():
+    # DirectAligner.prepare at 320x240 (its base level is split over threads): luma, then halvings
+    rng = np.random.default_rng(3)
+    image = rng.random((3, 240, 320)).astype(np.float32)
+    depth = _depth_with_holes(rng, 1, 240, 320)[0].astype(np.float32)
+    frame = DirectAligner(np.array([[240.0, 0, 159.5], [0, 240.0, 119.5], [0, 0, 1]])).prepare(image, depth)
+    assert [tuple(a.shape) for a in frame.images] == [(1, 1, 240 >> k, 320 >> k) for k in range(6)]
+    img, d = _numpy_level0(image[None], np.array([[0.299, 0.587, 0.114]]), depth[None])
+    for level in range(3):
+        np.testing.assert_allclose(frame.images[level].numpy(), img, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(frame.depths[level].numpy(), d, rtol=1e-5, atol=0)
+        img, d = _numpy_downsample(img, d, pyramid.DEPTH_TOLERANCE)
 
 
 def test_pyramid_errors():
