@@ -229,7 +229,21 @@ class _Recorded:
 
 
 class DirectAligner:
-    """Coarse-to-fine direct (photometric) RGB-D alignment, see the module docstring.
+    """Coarse-to-fine direct (photometric) RGB-D alignment (``gvnn_warp.odometry``; how it works:
+    the module docstring; conventions: ``docs/conventions.md``).
+
+    Methods:
+        ``align(ref_image, ref_depth, live_image, live_depth=None, init=None) -> (T, info)``:
+            images (C, H, W) / (B, C, H, W), depths (1, H, W) / (B, 1, H, W) (0/NaN: none),
+            numpy or torch; ``T`` (4, 4) / (B, 4, 4) float64 maps reference-camera points into
+            the live camera (the ``pose`` of ``warp_frame_depth(live, ref_depth, pose, K)``),
+            returned as the kind of ``ref_image``; ``init`` an initial ``T`` (identity if None).
+        ``prepare(image, depth=None) -> Frame``: a frame's pyramid, built once.
+        ``align_frames(ref, live, init=None) -> (T, info)``: :meth:`align` on prepared frames.
+
+    ``info``: ``{"converged": bool (or (B,) bool array), "levels": [per level, coarse to fine:
+    {"level", "size": (H_l, W_l), "iterations": trials, "cost": cost per valid pixel,
+    "valid_fraction"}]}`` (per-item arrays when batched).
 
     Args:
         K: (3, 3) intrinsics of the finest level (numpy or torch; float64 internally).
