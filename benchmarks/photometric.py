@@ -13,6 +13,9 @@ wall-clock times, ours and the peers timed round-robin in the same loop (see ben
   with ``out=`` (what a Gauss-Newton loop calls) at 320x240 (target <= 0.5 ms) and 640x480, and the
   per-call time at 40x30 (per-call overhead), with the time of an empty recorded Warp launch for
   scale.
+- One thread, CPU time of the calling thread (``time.thread_time``, best of a few calls): the same
+  work with no thread hand-over and far less sensitive to other processes on a shared host than
+  wall-clock time; nanoseconds per pixel.
 """
 
 from __future__ import annotations
@@ -103,6 +106,69 @@ def per_call_us(fn, n=2000) -> float:
     return 1e6 * float(np.median(times))
 
 
+def cpu_ms(fn, n=5) -> float:
+    """Best CPU time of the calling thread over ``n`` calls of ``fn``, ms (one thread: all the work)."""
+    fn()
+    best = float("inf")
+    for _ in range(n):
+        t0 = time.thread_time()
+        fn()
+        best = min(best, time.thread_time() - t0)
+    return 1e3 * best
+
+
+def one_thread_table(n: int) -> dict:
+    """ns per pixel on one thread (thread CPU time)."""
+    from gvnn_warp.kernels import launch
+    from gvnn_warp.kernels import photometric_kernels as pk
+
+    torch.set_num_threads(1)
+    launch.set_num_threads(1)
+    try:
+        rows = {}
+        B, C, H, W = 8, 3, 240, 320
+        px = B * H * W
+        image, depth, pose, pose44, K = wfd_scene(B, C, H, W)
+        ref = torch.rand(B, C, H, W, generator=torch.Generator().manual_seed(5))
+        d, p, p44 = leaves(depth, pose, pose44)
+        grid = leaves(affine_grid(B, H, W))[0]
+
+        def fwd():
+            with torch.no_grad():
+                G.photometric_error(ref, depth, image, pose, K)
+
+        def fb():
+            d.grad = p.grad = None
+            G.photometric_error(ref, d, image, p, K)[0].sum().backward()
+
+        def gs():
+            grid.grad = None
+            F.grid_sample(image, grid, align_corners=True).sum().backward()
+
+        def kor():
+            d.grad = p44.grad = None
+            (kornia.geometry.depth.warp_frame_depth(image, d, p44, K) - ref).abs().mean().backward()
+
+        for name, fn in (("photometric_error forward", fwd), ("photometric_error fwd+bwd (grads depth, pose)", fb),
+                         ("grid_sample fwd+bwd (grad grid)", gs), ("kornia warp_frame_depth + L1 + mean fwd+bwd", kor)):
+            rows[name] = 1e6 * cpu_ms(fn, n) / px
+        for H, W in ((240, 320), (480, 640)):
+            _, arrays = ne_arrays(H, W)
+            out = photometric_pipeline.photometric_normal_equations(*arrays, scale=0.1)
+            rows[f"normal_equations {W}x{H} (8-lane kernel, out=)"] = 1e6 * cpu_ms(
+                lambda arrays=arrays, out=out: photometric_pipeline.photometric_normal_equations(
+                    *arrays, scale=0.1, out=out), n
+            ) / (H * W)
+            scalar = wp.zeros(H * pk.ROW_STRIDE, dtype=wp.float64)
+            cmd = wp.launch(pk.normal_equations_rows[0][wp.float32], dim=H, record_cmd=True, inputs=[
+                0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), wp.zeros(0, dtype=wp.float32),
+                arrays[3], arrays[4], 1, H, W, 0, 0.1, 1e-3, 0.0, scalar])
+            rows[f"normal_equations {W}x{H} (plain kernel, launch alone)"] = 1e6 * cpu_ms(cmd.launch, n) / (H * W)
+        return rows
+    finally:
+        launch.set_num_threads(None)
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="fewer repeats")
@@ -155,7 +221,14 @@ def main(argv=None) -> dict:
     print(f"| 40x30 per call | {small['warp_out_us']:.1f} us | {small['warp_new_us']:.1f} us | "
           f"{small['torch_us']:.1f} us |")
     print(f"\n(an empty Warp launch: {small['empty_launch_us']:.1f} us; recorded: "
-          f"{small['empty_recorded_launch_us']:.1f} us; load average at end {os.getloadavg()})")
+          f"{small['empty_recorded_launch_us']:.1f} us; load average {os.getloadavg()})")
+
+    rows = one_thread_table(3 if args.quick else 7)
+    report["one_thread_ns_per_pixel"] = rows
+    print("\n| one thread, CPU time | ns per pixel |\n|---|---:|")
+    for name, v in rows.items():
+        print(f"| {name} | {v:.1f} |")
+    print(f"\n(load average at end {os.getloadavg()})")
     return report
 
 

@@ -209,7 +209,7 @@ def photometric_normal_equations(
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     rows_kernel = pk.normal_equations_lanes[int(live_depth is not None and depth_weight > 0)][ft]
     out._cmds = _record(rows_kernel, B * H, W, inputs) + _record(
-        pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1 << 30, [out._rows, H, *outputs]
+        pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1, [out._rows, H, *outputs]
     )
     if key is None:
         key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
@@ -236,8 +236,9 @@ def _record(kernel: wp.Kernel, n: int, row_pixels: int, args: list) -> list:
     """Callables that run ``kernel`` (first argument ``offset``) over [0, n) with ``args``: recorded
     launches (~2 us each to re-launch, against ~15 us for ``wp.launch``); above
     ``2 * _GRAIN_PIXELS`` pixels of work, one per thread over equal runs of elements, run on the
-    thread pool of :mod:`.launch` (the kernels write disjoint slots per element: any split gives
-    the same bits)."""
+    Python thread pool of :mod:`.launch` (the kernels write disjoint slots per element: any split
+    gives the same bits). Uses that module's private pools (no public API runs callables on its
+    threads yet); falls back to :func:`.launch.launch`."""
     threads = _launch.get_num_threads()
     pieces = min(threads, n, (n * row_pixels) // pk._GRAIN_PIXELS)
     bounds = [n * k // max(1, pieces) for k in range(max(1, pieces) + 1)]
@@ -248,9 +249,13 @@ def _record(kernel: wp.Kernel, n: int, row_pixels: int, args: list) -> list:
     runs = [c.launch for c in cmds]
     if len(runs) == 1:
         return runs
-    if getattr(_launch, "_pool", None) is None:  # the launch layer changed: its public launcher
+    # The launch layer's pool of Python threads, also when torch's OpenMP team is installed: on a
+    # loaded 2-core host the OpenMP team's spin-waiting made a 320x240 call 3x slower in CPU time
+    # and 7x in wall time (2.2 vs 16 ms), the Python threads cost nothing extra.
+    pool = getattr(_launch, "_python_pool", None) or getattr(_launch, "_pool", None)
+    if pool is None:  # the launch layer changed: its public launcher
         return [lambda: _launch.launch(kernel, n, args, [])]
-    return [lambda: _launch._pool.run(lambda k: runs[k](), len(runs), threads)]
+    return [lambda: pool.run(lambda k: runs[k](), len(runs), threads)]
 
 
 #: penalties of :func:`photometric_error`

@@ -570,3 +570,19 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
             rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
         assert rows[0][:, 28].sum() > 0
+
+
+def test_opcheck_photometric_ops():
+    from gvnn_warp.kernels.photometric import KINDS as CODES
+
+    from gvnn_warp import _photometric_ops as ops
+
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=2, H=5, W=6, seed=16, holes=False)
+    Kb = K.expand(2, 3, 3).contiguous()
+    args = tuple(t.clone().requires_grad_() for t in (ref, depth, live, pose, Kb))
+    torch.library.opcheck(ops.photometric_rows, (*args, 2, 5, 6, CODES["huber"], 0.1, MIN_DEPTH))
+    row_sum, row_count = ops.photometric_rows(*(a.detach() for a in args), 2, 5, 6, CODES["huber"], 0.1, MIN_DEPTH)
+    torch.library.opcheck(ops.photometric_mean, (row_sum.requires_grad_(), row_count, 5, 2))
+    torch.library.opcheck(ops.photometric_normal_equations,
+                          (ref, depth, live, live_depth, pose, Kb, CODES["tukey"], 0.4, MIN_DEPTH, 2.0))
+
