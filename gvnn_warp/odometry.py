@@ -177,15 +177,15 @@ class _Pyramid:
         self.weights = aligner._channel_weights(C)
         threads = _launch.get_num_threads()
         self.level0 = _Recorded(
-            _pyramid.level0_kernel(C, Co)[f32], B * H * W,
-            [empty, self.weights.flatten(), empty, H * W, int(with_depth)],
+            _pyramid.level0_kernel(C, Co)[f32], B * H, W,
+            [empty, self.weights.flatten(), empty, H, W, int(with_depth)],
             [self.images[0].flatten(), depths[0].flatten() if with_depth else empty], threads,
         )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
             self.down.append(_Recorded(
-                _pyramid.downsample_kernel(Co)[f32], B * ho * wo,
+                _pyramid.downsample_kernel(Co)[f32], B * ho, wo,
                 [self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
                  h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
                 [self.images[k].flatten(), depths[k].flatten() if with_depth else empty], threads,
@@ -201,13 +201,14 @@ class _Pyramid:
 
 
 class _Recorded:
-    """A per-element kernel ``kernel(offset, *inputs, *outputs)`` over [0, n) as recorded launches:
-    one, or above ``2 * _GRAIN`` elements one per thread over equal ranges, run on the thread pool
-    of :mod:`gvnn_warp.kernels.launch` (each element writes only its own outputs: any split gives
-    the same bits). Replaying a recorded launch costs a few microseconds."""
+    """A kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n) of ``pixels`` pixels
+    each, as recorded launches: one, or above ``2 * _GRAIN`` pixels one per thread over equal
+    ranges, run on the thread pool of :mod:`gvnn_warp.kernels.launch` (each element writes only
+    its own outputs: any split gives the same bits). Replaying a recorded launch costs a few
+    microseconds."""
 
-    def __init__(self, kernel, n: int, inputs: list, outputs: list, threads: int):
-        pieces = max(1, min(threads, n // _GRAIN))
+    def __init__(self, kernel, n: int, pixels: int, inputs: list, outputs: list, threads: int):
+        pieces = max(1, min(threads, n, n * pixels // _GRAIN))
         if getattr(_launch, "_pool", None) is None:
             pieces = 1
         bounds = [n * k // pieces for k in range(pieces + 1)]

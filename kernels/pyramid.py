@@ -46,29 +46,39 @@ __all__ = [
 
 
 @wp.func
-def _clean_depth(d: Any):
-    """d if it is a finite positive depth, else 0 (NaN fails both comparisons)."""
-    r = type(d)(0.0)
-    if d > type(d)(0.0) and d < type(d)(3.0e38):
-        r = d
-    return r
+def _valid_depth(d: Any):
+    """d is a finite positive depth (NaN fails both comparisons)."""
+    return d > type(d)(0.0) and d < type(d)(3.0e38)
 
 
 @wp.func
-def _tap_sum(d: Any, limit: Any, s: Any):
-    """s + d if d is a valid depth within ``limit`` (else s)."""
-    r = s
-    if d > type(d)(0.0) and d <= limit:
-        r = s + d
-    return r
+def _block_depth(d0: Any, d1: Any, d2: Any, d3: Any, tolerance: Any):
+    """The downsampled depth of a 2x2 block (see the module docstring), branch-free."""
+    zero = type(d0)(0.0)
+    one = type(d0)(1.0)
+    big = type(d0)(3.0e38)
+    v0 = _valid_depth(d0)
+    v1 = _valid_depth(d1)
+    v2 = _valid_depth(d2)
+    v3 = _valid_depth(d3)
+    e0 = wp.where(v0, d0, big)
+    e1 = wp.where(v1, d1, big)
+    e2 = wp.where(v2, d2, big)
+    e3 = wp.where(v3, d3, big)
+    limit = wp.min(wp.min(e0, e1), wp.min(e2, e3)) * (one + tolerance)
+    n0 = wp.where(v0 and e0 <= limit, one, zero)
+    n1 = wp.where(v1 and e1 <= limit, one, zero)
+    n2 = wp.where(v2 and e2 <= limit, one, zero)
+    n3 = wp.where(v3 and e3 <= limit, one, zero)
+    n = n0 + n1 + n2 + n3
+    s = n0 * wp.where(v0, d0, zero) + n1 * wp.where(v1, d1, zero) + n2 * wp.where(v2, d2, zero)
+    s = s + n3 * wp.where(v3, d3, zero)
+    return wp.where(n > zero, s / wp.max(n, one), zero)
 
 
-@wp.func
-def _tap_count(d: Any, limit: Any, n: Any):
-    r = n
-    if d > type(d)(0.0) and d <= limit:
-        r = n + type(d)(1.0)
-    return r
+# Kernels are row-blocked: element k is the image row k (b = k // H, y = k % H) and loops over its
+# pixels, which amortises Warp's per-element cost on the CPU (a launch calls the kernel function
+# once per element) and keeps the inner loop's index arithmetic trivial.
 
 
 def _make_level0(C: int, Co: int):
@@ -79,33 +89,36 @@ def _make_level0(C: int, Co: int):
         image: wp.array(dtype=Any),
         weights: wp.array(dtype=Any),
         depth: wp.array(dtype=Any),
-        HW: int,
+        H: int,
+        W: int,
         has_depth: int,
         out_image: wp.array(dtype=Any),
         out_depth: wp.array(dtype=Any),
     ):
-        i = wp.tid() + offset  # flat (b, pixel)
-        b = i // HW
-        p = i - b * HW
-        finite = bool(True)  # noqa: UP018 - a typed variable Warp may reassign inside the loop
-        for co in range(Co):
-            v = out_image.dtype(0.0)
-            for c in range(C):
-                v += weights[co * C + c] * image[(b * C + c) * HW + p]
-            if not wp.isfinite(v):
+        row = wp.tid() + offset  # flat (b, y)
+        b = row // H
+        HW = H * W
+        p0 = (row - b * H) * W
+        for x in range(W):
+            p = p0 + x
+            finite = bool(True)  # noqa: UP018 - a typed variable Warp may reassign inside the loop
+            for co in range(Co):
                 v = out_image.dtype(0.0)
-                finite = False
-            out_image[(b * Co + co) * HW + p] = v
-        if has_depth != 0:
-            d = _clean_depth(depth[i])
-            out_depth[i] = wp.where(finite, d, type(d)(0.0))
+                for c in range(C):
+                    v += weights[co * C + c] * image[(b * C + c) * HW + p]
+                ok = wp.isfinite(v)
+                finite = finite and ok
+                out_image[(b * Co + co) * HW + p] = wp.where(ok, v, out_image.dtype(0.0))
+            if has_depth != 0:
+                d = depth[b * HW + p]
+                out_depth[b * HW + p] = wp.where(finite and _valid_depth(d), d, type(d)(0.0))
 
     kernel = wp.kernel(level0, module="unique", enable_backward=False)
-    # Forward-only: every element writes its own output pixel(s). The image and weights are read at
-    # other indices (every channel), so their adjoint scope would be "any" (no adjoint is built).
+    # Forward-only: every element writes its own row's output pixels. Inputs are read at other
+    # indices (every channel, a whole row), so their adjoint scope would be "any" (no adjoint is built).
     return FloatKernel(
         kernel, image="scalar", weights="scalar", depth="scalar", out_image="scalar", out_depth="scalar"
-    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "element"})
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any"}, grain=_row_grain)
 
 
 def _make_downsample(C: int):
@@ -124,48 +137,36 @@ def _make_downsample(C: int):
         out_image: wp.array(dtype=Any),
         out_depth: wp.array(dtype=Any),
     ):
-        i = wp.tid() + offset  # flat (b, y', x') of the output
-        HWo = Ho * Wo
-        b = i // HWo
-        r = i - b * HWo
-        yo = r // Wo
-        xo = r - yo * Wo
-        p = (2 * yo) * W + 2 * xo  # top-left tap in its plane
+        row = wp.tid() + offset  # flat (b, y') of the output
+        b = row // Ho
+        yo = row - b * Ho
         HW = H * W
+        HWo = Ho * Wo
         quarter = out_image.dtype(0.25)
         for c in range(C):
-            base = (b * C + c) * HW + p
-            block = image[base] + image[base + 1] + image[base + W] + image[base + W + 1]
-            out_image[(b * C + c) * HWo + r] = quarter * block
+            src = (b * C + c) * HW + 2 * yo * W
+            dst = (b * C + c) * HWo + yo * Wo
+            for xo in range(Wo):
+                p = src + 2 * xo
+                out_image[dst + xo] = quarter * (image[p] + image[p + 1] + image[p + W] + image[p + W + 1])
         if has_depth != 0:
-            base = b * HW + p
-            d0 = _clean_depth(depth[base])
-            d1 = _clean_depth(depth[base + 1])
-            d2 = _clean_depth(depth[base + W])
-            d3 = _clean_depth(depth[base + W + 1])
-            dmin = type(d0)(3.0e38)
-            if d0 > type(d0)(0.0):
-                dmin = d0
-            if d1 > type(d0)(0.0) and d1 < dmin:
-                dmin = d1
-            if d2 > type(d0)(0.0) and d2 < dmin:
-                dmin = d2
-            if d3 > type(d0)(0.0) and d3 < dmin:
-                dmin = d3
-            limit = dmin * (type(d0)(1.0) + type(d0)(tolerance))
-            zero = type(d0)(0.0)
-            s = _tap_sum(d3, limit, _tap_sum(d2, limit, _tap_sum(d1, limit, _tap_sum(d0, limit, zero))))
-            n = _tap_count(d3, limit, _tap_count(d2, limit, _tap_count(d1, limit, _tap_count(d0, limit, zero))))
-            out = zero
-            if n > zero:
-                out = s / n
-            out_depth[i] = out
+            src = b * HW + 2 * yo * W
+            dst = b * HWo + yo * Wo
+            tol = out_image.dtype(tolerance)
+            for xo in range(Wo):
+                p = src + 2 * xo
+                out_depth[dst + xo] = _block_depth(depth[p], depth[p + 1], depth[p + W], depth[p + W + 1], tol)
 
     kernel = wp.kernel(downsample, module="unique", enable_backward=False)
-    # Forward-only: every element writes its own output pixel; inputs are read at 2x2 blocks ("any").
+    # Forward-only: every element writes its own output row; inputs are read at 2x2 blocks ("any").
     return FloatKernel(kernel, image="scalar", depth="scalar", out_image="scalar", out_depth="scalar").set_parallel(
-        scopes={"image": "any", "depth": "any"}
+        scopes={"image": "any", "depth": "any"}, grain=_row_grain
     )
+
+
+def _row_grain(args: dict) -> int:
+    """Fewest rows worth a chunk of a threaded launch: ~32k pixels."""
+    return max(1, 32768 // max(1, int(args.get("Wo", args["W"]))))
 
 
 _KERNELS: dict[tuple, FloatKernel] = {}
@@ -173,8 +174,9 @@ _KERNELS_LOCK = threading.Lock()
 
 
 def level0_kernel(C: int, Co: int) -> FloatKernel:
-    """The (cached) base-level kernel for C input and Co output channels; its arguments: (offset,
-    image, weights, depth, HW, has_depth, out_image, out_depth), flat arrays."""
+    """The (cached) base-level kernel for C input and Co output channels, one element per image row
+    (B * H); its arguments: (offset, image, weights, depth, H, W, has_depth, out_image, out_depth),
+    flat arrays."""
     with _KERNELS_LOCK:
         k = _KERNELS.get(("level0", C, Co))
         if k is None:
@@ -183,8 +185,9 @@ def level0_kernel(C: int, Co: int) -> FloatKernel:
 
 
 def downsample_kernel(C: int) -> FloatKernel:
-    """The (cached) downsampling kernel for C channels; its arguments: (offset, image, depth, H, W,
-    Ho, Wo, tolerance, has_depth, out_image, out_depth), flat arrays."""
+    """The (cached) downsampling kernel for C channels, one element per output row (B * Ho); its
+    arguments: (offset, image, depth, H, W, Ho, Wo, tolerance, has_depth, out_image, out_depth),
+    flat arrays."""
     with _KERNELS_LOCK:
         k = _KERNELS.get(("down", C))
         if k is None:
@@ -258,8 +261,8 @@ def prepare_level0(
     empty = out_image.flatten()[:0]
     launch(
         level0_kernel(C, Co)[ft],
-        B * H * W,
-        [image.flatten(), weights.flatten(), depth.flatten() if depth is not None else empty, H * W,
+        B * H,
+        [image.flatten(), weights.flatten(), depth.flatten() if depth is not None else empty, H, W,
          int(depth is not None)],
         [out_image.flatten(), out_depth.flatten() if out_depth is not None else empty],
     )
@@ -299,7 +302,7 @@ def downsample(
     empty = out_image.flatten()[:0]
     launch(
         downsample_kernel(C)[ft],
-        B * Ho * Wo,
+        B * Ho,
         [image.flatten(), depth.flatten() if depth is not None else empty, H, W, Ho, Wo, float(tolerance),
          int(depth is not None)],
         [out_image.flatten(), out_depth.flatten() if out_depth is not None else empty],
