@@ -268,6 +268,18 @@ def test_too_few_valid_pixels_is_reported(fill):
     assert info["converged"] is False and np.all(np.isfinite(T))
 
 
+def test_batch_item_without_depth_does_not_disturb_the_other():
+    ri, rd, li, ld, K, T_true = rendered_pair(motion((1.0, 0.5, 0.0), (0.02, 0, 0)), width=W // 2, height=H // 2)
+    depth = np.stack([rd, np.zeros_like(rd)])
+    depth[1, 0, 0, 0] = np.nan
+    T, info = DirectAligner(K).align(np.stack([ri, ri]), depth, np.stack([li, li]))
+    assert info["converged"].tolist() == [True, False]
+    assert info["levels"][-1]["valid_fraction"][1] == 0.0
+    np.testing.assert_array_equal(T[1], np.eye(4))
+    T_single, _ = DirectAligner(K).align(ri, rd, li)
+    np.testing.assert_allclose(T[0], T_single, atol=1e-6)
+
+
 def test_bad_inputs_raise():
     K = np.array([[60.0, 0, 39.5], [0, 60.0, 29.5], [0, 0, 1]])
     img = np.zeros((1, 60, 80), np.float32)
