@@ -304,6 +304,8 @@ class DirectAligner:
         if isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool):
             iterations = (int(iterations),)
         try:
+            if isinstance(iterations, str):
+                raise TypeError
             iterations = tuple(int(i) for i in iterations)
         except (TypeError, ValueError):
             _fail(fn, TypeError, f"argument 'iterations' must be an int or a sequence of ints, got {iterations!r}")
