@@ -11,7 +11,7 @@ import pytest
 import torch
 import warp as wp
 from gvnn_warp.kernels import pyramid
-from odometry_refs import motion, pose_error, rendered_pair
+from odometry_refs import motion, normal_equations_torch, pose_error, rendered_pair
 
 from gvnn_warp.odometry import DirectAligner, Frame
 
@@ -162,6 +162,26 @@ def test_recovers_known_motion(relative):
     for lv in info["levels"]:
         assert lv["iterations"] >= 0 and 0.5 < lv["valid_fraction"] <= 1.0 and math.isfinite(lv["cost"])
     assert info["levels"][0]["iterations"] >= 1  # the coarsest level had work to do
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")  # torch.func's import
+def test_result_is_a_stationary_point_of_an_independent_objective():
+    # the float64 torch reference of the same robust objective (plain torch warp, forward-mode
+    # autograd Jacobian) finds no Gauss-Newton step worth taking at the aligner's answer
+    ri, rd, li, ld, K, T_true = rendered_pair(motion((1.0, -0.5, 0.3), (0.02, 0.01, -0.02)), width=80, height=60)
+    aligner = DirectAligner(K)
+    ref, live = aligner.prepare(ri, rd), aligner.prepare(li)
+    T, info = aligner.align_frames(ref, live)
+    assert info["converged"]
+    gray_ref, depth, gray_live = ref.images[0].numpy()[0], ref.depths[0].numpy()[0], live.images[0].numpy()[0]
+    JtWJ, JtWr, cost, count = normal_equations_torch(gray_ref, depth, gray_live, T, K, robust="huber", scale=0.05)
+    step = -np.linalg.solve(JtWJ, JtWr)
+    f, z = K[0, 0], float(depth[depth > 0].mean())
+    assert f * (np.linalg.norm(step[:3]) + np.linalg.norm(step[3:]) / z) < 0.1, step
+    # and the identity (the start) is far from stationary
+    JtWJ0, JtWr0, _, _ = normal_equations_torch(gray_ref, depth, gray_live, np.eye(4), K, robust="huber", scale=0.05)
+    step0 = -np.linalg.solve(JtWJ0, JtWr0)
+    assert f * (np.linalg.norm(step0[:3]) + np.linalg.norm(step0[3:]) / z) > 0.5
 
 
 def test_noise_and_missing_depth():
