@@ -9,8 +9,8 @@ from __future__ import annotations
 import torch
 
 from ._bridge import _FLOAT_TYPES, Output, Param, _descriptor, _skip_lazy_dynamo_import, warp_op
-from .kernels import launch as _launch
 from .kernels import photometric_kernels as pk
+from .kernels.photometric_pipeline import _record
 
 wp_float64 = _FLOAT_TYPES[torch.float64]
 
@@ -74,15 +74,18 @@ def photometric_normal_equations(
         _descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image, live_depth)
     ] + [_descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
     rows_d = _descriptor(rows, "scalar", wp_float64)
+    # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
     if H * W > 0:
-        _launch.launch(
-            pk.normal_equations_lanes[int(depth_term)][ft], B * H,
-            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, rows_d], [],
-        )
+        for run in _record(
+            pk.normal_equations_lanes[int(depth_term)][ft], B * H, W,
+            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, rows_d],
+        ):
+            run()
     else:
         rows.zero_()
     out_d = [_descriptor(o, "scalar", ft) for o in outs]
-    _launch.launch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d], [])
+    for run in _record(pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1, [rows_d, H, *out_d]):
+        run()
     return tuple(outs)
 
 

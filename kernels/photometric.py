@@ -123,6 +123,61 @@ def twist_jacobian(p: Any, gp: Any):
 # ----------------------------------------------------------------------------- one pixel's penalty
 
 
+# Channels handled by straight-line code in pixel_penalty and its adjoint (the rest by a loop).
+UNROLLED_CHANNELS = 4
+
+
+@wp.func
+def channel_penalty(
+    live: wp.array(dtype=Any), ref: wp.array(dtype=Any), base: int, ref_c: int,
+    i00: int, i10: int, i01: int, i11: int, k00: bool, k10: bool, k01: bool, k11: bool, wx1: Any, wy1: Any,
+    kind: int, c: Any,
+):
+    """rho(live(taps of plane ``base``) - ref[ref_c]) for one channel; 0 where not finite."""
+    val, dx, dy = interpolate(
+        read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
+        read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
+    )
+    r = val - ref[ref_c]
+    return wp.where(wp.abs(r) + wp.abs(dx) + wp.abs(dy) < type(wx1)(1.0e30), penalty(r, kind, c), type(wx1)(0.0))
+
+
+@wp.func
+def channel_grad(
+    live: wp.array(dtype=Any), g_live: wp.array(dtype=Any), ref: wp.array(dtype=Any), g_ref: wp.array(dtype=Any),
+    base: int, ref_c: int, i00: int, i10: int, i01: int, i11: int, k00: bool, k10: bool, k01: bool, k11: bool,
+    wx1: Any, wy1: Any, kind: int, c: Any, adj: Any, scatter: bool, to_ref: bool,
+):
+    """The adjoint of :func:`channel_penalty` (see :func:`pixel_penalty_grad`): scatters into
+    ``g_live`` / ``g_ref`` when asked, returns (d/du, d/dv)."""
+    one = type(wx1)(1.0)
+    val, dx, dy = interpolate(
+        read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
+        read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
+    )
+    r = val - ref[ref_c]
+    gu = type(wx1)(0.0)
+    gv = type(wx1)(0.0)
+    if wp.abs(r) + wp.abs(dx) + wp.abs(dy) < type(wx1)(1.0e30):  # finite residual and derivatives
+        g = adj * penalty_grad(r, kind, c)
+        gu = g * dx
+        gv = g * dy
+        if scatter:
+            wx0 = one - wx1
+            wy0 = one - wy1
+            if k00:
+                g_live[base + i00] += g * (wx0 * wy0)
+            if k10:
+                g_live[base + i10] += g * (wx1 * wy0)
+            if k01:
+                g_live[base + i01] += g * (wx0 * wy1)
+            if k11:
+                g_live[base + i11] += g * (wx1 * wy1)
+        if to_ref:
+            g_ref[ref_c] -= g
+    return gu, gv
+
+
 @wp.func
 def pixel_penalty_grad(
     live: wp.array(dtype=Any),
@@ -145,37 +200,24 @@ def pixel_penalty_grad(
     adds d loss / d live (the four taps of every channel) into ``g_live`` and d loss / d ref into
     ``g_ref`` (null arrays, with no elements, are left alone) and returns (d loss / du, d loss / dv):
     with g = adj rho'(r_c), d/du = g d live_c/du (the bilinear interpolant's derivative)."""
-    zero = type(u)(0.0)
-    big = type(u)(1.0e30)
     i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = taps(u, v, H, W)
-    wx0 = type(u)(1.0) - wx1
-    wy0 = type(u)(1.0) - wy1
     scatter = g_live.shape[0] > 0
     to_ref = g_ref.shape[0] > 0
-    gu = zero
-    gv = zero
-    for ch in range(C):
-        base = live0 + ch * hw
-        val, dx, dy = interpolate(
-            read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
-            read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
-        )
-        r = val - ref[ref_i + ch * hw]
-        if wp.abs(r) + wp.abs(dx) + wp.abs(dy) < big:  # finite residual and derivatives
-            g = adj * penalty_grad(r, kind, c)
-            gu += g * dx
-            gv += g * dy
-            if scatter:
-                if k00:
-                    g_live[base + i00] += g * (wx0 * wy0)
-                if k10:
-                    g_live[base + i10] += g * (wx1 * wy0)
-                if k01:
-                    g_live[base + i01] += g * (wx0 * wy1)
-                if k11:
-                    g_live[base + i11] += g * (wx1 * wy1)
-            if to_ref:
-                g_ref[ref_i + ch * hw] -= g
+    # each its own variable: `gu = zero` would alias zero, and `+=` would update every alias
+    gu = type(u)(0.0)
+    gv = type(u)(0.0)
+    # channels unrolled up to UNROLLED_CHANNELS (constant trip count), the rest in a loop
+    for ch in range(wp.static(UNROLLED_CHANNELS)):
+        if ch < C:
+            cu, cv = channel_grad(live, g_live, ref, g_ref, live0 + ch * hw, ref_i + ch * hw, i00, i10, i01, i11,
+                                  k00, k10, k01, k11, wx1, wy1, kind, c, adj, scatter, to_ref)
+            gu += cu
+            gv += cv
+    for ch in range(UNROLLED_CHANNELS, C):
+        cu, cv = channel_grad(live, g_live, ref, g_ref, live0 + ch * hw, ref_i + ch * hw, i00, i10, i01, i11,
+                              k00, k10, k01, k11, wx1, wy1, kind, c, adj, scatter, to_ref)
+        gu += cu
+        gv += cv
     return gu, gv
 
 
@@ -209,16 +251,14 @@ def _make_pixel_penalty(T, pixel_penalty=None):
         """
         total = T(0.0)
         if active:
-            big = T(1.0e30)
             i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = taps(u, v, H, W)
-            for ch in range(C):
-                base = live0 + ch * hw
-                val, dx, dy = interpolate(
-                    read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
-                    read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
-                )
-                r = val - ref[ref_i + ch * hw]
-                total += wp.where(wp.abs(r) + wp.abs(dx) + wp.abs(dy) < big, penalty(r, kind, c), T(0.0))
+            for ch in range(wp.static(UNROLLED_CHANNELS)):
+                if ch < C:
+                    total += channel_penalty(live, ref, live0 + ch * hw, ref_i + ch * hw, i00, i10, i01, i11,
+                                             k00, k10, k01, k11, wx1, wy1, kind, c)
+            for ch in range(UNROLLED_CHANNELS, C):
+                total += channel_penalty(live, ref, live0 + ch * hw, ref_i + ch * hw, i00, i10, i01, i11,
+                                         k00, k10, k01, k11, wx1, wy1, kind, c)
         return total
 
     @wp.func_grad(pixel_penalty)

@@ -15,7 +15,6 @@ iterations, e.g. with ``pose.assign(...)``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import warp as wp
 
@@ -29,7 +28,6 @@ from .pipeline import _expect, _expect_float, _expect_matrices, _type_name
 NORMAL_EQUATIONS_KINDS = ("l2", "huber", "cauchy", "geman_mcclure", "tukey")
 
 
-@dataclass
 class NormalEquations:
     """The Gauss-Newton system returned by :func:`photometric_normal_equations` (unpacks as the
     tuple ``(JtWJ, JtWr, cost, count)``); pass it back as ``out=`` to reuse its buffers.
@@ -41,17 +39,20 @@ class NormalEquations:
         count: (B,) number of reference pixels used (an integer stored as a float).
     """
 
-    JtWJ: wp.array
-    JtWr: wp.array
-    cost: wp.array
-    count: wp.array
-    _rows: wp.array = field(repr=False)  # (B * H * ROW_STRIDE,) float64 row partial sums
-    _key: tuple | None = field(default=None, repr=False)
-    _cmds: list = field(default_factory=list, repr=False)  # recorded launches for _key
-    _args: tuple = field(default=(), repr=False)  # the arguments of the call that recorded them
+    def __init__(self, JtWJ: wp.array, JtWr: wp.array, cost: wp.array, count: wp.array):
+        self.JtWJ, self.JtWr, self.cost, self.count = JtWJ, JtWr, cost, count
+        B = JtWJ.shape[0]
+        self._rows: wp.array | None = None  # (B * H * ROW_STRIDE,) float64 row partial sums
+        self._key: tuple | None = None  # what the recorded launches depend on
+        self._cmds: list = []  # the recorded launches
+        self._args: tuple = ()  # the arguments of the call that recorded them
+        self._B = B
 
     def __iter__(self):
         return iter((self.JtWJ, self.JtWr, self.cost, self.count))
+
+    def __repr__(self) -> str:
+        return f"NormalEquations(B={self._B}, dtype={self.JtWJ.dtype.__name__})"
 
     def numpy(self):
         """The four outputs as numpy arrays (copies)."""
@@ -186,18 +187,16 @@ def photometric_normal_equations(
         _expect(fn, "live_depth", live_depth.is_contiguous and live_depth.device.is_cpu, "contiguous, on the CPU",
                 str(live_depth.device))
     if out is not None:
-        ok = (isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft
-              and out._rows.shape[0] == B * H * pk.ROW_STRIDE)
-        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B}, H={H} and {ft.__name__}",
+        ok = (isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft)
+        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B} and {ft.__name__}",
                 "another" if isinstance(out, NormalEquations) else type(out).__name__, TypeError)
     else:
         out = NormalEquations(
-            JtWJ=wp.zeros((B, 6, 6), dtype=ft, device="cpu"),
-            JtWr=wp.zeros((B, 6), dtype=ft, device="cpu"),
-            cost=wp.zeros(B, dtype=ft, device="cpu"),
-            count=wp.zeros(B, dtype=ft, device="cpu"),
-            _rows=wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu"),
+            wp.zeros((B, 6, 6), dtype=ft, device="cpu"), wp.zeros((B, 6), dtype=ft, device="cpu"),
+            wp.zeros(B, dtype=ft, device="cpu"), wp.zeros(B, dtype=ft, device="cpu"),
         )
+    if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
+        out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
     n_pix = B * C * H * W
     no_depth = wp.zeros(0, dtype=ft, device="cpu")
     inputs = [
