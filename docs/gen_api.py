@@ -22,6 +22,7 @@ SECTIONS = [
         "gvnn_warp.kernels.photometric_pipeline",
         ["NormalEquations", "photometric_error", "photometric_normal_equations"],
     ),
+    ("Direct RGB-D odometry (from gvnn_warp.odometry; numpy or torch, no torch needed)", "gvnn_warp.odometry"),
 ]
 
 
