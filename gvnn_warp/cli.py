@@ -7,7 +7,7 @@ import importlib
 import sys
 
 # subcommand modules in gvnn_warp.demos; each has add_parser(subparsers) and its own run(args)
-DEMOS = ("align", "flow", "vo")
+DEMOS = ("align", "flow", "vo", "render")
 
 
 def build_parser() -> argparse.ArgumentParser:
