@@ -7,7 +7,7 @@ import importlib
 import sys
 
 # subcommand modules in gvnn_warp.demos; each has add_parser(subparsers) and its own run(args)
-DEMOS = ("align", "flow", "vo", "render")
+DEMOS = ("align", "flow", "vo", "render", "track")
 
 
 def build_parser() -> argparse.ArgumentParser:

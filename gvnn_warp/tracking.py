@@ -1,0 +1,228 @@
+"""Frame-to-frame and keyframe visual odometry over a sequence, with any pairwise RGB-D aligner (numpy).
+
+The aligner is anything with ``prepare(image, depth) -> frame`` (build what is reused for every
+pair a frame takes part in, e.g. its image pyramid) and ``align_frames(ref_frame, live_frame,
+init=None) -> (T_live_ref (4, 4), info)``, or with only ``align(ref_image, ref_depth, live_image,
+live_depth=None, init=None) -> (T_live_ref, info)`` (``gvnn_warp.odometry.DirectAligner``;
+:func:`frame_aligner` adapts it). ``T_live_ref`` maps reference-camera points into the live
+camera; ``info`` may hold ``converged`` (bool) and the valid fraction of the finest level.
+
+Poses are chained as ``T_world_live = T_world_ref @ inv(T_live_ref)``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["KeyframePolicy", "TrackResult", "frame_aligner", "info_converged", "info_valid_fraction", "track"]
+
+
+@dataclass(frozen=True)
+class KeyframePolicy:
+    """When to replace the reference (keyframe): after a frame is aligned to it, that frame becomes
+    the new reference if its motion from the reference exceeds ``max_trans_m`` metres or
+    ``max_rot_deg`` degrees, or if fewer than ``min_valid`` of the reference's pixels were usable
+    (valid depth, inside the live image), or if the alignment did not converge."""
+
+    max_trans_m: float = 0.05
+    max_rot_deg: float = 2.0
+    min_valid: float = 0.6
+
+
+@dataclass
+class TrackResult:
+    """The outcome of :func:`track` over N frames.
+
+    Attributes:
+        poses: (N, 4, 4) estimated ``T_world_cam``; ``poses[0]`` is the start pose.
+        reference: (N,) the frame each frame was aligned to (-1 for frame 0).
+        converged: (N,) bool, the aligner's ``converged`` flag (True for frame 0).
+        finite: (N,) bool, False where the aligner returned a non-finite pose (the initial guess
+            was used instead).
+        valid_fraction: (N,) the finest level's valid fraction (NaN when unknown / frame 0).
+        seconds: (N,) time per frame in ``prepare`` + ``align_frames`` (file reading excluded;
+            ``seconds[0]`` is frame 0's ``prepare``).
+        keyframes: frames used as references, in order.
+        infos: the aligner's ``info`` per frame (None for frame 0).
+    """
+
+    poses: np.ndarray
+    reference: np.ndarray
+    converged: np.ndarray
+    finite: np.ndarray
+    valid_fraction: np.ndarray
+    seconds: np.ndarray
+    keyframes: list[int] = field(default_factory=list)
+    infos: list = field(default_factory=list, repr=False)
+
+    @property
+    def pairs(self) -> int:
+        return max(self.poses.shape[0] - 1, 0)
+
+    @property
+    def ms_per_pair(self) -> float:
+        """Mean alignment time per frame pair (ms), all prepares included."""
+        return 1e3 * float(self.seconds.sum()) / self.pairs if self.pairs else float("nan")
+
+    @property
+    def unconverged_frames(self) -> list[int]:
+        """Frames whose alignment did not converge or returned a non-finite pose."""
+        return [int(i) for i in np.flatnonzero(~(self.converged & self.finite))]
+
+
+def _info_value(info, key):
+    value = info.get(key) if isinstance(info, dict) else getattr(info, key, None)
+    if isinstance(value, (list, tuple)):
+        value = value[-1] if value else None
+    elif isinstance(value, np.ndarray) and value.ndim:
+        value = value.reshape(-1)[-1] if value.size else None
+    return value
+
+
+def info_converged(info) -> bool:
+    """The ``converged`` flag of an aligner's info (True when it reports none)."""
+    value = _info_value(info, "converged")
+    return True if value is None else bool(value)
+
+
+def info_valid_fraction(info) -> float:
+    """The finest level's valid fraction of an aligner's info (NaN when it reports none); the last
+    entry of a per-level list is taken as the finest."""
+    for key in ("valid_fraction", "valid", "fitness"):
+        value = _info_value(info, key)
+        if value is not None:
+            return float(value)
+    levels = info.get("levels") if isinstance(info, dict) else None
+    if levels:
+        finest = levels[-1] if isinstance(levels, (list, tuple)) else None
+        if isinstance(finest, dict) and "valid_fraction" in finest:
+            return float(finest["valid_fraction"])
+    return float("nan")
+
+
+class _AlignAdapter:
+    """``prepare`` / ``align_frames`` over an aligner that only has ``align``."""
+
+    def __init__(self, aligner):
+        self.aligner = aligner
+
+    def prepare(self, image, depth):
+        return image, depth
+
+    def align_frames(self, ref, live, init=None):
+        return self.aligner.align(ref[0], ref[1], live[0], live[1], init=init)
+
+
+def frame_aligner(aligner):
+    """``aligner`` itself if it has ``prepare`` and ``align_frames``, else an adapter over its ``align``."""
+    if hasattr(aligner, "prepare") and hasattr(aligner, "align_frames"):
+        return aligner
+    if hasattr(aligner, "align"):
+        return _AlignAdapter(aligner)
+    raise TypeError(f"track: aligner must have prepare/align_frames or align, got {type(aligner).__name__}")
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def _motion(T: np.ndarray) -> tuple[float, float]:
+    """(translation m, rotation deg) of a rigid motion."""
+    cos = np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(T[:3, 3])), math.degrees(math.acos(cos))
+
+
+def track(
+    read_frame: Callable[[int], tuple[np.ndarray, np.ndarray]],
+    n_frames: int,
+    aligner,
+    *,
+    start_pose: np.ndarray | None = None,
+    keyframes: KeyframePolicy | None = None,
+    init: str = "identity",
+    progress: bool = True,
+    desc: str = "track",
+) -> TrackResult:
+    """Estimate the camera trajectory of ``n_frames`` frames by aligning each to a reference frame.
+
+    Args:
+        read_frame: ``i -> (image (C, H, W), depth (1, H, W) metres)``; not timed.
+        n_frames: number of frames.
+        aligner: see the module docstring.
+        start_pose: ``T_world_cam`` of frame 0 (default identity).
+        keyframes: None for frame-to-frame odometry (each frame's reference is the previous one),
+            else the policy that decides when the reference is replaced.
+        init: the initial guess of each alignment: ``"identity"`` (the live frame is where the
+            previous frame was) or ``"velocity"`` (constant velocity: the previous frame-to-frame
+            motion repeated).
+        progress: show a tqdm progress bar (frames per second, ms per pair).
+    """
+    if init not in ("identity", "velocity"):
+        raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
+    if n_frames < 1:
+        raise ValueError(f"track: need at least one frame, got {n_frames}")
+    from tqdm import tqdm
+
+    fa = frame_aligner(aligner)
+    poses = np.empty((n_frames, 4, 4))
+    poses[0] = np.eye(4) if start_pose is None else np.asarray(start_pose, dtype=np.float64)
+    reference = np.full(n_frames, -1, dtype=np.int64)
+    converged = np.ones(n_frames, dtype=bool)
+    finite = np.ones(n_frames, dtype=bool)
+    valid = np.full(n_frames, np.nan)
+    seconds = np.zeros(n_frames)
+    infos: list = [None]
+
+    with tqdm(total=n_frames, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
+        image, depth = read_frame(0)
+        t = time.perf_counter()
+        ref_frame = fa.prepare(image, depth)
+        seconds[0] = time.perf_counter() - t
+        ref_index, kf = 0, [0]
+        T_world_ref = poses[0]
+        T_prev_ref = np.eye(4)  # previous frame relative to the reference
+        step = np.eye(4)  # previous frame-to-frame motion T_{i-1, i-2}
+        bar.update(1)
+        for i in range(1, n_frames):
+            image, depth = read_frame(i)
+            guess = T_prev_ref if init == "identity" else step @ T_prev_ref
+            t = time.perf_counter()
+            live_frame = fa.prepare(image, depth)
+            T_live_ref, info = fa.align_frames(ref_frame, live_frame, init=guess)
+            seconds[i] = time.perf_counter() - t
+            T_live_ref = np.asarray(T_live_ref, dtype=np.float64).reshape(4, 4)
+            infos.append(info)
+            reference[i] = ref_index
+            converged[i] = info_converged(info)
+            valid[i] = info_valid_fraction(info)
+            if not np.all(np.isfinite(T_live_ref)):
+                finite[i] = False
+                T_live_ref = guess
+            poses[i] = T_world_ref @ _inv(T_live_ref)
+            step = T_live_ref @ _inv(T_prev_ref)
+            T_prev_ref = T_live_ref
+            if keyframes is None:
+                new_ref = True
+            else:
+                trans, rot = _motion(T_live_ref)
+                new_ref = (trans > keyframes.max_trans_m or rot > keyframes.max_rot_deg
+                           or valid[i] < keyframes.min_valid or not (converged[i] and finite[i]))
+            if new_ref:
+                ref_frame, ref_index, T_world_ref = live_frame, i, poses[i]
+                T_prev_ref = np.eye(4)
+                if keyframes is not None:
+                    kf.append(i)
+            bar.update(1)
+            if progress and (i % 10 == 0 or i == n_frames - 1):
+                bar.set_postfix_str(f"{1e3 * seconds[1:i + 1].mean():.1f} ms/pair", refresh=False)
+    if keyframes is None:
+        kf = list(range(n_frames - 1)) if n_frames > 1 else [0]
+    return TrackResult(poses, reference, converged, finite, valid, seconds, kf, infos)
