@@ -1,7 +1,10 @@
 """Trajectory metrics (computed by ``evo``) and figures for odometry runs (numpy, evo, matplotlib; no torch).
 
 - ATE: ``evo``'s APE of the translation part after an SE(3) Umeyama alignment of the estimate
-  to the ground truth (``evo_ape tum gt.txt est.txt -a``), RMSE in metres.
+  to the ground truth (``evo_ape tum gt.txt est.txt -a``), RMSE in metres. Where the ground
+  truth's camera centres do not determine that alignment (rotation-only or straight-line motion:
+  evo refuses a degenerate Umeyama problem), the estimate's first pose is aligned to the ground
+  truth's instead (``evo_ape --align_origin``); ``TrajectoryMetrics.ate_alignment`` says which.
 - RPE: ``evo``'s RPE over consecutive 1-frame steps (``evo_rpe ... --delta 1 --delta_unit f``),
   translation part (metres) and rotation angle (degrees), RMSE; per pair
   ``E = inv(inv(Q_i) Q_j) inv(P_i) P_j`` with ground truth Q and estimate P.
@@ -17,6 +20,7 @@ import numpy as np
 
 __all__ = [
     "ATE_ALIGNMENT",
+    "ATE_ALIGNMENT_ORIGIN",
     "FAIL_ROT_DEG",
     "FAIL_TRANS_M",
     "TrajectoryMetrics",
@@ -29,6 +33,7 @@ __all__ = [
 FAIL_TRANS_M = 0.01
 FAIL_ROT_DEG = 0.25
 ATE_ALIGNMENT = "SE(3) Umeyama (evo_ape -a: rotation and translation, no scale)"
+ATE_ALIGNMENT_ORIGIN = "first pose (evo_ape --align_origin; the ground truth's positions are degenerate for Umeyama)"
 
 
 def pose_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,6 +54,8 @@ class TrajectoryMetrics:
 
     Attributes:
         ate_rmse_m, rpe_trans_rmse_m, rpe_rot_rmse_deg: the RMSEs (see the module docstring).
+        ate_alignment: how the estimate was aligned for the ATE (``ATE_ALIGNMENT`` or
+            ``ATE_ALIGNMENT_ORIGIN``).
         frames: frame indices (into the estimate) that had ground truth.
         pair_frames: (P, 2) frame indices of the consecutive RPE pairs.
         rpe_trans_m, rpe_rot_deg: (P,) per-pair errors.
@@ -59,6 +66,7 @@ class TrajectoryMetrics:
     ate_rmse_m: float
     rpe_trans_rmse_m: float
     rpe_rot_rmse_deg: float
+    ate_alignment: str
     frames: np.ndarray
     pair_frames: np.ndarray
     rpe_trans_m: np.ndarray
@@ -90,6 +98,7 @@ def evaluate_trajectory(
             left out; RPE pairs are then consecutive frames *with* ground truth.
     """
     from evo.core import metrics, sync
+    from evo.core.geometry import GeometryException
     from evo.core.trajectory import PoseTrajectory3D
 
     timestamps = np.asarray(timestamps, dtype=np.float64)
@@ -112,7 +121,13 @@ def evaluate_trajectory(
     rpe_r.process_data((ref, est))
 
     aligned = PoseTrajectory3D(poses_se3=list(poses[frames]), timestamps=timestamps[frames])
-    aligned.align(ref, correct_scale=False)
+    try:
+        aligned.align(ref, correct_scale=False)
+        alignment = ATE_ALIGNMENT
+    except GeometryException:  # degenerate positions: rotation-only or collinear motion
+        aligned = PoseTrajectory3D(poses_se3=list(poses[frames]), timestamps=timestamps[frames])
+        aligned.align_origin(ref)
+        alignment = ATE_ALIGNMENT_ORIGIN
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, aligned))
 
@@ -121,6 +136,7 @@ def evaluate_trajectory(
         ate_rmse_m=float(ape.get_statistic(metrics.StatisticsType.rmse)),
         rpe_trans_rmse_m=float(rpe_t.get_statistic(metrics.StatisticsType.rmse)),
         rpe_rot_rmse_deg=float(rpe_r.get_statistic(metrics.StatisticsType.rmse)),
+        ate_alignment=alignment,
         frames=frames,
         pair_frames=pair_frames,
         rpe_trans_m=np.asarray(rpe_t.error, dtype=np.float64),
