@@ -150,6 +150,7 @@ def track(
     init: str = "identity",
     progress: bool = True,
     desc: str = "track",
+    warmup: bool = True,
 ) -> TrackResult:
     """Estimate the camera trajectory of ``n_frames`` frames by aligning each to a reference frame.
 
@@ -164,6 +165,8 @@ def track(
             previous frame was) or ``"velocity"`` (constant velocity: the previous frame-to-frame
             motion repeated).
         progress: show a tqdm progress bar (frames per second, ms per pair).
+        warmup: first align frame 0 with itself, untimed, so that one-off costs (loading compiled
+            kernels, allocating buffers) are not counted as the first pair's time.
     """
     if init not in ("identity", "velocity"):
         raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
@@ -183,6 +186,8 @@ def track(
 
     with tqdm(total=n_frames, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
         image, depth = read_frame(0)
+        if warmup:
+            fa.align_frames(fa.prepare(image, depth), fa.prepare(image, depth), init=np.eye(4))
         t = time.perf_counter()
         ref_frame = fa.prepare(image, depth)
         seconds[0] = time.perf_counter() - t

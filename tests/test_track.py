@@ -106,18 +106,20 @@ def test_pose_error_closed_form():
 
 
 class TrueMotion:
-    """An aligner whose frames are frame indices and whose answer is the true relative pose, optionally
-    perturbed for some (ref, live) pairs and flagged not converged for some live frames."""
+    """An aligner whose frames are frame indices (images numbered in order of first appearance) and
+    whose answer is the true relative pose, optionally perturbed for some (ref, live) pairs and
+    flagged not converged for some live frames."""
 
     def __init__(self, gt, perturb=None, unconverged=(), valid=0.9):
         self.gt, self.perturb, self.unconverged, self.valid = gt, perturb or {}, set(unconverged), valid
-        self.pairs, self.inits, self.count = [], [], 0
+        self.pairs, self.inits, self.ids = [], [], {}
 
     def prepare(self, image, depth):
-        self.count += 1
-        return self.count - 1
+        return self.ids.setdefault(np.asarray(image).tobytes(), len(self.ids))
 
     def align_frames(self, ref, live, init=None):
+        if ref == live:  # track's untimed warm-up
+            return np.eye(4), {"converged": True}
         self.pairs.append((ref, live))
         self.inits.append(np.array(init))
         T = relative_pose(self.gt[live], self.gt[ref])
@@ -129,7 +131,7 @@ class TrueMotion:
 
 
 def _nothing(i):
-    return np.zeros((1, 2, 2), np.float32), np.ones((1, 2, 2), np.float32)
+    return np.full((1, 2, 2), i, np.float32), np.ones((1, 2, 2), np.float32)
 
 
 def _shift(x):
