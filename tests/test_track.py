@@ -284,8 +284,13 @@ def test_track_cli_end_to_end_with_the_direct_aligner(tmp_path, capsys):
     assert main(["track", str(data), "--out", str(out), "--no-progress", "--levels", "3"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"] == 6 and m["ms_per_pair"] > 0
-    # 1.5-4 cm and 0.6-1.6 deg per frame at 80x60: each step recovered to a few mm and a few 0.01 deg
-    assert m["rpe_trans_rmse_m"] < 0.005 and m["rpe_rot_rmse_deg"] < 0.1 and m["ate_rmse_m"] < 0.01
+    # every 1.5-4 cm / 0.6-1.6 deg step recovered within the failure thresholds (1 cm, 0.25 deg) at this
+    # tiny size (80x60, f = 60 px), and far better than standing still would be
+    gt = read_tum(data).gt_poses
+    still_t, still_r = pose_error(np.eye(4), relative_pose(gt[:-1], gt[1:]))
+    assert m["failed_pairs"] == 0 and m["ate_rmse_m"] < 0.01
+    assert m["rpe_trans_rmse_m"] < 0.4 * np.sqrt(np.mean(still_t**2))
+    assert m["rpe_rot_rmse_deg"] < 0.4 * np.sqrt(np.mean(still_r**2))
     assert m["unconverged_pairs"] == 0
     assert (out / "trajectory.png").exists() and (out / "errors.png").exists()
     assert "ATE RMSE" in capsys.readouterr().out
