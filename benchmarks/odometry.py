@@ -18,21 +18,27 @@ through ``gvnn_warp.datasets.tum`` (or ``--data DIR`` is read: one existing TUM 
 2. Basin: every pair (i, i + s) for s in ``--strides`` (every offset i), aligned from the identity;
    the fraction whose relative pose is within 0.25 deg and 1 cm.
 
-The two methods run alternately (Open3D, ours, ours, Open3D over two passes of the sequence; the
-faster pass of each is reported) so both see the same machine load; the machine is shared and
-noisy: compare ratios.
+The two trackers run in lockstep, frame by frame, in alternating order, so that both see the same
+machine load (the machine is shared and noisy: compare the ratio). ms per pair is the mean over
+the sequence (as ``gvnn-warp track`` reports it) and, in the JSON, also the median. Idle OpenMP
+threads sleep (``OMP_WAIT_POLICY=PASSIVE`` unless set): Open3D's spinning threads would otherwise
+steal the cores from the other method's, and torch is not imported.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before Open3D loads its OpenMP runtime
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
@@ -41,7 +47,7 @@ if str(ROOT) not in sys.path:
 from gvnn_warp.datasets.tum import read_tum  # noqa: E402
 from gvnn_warp.evaluation import FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, pose_error  # noqa: E402
 from gvnn_warp.synthetic import relative_pose  # noqa: E402
-from gvnn_warp.tracking import frame_aligner, track  # noqa: E402
+from gvnn_warp.tracking import Tracker, frame_aligner  # noqa: E402
 
 OPEN3D_DEPTH_MAX = 10.0  # metres; the rendered room is 8 m deep (Open3D's default, 3 m, drops much of it)
 
@@ -66,10 +72,13 @@ class Open3DAligner:
 
     def align_frames(self, ref, live, init=None):
         init = np.eye(4) if init is None else np.asarray(init, dtype=np.float64)
-        result = self.odo.rgbd_odometry_multi_scale(
-            ref, live, self.K, self.o3d.core.Tensor(init), self.depth_scale, OPEN3D_DEPTH_MAX,
-            method=self.odo.Method.Intensity,
-        )
+        try:
+            result = self.odo.rgbd_odometry_multi_scale(
+                ref, live, self.K, self.o3d.core.Tensor(init), self.depth_scale, OPEN3D_DEPTH_MAX,
+                method=self.odo.Method.Intensity,
+            )
+        except RuntimeError:  # "Singular 6x6 linear system detected, tracking failed."
+            return init, {"converged": False}
         # source = reference, target = live: the transformation maps reference points into the live camera
         return result.transformation.numpy(), {"valid_fraction": float(result.fitness)}
 
@@ -125,23 +134,30 @@ def basin(prepared, aligner, gt_poses, stride: int) -> tuple[float, int]:
 
 
 def run_size(seq, methods: dict, strides: list[int], progress: bool) -> dict:
+    from tqdm import tqdm
+
     n = len(seq)
     gt, valid = seq.gt_poses, seq.gt_valid
     if gt is None or not valid.all():
         raise SystemExit("benchmarks.odometry: the sequence needs ground truth for every frame")
-    results = {name: {} for name in methods}
-    order = list(methods) + list(methods)[::-1]
-    for name in order:
-        aligner, reader = methods[name]
-        res = track(reader, n, aligner, start_pose=gt[0], progress=progress, desc=name[:12])
-        if "ms_per_pair" in results[name] and results[name]["ms_per_pair"] <= res.ms_per_pair:
-            continue
+    names = list(methods)
+    trackers = {name: Tracker(methods[name][0], n, start_pose=gt[0]) for name in names}
+    for i in tqdm(range(n), unit="frame", desc="tracking", disable=not progress):
+        frames = {name: methods[name][1](i) for name in names}  # file reading: not timed
+        for k in range(len(names)):
+            name = names[(k + i) % len(names)]
+            trackers[name].add(*frames[name])
+    results = {}
+    for name in names:
+        res = trackers[name].result()
         m = evaluate_trajectory(seq.timestamps, res.poses, gt, valid)
-        results[name].update(
+        results[name] = dict(
             ms_per_pair=res.ms_per_pair,
+            ms_per_pair_median=1e3 * float(np.median(res.seconds[1:])),
             rpe_trans_rmse_cm=100 * m.rpe_trans_rmse_m,
             rpe_rot_rmse_deg=m.rpe_rot_rmse_deg,
             ate_rmse_cm=100 * m.ate_rmse_m,
+            ate_alignment=m.ate_alignment,
             failed_pairs=int(m.failed.sum()),
             unconverged_pairs=len(res.unconverged_frames),
         )
@@ -159,15 +175,42 @@ def run_size(seq, methods: dict, strides: list[int], progress: bool) -> dict:
 
 
 def table(size: str, n: int, results: dict, strides: list[int]) -> str:
-    head = ["method", "ms/pair", "RPE trans (cm)", "RPE rot (deg)", "ATE (cm)", "failed pairs"]
+    head = ["method", "ms/pair (mean / median)", "RPE trans (cm)", "RPE rot (deg)", "ATE (cm)", "failed pairs",
+            "unconverged"]
     head += [f"every {s}th within 1 cm & 0.25 deg" for s in strides]
     lines = [f"### {size}, {n} frames", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, r in results.items():
-        row = [name, f"{r['ms_per_pair']:.1f}", f"{r['rpe_trans_rmse_cm']:.3f}", f"{r['rpe_rot_rmse_deg']:.4f}",
-               f"{r['ate_rmse_cm']:.2f}", f"{r['failed_pairs']} of {n - 1}"]
+        row = [name, f"{r['ms_per_pair']:.1f} / {r['ms_per_pair_median']:.1f}", f"{r['rpe_trans_rmse_cm']:.3f}",
+               f"{r['rpe_rot_rmse_deg']:.4f}", f"{r['ate_rmse_cm']:.2f}", f"{r['failed_pairs']} of {n - 1}",
+               str(r["unconverged_pairs"])]
         row += [f"{100 * r[f'basin_{s}']:.0f}% of {r[f'basin_{s}_pairs']}" for s in strides]
         lines.append("| " + " | ".join(row) + " |")
+    if len(results) == 2:
+        (a, ra), (b, rb) = results.items()
+        lines += ["", f"time ratio {b} / {a}: {rb['ms_per_pair'] / ra['ms_per_pair']:.2f} (mean), "
+                      f"{rb['ms_per_pair_median'] / ra['ms_per_pair_median']:.2f} (median); "
+                      f"ATE ratio {rb['ate_rmse_cm'] / ra['ate_rmse_cm']:.2f}"]
     return "\n".join(lines)
+
+
+def machine() -> dict:
+    """nproc, CPU model, load and versions (without importing torch)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    model = platform.processor() or "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), model)
+    except OSError:
+        pass
+    info = {"nproc": os.cpu_count(), "cpu": model, "python": platform.python_version(),
+            "load_average": os.getloadavg(), "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY")}
+    for pkg in ("warp-lang", "open3d", "numpy", "evo"):
+        try:
+            info[pkg] = version(pkg)
+        except PackageNotFoundError:
+            info[pkg] = None
+    return info
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -190,8 +233,6 @@ def main(argv: list[str] | None = None) -> int:
         strides = [positive_int(s) for s in args.strides.split(",")]
     except argparse.ArgumentTypeError as e:
         p.error(str(e))
-
-    from benchmarks.common import machine
 
     print(f"machine: {machine()}")
     all_results = {}

@@ -19,7 +19,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["KeyframePolicy", "TrackResult", "frame_aligner", "info_converged", "info_valid_fraction", "track"]
+__all__ = [
+    "KeyframePolicy",
+    "TrackResult",
+    "Tracker",
+    "frame_aligner",
+    "info_converged",
+    "info_valid_fraction",
+    "track",
+]
 
 
 @dataclass(frozen=True)
@@ -140,6 +148,93 @@ def _motion(T: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(T[:3, 3])), math.degrees(math.acos(cos))
 
 
+class Tracker:
+    """Odometry one frame at a time: :meth:`add` each frame in order, then :meth:`result`.
+
+    Arguments as :func:`track` (which is a loop over this); ``n_frames`` sizes the result arrays.
+    Stepping two trackers alternately compares two aligners under the same machine load.
+    """
+
+    def __init__(self, aligner, n_frames: int, *, start_pose: np.ndarray | None = None,
+                 keyframes: KeyframePolicy | None = None, init: str = "identity", warmup: bool = True):
+        if init not in ("identity", "velocity"):
+            raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
+        if n_frames < 1:
+            raise ValueError(f"track: need at least one frame, got {n_frames}")
+        self.fa = frame_aligner(aligner)
+        self.keyframes, self.init, self.warmup = keyframes, init, warmup
+        self.n = 0
+        self.poses = np.empty((n_frames, 4, 4))
+        self.poses[0] = np.eye(4) if start_pose is None else np.asarray(start_pose, dtype=np.float64)
+        self.reference = np.full(n_frames, -1, dtype=np.int64)
+        self.converged = np.ones(n_frames, dtype=bool)
+        self.finite = np.ones(n_frames, dtype=bool)
+        self.valid = np.full(n_frames, np.nan)
+        self.seconds = np.zeros(n_frames)
+        self.infos: list = []
+        self.kf: list[int] = []
+
+    def add(self, image, depth) -> None:
+        """Process the next frame: prepare it and (from the second frame on) align it to the reference."""
+        fa, i = self.fa, self.n
+        if i >= self.poses.shape[0]:
+            raise IndexError(f"track: more than the {self.poses.shape[0]} frames announced")
+        if i == 0:
+            if self.warmup:
+                fa.align_frames(fa.prepare(image, depth), fa.prepare(image, depth), init=np.eye(4))
+            t = time.perf_counter()
+            self.ref_frame = fa.prepare(image, depth)
+            self.seconds[0] = time.perf_counter() - t
+            self.ref_index, self.kf = 0, [0]
+            self.T_world_ref = self.poses[0]
+            self.T_prev_ref = np.eye(4)  # previous frame relative to the reference
+            self.step = np.eye(4)  # previous frame-to-frame motion T_{i-1, i-2}
+            self.infos.append(None)
+            self.n = 1
+            return
+        guess = self.T_prev_ref if self.init == "identity" else self.step @ self.T_prev_ref
+        t = time.perf_counter()
+        live_frame = fa.prepare(image, depth)
+        T_live_ref, info = fa.align_frames(self.ref_frame, live_frame, init=guess)
+        self.seconds[i] = time.perf_counter() - t
+        T_live_ref = np.asarray(T_live_ref, dtype=np.float64).reshape(4, 4)
+        self.infos.append(info)
+        self.reference[i] = self.ref_index
+        self.converged[i] = info_converged(info)
+        self.valid[i] = info_valid_fraction(info)
+        if not np.all(np.isfinite(T_live_ref)):
+            self.finite[i] = False
+            T_live_ref = guess
+        self.poses[i] = self.T_world_ref @ _inv(T_live_ref)
+        self.step = T_live_ref @ _inv(self.T_prev_ref)
+        self.T_prev_ref = T_live_ref
+        kf = self.keyframes
+        if kf is None:
+            new_ref = True
+        else:
+            trans, rot = _motion(T_live_ref)
+            new_ref = (trans > kf.max_trans_m or rot > kf.max_rot_deg or self.valid[i] < kf.min_valid
+                       or not (self.converged[i] and self.finite[i]))
+        if new_ref:
+            self.ref_frame, self.ref_index, self.T_world_ref = live_frame, i, self.poses[i]
+            self.T_prev_ref = np.eye(4)
+            if kf is not None:
+                self.kf.append(i)
+        self.n += 1
+
+    @property
+    def ms_per_pair(self) -> float:
+        return 1e3 * float(self.seconds[: self.n].sum()) / max(self.n - 1, 1)
+
+    def result(self) -> TrackResult:
+        """The result over the frames added so far."""
+        n = self.n
+        kf = list(range(max(n - 1, 1))) if self.keyframes is None else list(self.kf)
+        return TrackResult(self.poses[:n].copy(), self.reference[:n].copy(), self.converged[:n].copy(),
+                           self.finite[:n].copy(), self.valid[:n].copy(), self.seconds[:n].copy(), kf,
+                           list(self.infos))
+
+
 def track(
     read_frame: Callable[[int], tuple[np.ndarray, np.ndarray]],
     n_frames: int,
@@ -168,66 +263,13 @@ def track(
         warmup: first align frame 0 with itself, untimed, so that one-off costs (loading compiled
             kernels, allocating buffers) are not counted as the first pair's time.
     """
-    if init not in ("identity", "velocity"):
-        raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
-    if n_frames < 1:
-        raise ValueError(f"track: need at least one frame, got {n_frames}")
     from tqdm import tqdm
 
-    fa = frame_aligner(aligner)
-    poses = np.empty((n_frames, 4, 4))
-    poses[0] = np.eye(4) if start_pose is None else np.asarray(start_pose, dtype=np.float64)
-    reference = np.full(n_frames, -1, dtype=np.int64)
-    converged = np.ones(n_frames, dtype=bool)
-    finite = np.ones(n_frames, dtype=bool)
-    valid = np.full(n_frames, np.nan)
-    seconds = np.zeros(n_frames)
-    infos: list = [None]
-
+    tracker = Tracker(aligner, n_frames, start_pose=start_pose, keyframes=keyframes, init=init, warmup=warmup)
     with tqdm(total=n_frames, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
-        image, depth = read_frame(0)
-        if warmup:
-            fa.align_frames(fa.prepare(image, depth), fa.prepare(image, depth), init=np.eye(4))
-        t = time.perf_counter()
-        ref_frame = fa.prepare(image, depth)
-        seconds[0] = time.perf_counter() - t
-        ref_index, kf = 0, [0]
-        T_world_ref = poses[0]
-        T_prev_ref = np.eye(4)  # previous frame relative to the reference
-        step = np.eye(4)  # previous frame-to-frame motion T_{i-1, i-2}
-        bar.update(1)
-        for i in range(1, n_frames):
-            image, depth = read_frame(i)
-            guess = T_prev_ref if init == "identity" else step @ T_prev_ref
-            t = time.perf_counter()
-            live_frame = fa.prepare(image, depth)
-            T_live_ref, info = fa.align_frames(ref_frame, live_frame, init=guess)
-            seconds[i] = time.perf_counter() - t
-            T_live_ref = np.asarray(T_live_ref, dtype=np.float64).reshape(4, 4)
-            infos.append(info)
-            reference[i] = ref_index
-            converged[i] = info_converged(info)
-            valid[i] = info_valid_fraction(info)
-            if not np.all(np.isfinite(T_live_ref)):
-                finite[i] = False
-                T_live_ref = guess
-            poses[i] = T_world_ref @ _inv(T_live_ref)
-            step = T_live_ref @ _inv(T_prev_ref)
-            T_prev_ref = T_live_ref
-            if keyframes is None:
-                new_ref = True
-            else:
-                trans, rot = _motion(T_live_ref)
-                new_ref = (trans > keyframes.max_trans_m or rot > keyframes.max_rot_deg
-                           or valid[i] < keyframes.min_valid or not (converged[i] and finite[i]))
-            if new_ref:
-                ref_frame, ref_index, T_world_ref = live_frame, i, poses[i]
-                T_prev_ref = np.eye(4)
-                if keyframes is not None:
-                    kf.append(i)
+        for i in range(n_frames):
+            tracker.add(*read_frame(i))
             bar.update(1)
-            if progress and (i % 10 == 0 or i == n_frames - 1):
-                bar.set_postfix_str(f"{1e3 * seconds[1:i + 1].mean():.1f} ms/pair", refresh=False)
-    if keyframes is None:
-        kf = list(range(n_frames - 1)) if n_frames > 1 else [0]
-    return TrackResult(poses, reference, converged, finite, valid, seconds, kf, infos)
+            if progress and i > 0 and (i % 10 == 0 or i == n_frames - 1):
+                bar.set_postfix_str(f"{tracker.ms_per_pair:.1f} ms/pair", refresh=False)
+    return tracker.result()

@@ -294,3 +294,20 @@ def test_track_cli_end_to_end_with_the_direct_aligner(tmp_path, capsys):
     assert m["unconverged_pairs"] == 0
     assert (out / "trajectory.png").exists() and (out / "errors.png").exists()
     assert "ATE RMSE" in capsys.readouterr().out
+
+
+def test_track_cli_ctrl_c_exits_130_with_one_line(tmp_path, monkeypatch, capsys):
+    from gvnn_warp.cli import main
+    from gvnn_warp.demos import track as track_cli
+
+    data = _render(tmp_path, frames=3, size="16x16")
+
+    class Interrupted(TrueMotion):
+        def align_frames(self, ref, live, init=None):
+            if ref != live:
+                raise KeyboardInterrupt
+            return super().align_frames(ref, live, init)
+
+    monkeypatch.setattr(track_cli, "make_aligner", lambda K, **kw: Interrupted(read_tum(data).gt_poses))
+    assert main(["track", str(data), "--out", str(tmp_path / "o"), "--no-progress"]) == 130
+    assert capsys.readouterr().err.strip() == "gvnn-warp track: interrupted"
