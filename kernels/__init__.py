@@ -5,13 +5,26 @@
   (bilinear sampling with zeros/border padding).
 - Thin kernels with float32/float64 overloads: :mod:`.lie_kernels`, :mod:`.camera_kernels`,
   :mod:`.sampling_kernels` (including the fused 3D spatial transformer).
-- Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`.
+- Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`; the fused
+  photometric objective (its Gauss-Newton normal equations): :mod:`.photometric_pipeline`.
 - The launch helper and overload machinery: :mod:`.launch`.
 
 Conventions: ``docs/conventions.md``.
 """
 
-from . import camera, camera_kernels, launch, lie, lie_kernels, pipeline, sampler, sampling_kernels
+from . import (
+    camera,
+    camera_kernels,
+    launch,
+    lie,
+    lie_kernels,
+    photometric,
+    photometric_kernels,
+    photometric_pipeline,
+    pipeline,
+    sampler,
+    sampling_kernels,
+)
 from .camera import MIN_DEPTH, pixel_ray, project, project_clamped, unproject
 from .lie import (
     euler_to_matrix,
@@ -26,11 +39,13 @@ from .lie import (
     transform_point,
     vee,
 )
+from .photometric_pipeline import NormalEquations, photometric_normal_equations
 from .pipeline import masked_squared_error, warp_frame_depth
 from .sampler import bilinear, normalized_to_pixel, sample_position
 
 __all__ = [
     "MIN_DEPTH",
+    "NormalEquations",
     "bilinear",
     "camera",
     "camera_kernels",
@@ -41,6 +56,10 @@ __all__ = [
     "lie_kernels",
     "masked_squared_error",
     "normalized_to_pixel",
+    "photometric",
+    "photometric_kernels",
+    "photometric_normal_equations",
+    "photometric_pipeline",
     "pipeline",
     "pixel_ray",
     "pose_from_rt",

@@ -1,0 +1,565 @@
+"""Direct RGB-D odometry: a coarse-to-fine Levenberg-Marquardt aligner on the fused photometric
+normal equations (:func:`gvnn_warp.kernels.photometric_normal_equations`).
+
+:class:`DirectAligner` estimates the rigid motion ``T`` (4x4, float64) that maps points of the
+reference camera into the live camera - the ``pose`` of ``warp_frame_depth(live_image, ref_depth,
+pose, K)`` - by minimising the robust photometric error ``sum rho(live(project(T X)) - ref(u))``
+over the reference pixels ``u`` with valid depth (``X`` their back-projected points). Conventions
+(pixel centres, intrinsics, poses, valid depths): ``docs/conventions.md``.
+
+Shapes: images ``(C, H, W)`` or ``(B, C, H, W)`` float intensities (e.g. in [0, 1]); depths
+``(1, H, W)`` / ``(B, 1, H, W)`` metres, where 0, NaN, inf and negative values mean "no depth";
+numpy arrays or torch tensors (CPU), float32 or float64 (computed in float32). Results come back
+as the kind of the reference image (numpy or torch), poses always float64.
+
+How it works
+------------
+1. Each frame is turned into a pyramid once (:meth:`DirectAligner.prepare`, Warp kernels of
+   :mod:`gvnn_warp.kernels.pyramid`): by default the colour channels are mixed into one intensity
+   (ITU-R BT.601 luma for C = 3, the channel mean otherwise; ``color=True`` keeps every channel),
+   then ``levels - 1`` halvings: 2x2 means of the intensities, and depths averaged over the taps
+   on the nearest surface of each 2x2 block (no depth invented across depth edges). The
+   intrinsics of level ``l`` follow the pixel-centre convention, ``x_l = (x + 0.5) / 2^l - 0.5``.
+2. From the coarsest level to the finest, Levenberg-Marquardt on the Gauss-Newton system of
+   the robust (IRLS) photometric residuals, for a left-multiplied update ``T <- exp(delta) T``,
+   ``delta = [omega, t]``: the step solves ``(JtWJ + lambda diag(JtWJ)) delta = -JtWr``; it is
+   accepted if the cost per valid pixel goes down (then ``lambda`` shrinks by ``lm_down``), else
+   rejected (``lambda`` grows by ``lm_up``). Every trial is one fused pass over the level.
+3. A level stops after ``iterations[l]`` trials, or when a step moves the image by less than
+   ``tolerance`` pixels of that level: ``f_l (|omega| + |t| / z)`` with ``f_l`` the level's focal
+   length and ``z`` the mean valid reference depth, or when ``lambda`` exceeds ``1e8`` (no step
+   lowers the cost).
+
+``info`` (a dict) reports per level (coarse to fine) the trials made, the final cost per valid
+pixel and the fraction of the level's pixels that were valid, and ``converged``: the finest level
+ended on a step below ``10 tolerance`` pixels with at least ``min_valid_fraction`` of its pixels
+valid. A pair with too few valid pixels at a level skips that level; at the finest level it is
+reported as not converged and ``T`` is the best estimate so far (the initial pose if nothing
+could be estimated): never NaN, never an exception for bad data inside valid arrays.
+
+For frame-to-frame tracking, build each frame's pyramid once and reuse it::
+
+    aligner = DirectAligner(K)
+    prev = aligner.prepare(image0, depth0)
+    for image, depth in frames:
+        cur = aligner.prepare(image, depth)
+        T_cur_prev, info = aligner.align_frames(prev, cur)
+        prev = cur
+
+Import needs no torch; torch is imported only when a tensor comes in.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import weakref
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .kernels import launch as _launch
+from .kernels import pyramid as _pyramid
+from .kernels.camera import MIN_DEPTH
+
+__all__ = ["DirectAligner", "Frame"]
+
+_LUMA = (0.299, 0.587, 0.114)
+_ROBUST = ("huber", "cauchy", "geman_mcclure", "tukey", "l2")
+_MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
+_AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
+_MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
+_LAMBDA_MAX = 1e8
+_POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
+_SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per batch size and frame size
+
+
+def _fail(fn: str, exc: type[Exception], msg: str):
+    raise exc(f"gvnn_warp.odometry.{fn}: {msg}")
+
+
+def _is_torch(x) -> bool:
+    return type(x).__module__.split(".")[0] == "torch"
+
+
+def _as_numpy(fn: str, name: str, x, ndims: tuple[int, ...]) -> np.ndarray:
+    """numpy float32/float64 view of a numpy array or CPU torch tensor with one of ``ndims``."""
+    if _is_torch(x):
+        import torch
+
+        if not isinstance(x, torch.Tensor):
+            _fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
+        if x.device.type != "cpu":
+            _fail(fn, ValueError, f"argument '{name}' must be on the CPU, got device {x.device}")
+        if x.dtype not in (torch.float32, torch.float64):
+            _fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
+        x = x.detach().numpy()
+    elif not isinstance(x, np.ndarray):
+        _fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
+    elif x.dtype not in (np.float32, np.float64):
+        _fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
+    if x.ndim not in ndims:
+        want = " or ".join(f"{d}-D" for d in ndims)
+        _fail(fn, ValueError, f"argument '{name}' must be {want}, got shape {tuple(x.shape)}")
+    return x
+
+
+@dataclass(eq=False)
+class Frame:
+    """One RGB-D frame (or a batch of B frames) prepared for alignment by :meth:`DirectAligner.prepare`.
+
+    Attributes:
+        images: per level (fine to coarse) a ``wp.array`` (B, C', H_l, W_l) float32 (C' = 1 unless
+            the aligner keeps colour).
+        depths: per level a ``wp.array`` (B, 1, H_l, W_l) float32 (0 = no depth), or None for a
+            frame given without depth (usable only as the live frame of a pair).
+        batched: whether the input had a batch dimension.
+        torch: whether the input was a torch tensor (results come back as torch tensors).
+    """
+
+    images: list
+    depths: list | None
+    batched: bool
+    torch: bool
+    _mean_depth: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def batch(self) -> int:
+        return int(self.images[0].shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the finest level."""
+        return int(self.images[0].shape[2]), int(self.images[0].shape[3])
+
+    def mean_depth(self) -> np.ndarray:
+        """(B,) mean valid depth of the coarsest level (1 where there is none)."""
+        if self._mean_depth is None:
+            d = self.depths[-1].numpy().reshape(self.batch, -1)
+            n = (d > 0).sum(1)
+            self._mean_depth = np.where(n > 0, d.sum(1, dtype=np.float64) / np.maximum(n, 1), 1.0)
+        return self._mean_depth
+
+
+def _se3_exp(w0: float, w1: float, w2: float, t0: float, t1: float, t2: float) -> np.ndarray:
+    """The SE(3) exponential of one twist [omega, t] as a (4, 4) float64 array (scalar math: this
+    runs once per trial and batch item, where numpy's per-call overhead would dominate)."""
+    th2 = w0 * w0 + w1 * w1 + w2 * w2
+    if th2 < 1e-8:
+        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = math.sqrt(th2)
+        sn = math.sin(th)
+        a, b, c = sn / th, (1.0 - math.cos(th)) / th2, (th - sn) / (th2 * th)
+    # W = hat(w); W^2 = w w^T - th2 I
+    q00, q11, q22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
+    q01, q02, q12 = w0 * w1, w0 * w2, w1 * w2
+    r = (1.0 + b * q00, -a * w2 + b * q01, a * w1 + b * q02,
+         a * w2 + b * q01, 1.0 + b * q11, -a * w0 + b * q12,
+         -a * w1 + b * q02, a * w0 + b * q12, 1.0 + b * q22)
+    v = (1.0 + c * q00, -b * w2 + c * q01, b * w1 + c * q02,
+         b * w2 + c * q01, 1.0 + c * q11, -b * w0 + c * q12,
+         -b * w1 + c * q02, b * w0 + c * q12, 1.0 + c * q22)
+    return np.array([
+        [r[0], r[1], r[2], v[0] * t0 + v[1] * t1 + v[2] * t2],
+        [r[3], r[4], r[5], v[3] * t0 + v[4] * t1 + v[5] * t2],
+        [r[6], r[7], r[8], v[6] * t0 + v[7] * t1 + v[8] * t2],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
+
+
+def _recycle(pool: list, pyramid: _Pyramid) -> None:
+    if len(pool) < _POOL_SIZE:
+        pool.append(pyramid)
+
+
+class _Pyramid:
+    """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
+    once (a recorded launch replays in a few microseconds); reused through the aligner's pool."""
+
+    def __init__(self, aligner: DirectAligner, B: int, C: int, H: int, W: int, with_depth: bool):
+        Co = C if aligner.color else 1
+        self.key = (B, C, H, W, with_depth)
+        self.shapes = _pyramid.pyramid_shapes(H, W, aligner._levels_for(H, W))
+        self.images = [wp.empty((B, Co, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes]
+        self.depths = [wp.empty((B, 1, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes] if with_depth \
+            else None
+        empty = wp.empty(0, dtype=wp.float32, device="cpu")
+        depths = self.depths or [empty] * len(self.shapes)
+        f32 = wp.float32
+        self.weights = aligner._channel_weights(C)
+        n = B * H * W
+        self.level0 = wp.launch(
+            _pyramid.level0_kernel(C, Co)[f32], dim=n,
+            inputs=[0, empty, self.weights.flatten(), empty, H * W, int(with_depth)],
+            outputs=[self.images[0].flatten(), depths[0].flatten() if with_depth else empty],
+            device="cpu", record_cmd=True,
+        )
+        self.down = []
+        for k in range(1, len(self.shapes)):
+            (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
+            self.down.append(wp.launch(
+                _pyramid.downsample_kernel(Co)[f32], dim=B * ho * wo,
+                inputs=[0, self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
+                        h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
+                outputs=[self.images[k].flatten(), depths[k].flatten() if with_depth else empty],
+                device="cpu", record_cmd=True,
+            ))
+
+    def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
+        self.level0.set_param_at_index(1, wp.array(image.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+        if depth is not None:
+            self.level0.set_param_at_index(3, wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+        self.level0.launch()
+        for cmd in self.down:
+            cmd.launch()
+
+
+class DirectAligner:
+    """Coarse-to-fine direct (photometric) RGB-D alignment, see the module docstring.
+
+    Args:
+        K: (3, 3) intrinsics of the finest level (numpy or torch; float64 internally).
+        levels: pyramid levels (1 = no pyramid); fewer are used if a level would have a side
+            below 4 pixels. None (default): as many as keep the coarsest level's shorter side at
+            6 pixels or more (6 levels at 320x240, 7 at 640x480), which gives the widest basin.
+        iterations: the most trials (normal-equation passes after the first) per level: an int
+            for every level, or a sequence from the finest level (index 0) towards the coarsest,
+            whose last entry also holds for the levels beyond it.
+        robust: the M-estimator of the residuals: "huber", "cauchy", "geman_mcclure", "tukey"
+            (as in ``robust_rho``) or "l2".
+        scale: the M-estimator's scale (in intensity units).
+        depth_weight: weight of the depth term (the moved point's z against the live depth); > 0
+            needs live depths.
+        min_depth: depths at or below it count as missing (metres).
+        color: keep every colour channel in the residual (C per pixel) instead of one intensity.
+        tolerance: a level stops when a step moves the image by less than this many pixels.
+        lm_lambda: initial Levenberg-Marquardt damping (relative to diag(JtWJ)); ``lm_up`` /
+            ``lm_down``: its growth after a rejected / shrink after an accepted step.
+        min_valid_fraction: fewest valid pixels (fraction of the level's) to trust a level.
+        depth_tolerance: the relative depth spread that counts as one surface when depths are
+            downsampled (see :mod:`gvnn_warp.kernels.pyramid`).
+    """
+
+    def __init__(
+        self,
+        K,
+        *,
+        levels: int | None = None,
+        iterations=(4, 6, 10, 20, 30),
+        robust: str = "huber",
+        scale: float = 0.05,
+        depth_weight: float = 0.0,
+        min_depth: float = MIN_DEPTH,
+        color: bool = False,
+        tolerance: float = 0.05,
+        lm_lambda: float = 1e-4,
+        lm_up: float = 4.0,
+        lm_down: float = 0.25,
+        min_valid_fraction: float = 0.05,
+        depth_tolerance: float = _pyramid.DEPTH_TOLERANCE,
+    ):
+        fn = "DirectAligner"
+        K = _as_numpy(fn, "K", K, (2,)).astype(np.float64)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+            _fail(fn, ValueError, f"argument 'K' must be finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
+        self.K = K
+        if levels is not None and (not isinstance(levels, (int, np.integer)) or isinstance(levels, bool) or levels < 1):
+            _fail(fn, ValueError, f"argument 'levels' must be None or an int >= 1, got {levels!r}")
+        self.levels = None if levels is None else int(levels)
+        if isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool):
+            iterations = (int(iterations),)
+        try:
+            iterations = tuple(int(i) for i in iterations)
+        except (TypeError, ValueError):
+            _fail(fn, TypeError, f"argument 'iterations' must be an int or a sequence of ints, got {iterations!r}")
+        if not iterations or min(iterations) < 0:
+            _fail(fn, ValueError, f"argument 'iterations' must be >= 0, got {iterations!r}")
+        self.iterations = iterations  # level l uses iterations[min(l, len - 1)]
+        if robust not in _ROBUST:
+            _fail(fn, ValueError, f"argument 'robust' must be one of {list(_ROBUST)}, got {robust!r}")
+        self.robust = robust
+        for name, v, lo in (("scale", scale, 0.0), ("min_depth", min_depth, 0.0), ("tolerance", tolerance, 0.0),
+                            ("lm_up", lm_up, 1.0)):
+            if not (isinstance(v, (int, float)) and lo < v < math.inf):
+                _fail(fn, ValueError, f"argument '{name}' must be a finite number > {lo}, got {v!r}")
+        for name, v in (("depth_weight", depth_weight), ("lm_lambda", lm_lambda),
+                        ("depth_tolerance", depth_tolerance)):
+            if not (isinstance(v, (int, float)) and 0.0 <= v < math.inf):
+                _fail(fn, ValueError, f"argument '{name}' must be a finite number >= 0, got {v!r}")
+        if not (isinstance(lm_down, (int, float)) and 0.0 < lm_down <= 1.0):
+            _fail(fn, ValueError, f"argument 'lm_down' must be in (0, 1], got {lm_down!r}")
+        if not (isinstance(min_valid_fraction, (int, float)) and 0.0 <= min_valid_fraction <= 1.0):
+            _fail(fn, ValueError, f"argument 'min_valid_fraction' must be in [0, 1], got {min_valid_fraction!r}")
+        self.scale = float(scale)
+        self.depth_weight = float(depth_weight)
+        self.min_depth = float(min_depth)
+        self.color = bool(color)
+        self.tolerance = float(tolerance)
+        self.lm_lambda = float(lm_lambda)
+        self.lm_up = float(lm_up)
+        self.lm_down = float(lm_down)
+        self.min_valid_fraction = float(min_valid_fraction)
+        self.depth_tolerance = float(depth_tolerance)
+        self._weights: dict[int, wp.array] = {}
+        self._buffers: dict[tuple, dict] = {}  # per (B, level shapes): K per level, pose, outputs
+        self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free _Pyramid buffers
+
+    # ------------------------------------------------------------------------------ pyramids
+
+    def _levels_for(self, H: int, W: int) -> int:
+        n = 1
+        if self.levels is None:  # auto: halve while the shorter side stays >= _AUTO_MIN_SIDE
+            while min(H >> n, W >> n) >= _AUTO_MIN_SIDE:
+                n += 1
+            return n
+        while n < self.levels and min(H >> n, W >> n) >= _MIN_SIDE:
+            n += 1
+        return n
+
+    def _channel_weights(self, C: int) -> wp.array:
+        w = self._weights.get(C)
+        if w is None:
+            if self.color:
+                m = np.eye(C, dtype=np.float32)
+            elif C == 3:
+                m = np.array([_LUMA], dtype=np.float32)
+            else:
+                m = np.full((1, C), 1.0 / C, dtype=np.float32)
+            w = self._weights[C] = wp.array(m, dtype=wp.float32, device="cpu")
+        return w
+
+    def prepare(self, image, depth=None) -> Frame:
+        """Build the pyramid of one frame (or a batch): ``image`` (C, H, W) / (B, C, H, W), ``depth``
+        (1, H, W) / (B, 1, H, W) or None (then the frame can only be the live frame of a pair).
+        The inputs are copied (later changes to them do not affect the frame)."""
+        return self._prepare("prepare", "image", "depth", image, depth)
+
+    def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth) -> Frame:
+        torch_in = _is_torch(image)
+        img = _as_numpy(fn, image_name, image, (3, 4))
+        batched = img.ndim == 4
+        if not batched:
+            img = img[None]
+        B, C, H, W = img.shape
+        if B < 1 or C < 1 or H < 1 or W < 1:
+            _fail(fn, ValueError, f"argument '{image_name}' must have no empty dimension, got shape {img.shape}")
+        if B * C * H * W >= 2**31:
+            _fail(fn, ValueError, f"argument '{image_name}' is too large for int32 indexing: shape {img.shape}")
+        if H < _MIN_SIDE or W < _MIN_SIDE:
+            _fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
+                  f"got shape {img.shape}")
+        if depth is not None:
+            d = _as_numpy(fn, depth_name, depth, (4,) if batched else (3,))
+            if not batched:
+                d = d[None]
+            if d.shape != (B, 1, H, W):
+                want = (B, 1, H, W) if batched else (1, H, W)
+                _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}")
+        key = (B, C, H, W, depth is not None)
+        pool = self._frame_pool.setdefault(key, [])
+        pyr = pool.pop() if pool else _Pyramid(self, B, C, H, W, depth is not None)
+        pyr.fill(np.ascontiguousarray(img, dtype=np.float32),
+                 None if depth is None else np.ascontiguousarray(d, dtype=np.float32))
+        frame = Frame(images=pyr.images, depths=pyr.depths, batched=batched, torch=torch_in)
+        # the buffers go back to the pool when the frame is gone (a tracker drops one per frame)
+        weakref.finalize(frame, _recycle, pool, pyr)
+        return frame
+
+    # ------------------------------------------------------------------------------ alignment
+
+    def align(self, ref_image, ref_depth, live_image, live_depth=None, init=None):
+        """Estimate ``T`` (4, 4) / (B, 4, 4) float64 mapping reference-camera points into the live camera.
+
+        Args:
+            ref_image, live_image: (C, H, W) or (B, C, H, W) intensities.
+            ref_depth: (1, H, W) or (B, 1, H, W) metres (0/NaN = none).
+            live_depth: like ``ref_depth``; needed only when ``depth_weight > 0``.
+            init: initial ``T`` ((4, 4) or (B, 4, 4); (3, 4) rows [R | t] also accepted), e.g. a
+                constant-velocity prediction; identity if None.
+
+        Returns:
+            ``(T, info)``: T of the kind of ``ref_image`` (numpy or torch), see the module docstring
+            for ``info``.
+        """
+        fn = "align"
+        if ref_depth is None:
+            _fail(fn, ValueError, "argument 'ref_depth' must be given (the reference frame needs depth)")
+        if live_depth is None and self.depth_weight > 0:
+            _fail(fn, ValueError, "argument 'live_depth' must be given when depth_weight > 0")
+        ref = self._prepare(fn, "ref_image", "ref_depth", ref_image, ref_depth)
+        live = self._prepare(fn, "live_image", "live_depth", live_image,
+                             live_depth if self.depth_weight > 0 else None)
+        if live.batched != ref.batched or live.images[0].shape != ref.images[0].shape:
+            got = tuple(np.shape(live_image))
+            want = tuple(ref.images[0].shape[:1] if ref.batched else ()) + (np.shape(ref_image)[-3],) + ref.shape
+            _fail(fn, ValueError, f"argument 'live_image' must have the shape of 'ref_image' {want}, got {got}")
+        return self._align(fn, ref, live, init)
+
+    def align_frames(self, ref: Frame, live: Frame, init=None):
+        """:meth:`align` on two prepared frames (``ref`` needs depth; ``live`` needs depth when
+        ``depth_weight > 0``); same results."""
+        fn = "align_frames"
+        for name, f in (("ref", ref), ("live", live)):
+            if not isinstance(f, Frame):
+                _fail(fn, TypeError, f"argument '{name}' must be a Frame from DirectAligner.prepare, got "
+                      f"{type(f).__name__}")
+        if ref.depths is None:
+            _fail(fn, ValueError, "argument 'ref' must be prepared with a depth")
+        if self.depth_weight > 0 and live.depths is None:
+            _fail(fn, ValueError, "argument 'live' must be prepared with a depth when depth_weight > 0")
+        if live.batched != ref.batched or tuple(live.images[0].shape) != tuple(ref.images[0].shape) or len(
+            live.images
+        ) != len(ref.images):
+            _fail(fn, ValueError, f"arguments 'ref' and 'live' must have the same shape, got "
+                  f"{tuple(ref.images[0].shape)} and {tuple(live.images[0].shape)}")
+        return self._align(fn, ref, live, init)
+
+    def _init_pose(self, fn: str, init, B: int, batched: bool) -> np.ndarray:
+        if init is None:
+            return np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
+        T = _as_numpy(fn, "init", init, (3,) if batched else (2,)).astype(np.float64)
+        if not batched:
+            T = T[None]
+        if T.shape[0] != B or T.shape[1:] not in ((4, 4), (3, 4)):
+            want = f"({B}, 4, 4)" if batched else "(4, 4)"
+            _fail(fn, ValueError, f"argument 'init' must have shape {want} (or 3x4 rows), got {tuple(np.shape(init))}")
+        if not np.all(np.isfinite(T)):
+            _fail(fn, ValueError, "argument 'init' must be finite")
+        out = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
+        out[:, :3, :] = T[:, :3, :]
+        return out
+
+    def _level_buffers(self, B: int, shapes) -> dict:
+        """Per (batch size, level shapes): the intrinsics of every level (wp.array (B,) of 3x3
+        float32), the pose buffer the system reads (wp.array (B,) of 3x4 float32, with its numpy
+        view), each level's mean focal length, and the system function."""
+        key = (B, tuple(shapes))
+        buf = self._buffers.get(key)
+        if buf is None:
+            Ks = [_pyramid.scale_intrinsics(self.K, level) for level in range(len(shapes))]
+            K_wp = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
+                    for Kl in Ks]
+            pose = wp.zeros(B, dtype=_launch.mat34f, device="cpu")
+            buf = {"pose_np": pose.numpy().reshape(B, 3, 4), "f": [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks],
+                   "system": self._make_system(B, shapes, pose, K_wp)}
+            self._buffers[key] = buf
+        return buf
+
+    def _make_system(self, B: int, shapes, pose: wp.array, K: list):
+        """Returns ``system(ref, live, level) -> (JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,))``
+        (float64 numpy copies) at the pose in ``pose``, by the fused Warp normal equations.
+
+        The outputs of every (level, reference pyramid, live pyramid) seen lately are kept, with
+        their numpy views: pyramids are pooled, so in frame-to-frame tracking the same few
+        combinations recur and each call re-launches the launches recorded the first time."""
+        from .kernels import photometric_normal_equations
+
+        cache: dict[tuple, tuple] = {}
+        kw = {"robust": self.robust, "scale": self.scale, "depth_weight": self.depth_weight,
+              "min_depth": self.min_depth}
+        use_depth = self.depth_weight > 0
+
+        def system(ref: Frame, live: Frame, level: int):
+            key = (level, id(ref.images[level]), id(live.images[level]))
+            entry = cache.get(key)
+            live_depth = live.depths[level] if use_depth else None
+            if entry is None:
+                if len(cache) >= _SYSTEM_CACHE:
+                    cache.pop(next(iter(cache)))
+                ne = photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
+                                                  K[level], live_depth=live_depth, **kw)
+                entry = cache[key] = (ne, tuple(a.numpy() for a in ne))
+            else:
+                photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
+                                             K[level], live_depth=live_depth, out=entry[0], **kw)
+            JtWJ, JtWr, cost, count = entry[1]
+            return (JtWJ.astype(np.float64), JtWr.astype(np.float64), cost.astype(np.float64),
+                    count.astype(np.float64))
+
+        return system
+
+    def _align(self, fn: str, ref: Frame, live: Frame, init):
+        B = ref.batch
+        T = self._init_pose(fn, init, B, ref.batched)
+        shapes = [(int(a.shape[2]), int(a.shape[3])) for a in ref.images]
+        buf = self._level_buffers(B, shapes)
+        system = buf["system"]
+        pose_np = buf["pose_np"]
+        zmean = ref.mean_depth().tolist()
+        diag = np.arange(6)
+        tol, lam_up, lam_down = self.tolerance, self.lm_up, self.lm_down
+        items = range(B)
+        level_info = []
+        converged = [False] * B
+        for level in range(len(shapes) - 1, -1, -1):
+            h, w = shapes[level]
+            n_pix = float(h * w)
+            min_count = max(_MIN_VALID_PIXELS, self.min_valid_fraction * n_pix)
+            f = buf["f"][level]
+            evaluate = functools.partial(system, ref, live, level)
+            pose_np[:] = T[:, :3, :]
+            H, g, cost, count = evaluate()
+            mean = [c / max(n, 1.0) for c, n in zip(cost.tolist(), count.tolist())]
+            count = count.tolist()
+            active = [n >= min_count for n in count]
+            ok = list(active)
+            lam = [self.lm_lambda] * B
+            trials = [0] * B
+            last_step = [math.inf] * B
+            for _ in range(self.iterations[min(level, len(self.iterations) - 1)]):
+                if not any(active):
+                    break
+                A = H.copy()
+                A[:, diag, diag] *= 1.0 + np.array(lam)[:, None]
+                A[:, diag, diag] += 1e-9 * (1.0 + H[:, diag, diag].sum(1, keepdims=True))
+                try:
+                    delta = np.linalg.solve(A, g[..., None])[..., 0].tolist()
+                except np.linalg.LinAlgError:  # a singular system: stop this level
+                    break
+                Tn = T.copy()
+                step = [0.0] * B
+                for b in items:
+                    d = delta[b]
+                    if active[b]:
+                        if not all(map(math.isfinite, d)):
+                            active[b] = False
+                            continue
+                        Tn[b] = _se3_exp(-d[0], -d[1], -d[2], -d[3], -d[4], -d[5]) @ T[b]
+                        step[b] = f * (math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                                       + math.sqrt(d[3] * d[3] + d[4] * d[4] + d[5] * d[5]) / zmean[b])
+                pose_np[:] = Tn[:, :3, :]
+                Hn, gn, costn, countn = evaluate()
+                costn, countn = costn.tolist(), countn.tolist()
+                for b in items:
+                    if not active[b]:
+                        continue
+                    trials[b] += 1
+                    last_step[b] = step[b]
+                    meann = costn[b] / max(countn[b], 1.0)
+                    if countn[b] >= min_count and meann < mean[b]:
+                        T[b] = Tn[b]
+                        H[b] = Hn[b]
+                        g[b] = gn[b]
+                        mean[b] = meann
+                        count[b] = countn[b]
+                        lam[b] *= lam_down
+                    else:
+                        lam[b] *= lam_up
+                    if step[b] < tol or lam[b] > _LAMBDA_MAX:
+                        active[b] = False
+            converged = [ok[b] and last_step[b] < 10.0 * tol for b in items]
+            level_info.append({
+                "level": level, "size": (h, w),
+                "iterations": np.array(trials) if ref.batched else trials[0],
+                "cost": np.array(mean) if ref.batched else mean[0],
+                "valid_fraction": np.array(count) / n_pix if ref.batched else count[0] / n_pix,
+            })
+        info = {"converged": np.array(converged) if ref.batched else converged[0], "levels": level_info}
+        out = T if ref.batched else T[0]
+        if ref.torch:
+            import torch
+
+            out = torch.from_numpy(out)
+        return out, info

@@ -1,0 +1,227 @@
+"""Host functions of the fused photometric objective on ``wp.array``s (no torch).
+
+Shapes (as :func:`.pipeline.warp_frame_depth`): images (B, C, H, W), depths (B, 1, H, W),
+pose (B,) of 3x4 matrices [R | t] mapping reference-camera points into the live camera,
+K (B,) of 3x3 intrinsics; one float type (float32 or float64) throughout. Conventions
+(pixel centres, K, minimum depth, valid rule): ``docs/conventions.md``.
+
+:func:`photometric_normal_equations` is built to be called many times per frame pair (a
+Gauss-Newton or Levenberg-Marquardt loop): pass the result of the previous call as ``out=``
+and it allocates nothing and re-launches kernels recorded on the first call (a few microseconds
+each) as long as the arrays passed are the same (update the pose array in place between
+iterations, e.g. with ``pose.assign(...)``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import warp as wp
+
+from . import launch as _launch
+from . import photometric_kernels as pk
+from .camera import MIN_DEPTH
+from .photometric import KINDS
+from .pipeline import _expect, _expect_float, _expect_matrices, _type_name
+
+#: penalties of :func:`photometric_normal_equations` (IRLS weights psi(r)/r; "l1" has none at 0)
+NORMAL_EQUATIONS_KINDS = ("l2", "huber", "cauchy", "geman_mcclure", "tukey")
+
+
+@dataclass
+class NormalEquations:
+    """The Gauss-Newton system returned by :func:`photometric_normal_equations` (unpacks as the
+    tuple ``(JtWJ, JtWr, cost, count)``); pass it back as ``out=`` to reuse its buffers.
+
+    Attributes:
+        JtWJ: (B, 6, 6) sum of w J^T J (symmetric).
+        JtWr: (B, 6) sum of w J^T r; the Gauss-Newton step is delta = -JtWJ^-1 JtWr.
+        cost: (B,) sum of rho(r).
+        count: (B,) number of reference pixels used (an integer stored as a float).
+    """
+
+    JtWJ: wp.array
+    JtWr: wp.array
+    cost: wp.array
+    count: wp.array
+    _rows: wp.array = field(repr=False)  # (B * H * ROW_STRIDE,) float64 row partial sums
+    _key: tuple | None = field(default=None, repr=False)
+    _cmds: list = field(default_factory=list, repr=False)  # recorded launches for _key
+
+    def __iter__(self):
+        return iter((self.JtWJ, self.JtWr, self.cost, self.count))
+
+    def numpy(self):
+        """The four outputs as numpy arrays (copies)."""
+        return tuple(a.numpy() for a in self)
+
+
+def _flat(a: wp.array, n: int) -> wp.array:
+    """A 1-D view of a contiguous array's ``n`` scalars."""
+    return wp.array(ptr=a.ptr, dtype=a.dtype, shape=(n,), device=a.device)
+
+
+def _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth):
+    _expect(fn, "ref_image", isinstance(ref_image, wp.array) and ref_image.ndim == 4, "a 4-D (B, C, H, W) wp.array",
+            getattr(ref_image, "shape", type(ref_image).__name__), TypeError if not isinstance(ref_image, wp.array)
+            else ValueError)
+    B, C, H, W = ref_image.shape
+    _expect_float(fn, "ref_image", ref_image)
+    ft = ref_image.dtype
+    for name, a, shape in (("ref_depth", ref_depth, (B, 1, H, W)), ("live_image", live_image, (B, C, H, W))):
+        _expect(fn, name, isinstance(a, wp.array), "a wp.array", type(a).__name__, TypeError)
+        _expect(fn, name, tuple(a.shape) == shape, f"of shape {shape}", tuple(a.shape))
+        _expect(fn, name, a.dtype == ft, f"of dtype {ft.__name__}", _type_name(a.dtype), TypeError)
+    for name, a, n in (("pose", pose, 3), ("K", K, 3)):
+        _expect(fn, name, isinstance(a, wp.array), "a wp.array", type(a).__name__, TypeError)
+        _expect(fn, name, a.ndim == 1 and a.shape[0] == B, f"a ({B},) array of {n}x{4 if name == 'pose' else 3} "
+                "matrices", tuple(a.shape))
+    _expect_matrices(fn, "pose", pose, (3, 4), ft)
+    _expect_matrices(fn, "K", K, (3, 3), ft)
+    for name, a in (("ref_image", ref_image), ("ref_depth", ref_depth), ("live_image", live_image), ("pose", pose),
+                    ("K", K)):
+        _expect(fn, name, a.is_contiguous, "contiguous", "a strided array")
+        _expect(fn, name, a.device.is_cpu, "on the CPU", str(a.device))
+    _expect(fn, "min_depth", isinstance(min_depth, (int, float)) and 0 < min_depth < math.inf,
+            "a positive finite number", repr(min_depth))
+    _expect(fn, "ref_image", B * C * H * W < 2**31, "smaller than 2**31 elements", ref_image.shape)
+    return B, C, H, W, ft
+
+
+def _check_penalty(fn, robust, scale, kinds):
+    _expect(fn, "robust", robust in kinds, f"one of {list(kinds)}", repr(robust))
+    _expect(fn, "scale", isinstance(scale, (int, float)) and not isinstance(scale, bool) and 0 < scale < math.inf,
+            "a positive finite number", repr(scale))
+
+
+def photometric_normal_equations(
+    ref_image: wp.array,
+    ref_depth: wp.array,
+    live_image: wp.array,
+    pose: wp.array,
+    K: wp.array,
+    *,
+    robust: str = "huber",
+    scale: float = 1.0,
+    live_depth: wp.array | None = None,
+    depth_weight: float = 0.0,
+    min_depth: float = MIN_DEPTH,
+    out: NormalEquations | None = None,
+) -> NormalEquations:
+    """The Gauss-Newton system of the photometric residuals, for a left-multiplied pose update.
+
+    Residuals: for each reference pixel u with a valid depth whose moved point
+    P = pose * (depth K^-1 [u, 1]) has z > min_depth and projects inside the live image (the
+    ``valid`` rule of ``warp_frame_depth``), r_c = live_c(project(P)) - ref_c(u) for every
+    channel c (bilinear sample). With ``live_depth`` and ``depth_weight > 0`` each such pixel
+    adds the depth residual r_d = sqrt(depth_weight) (z(P) - live_depth(project(P))) (bilinear;
+    skipped where any of the four taps lies outside the image or is not a valid depth), with the
+    same penalty. For the perturbation pose <- exp(delta) pose, delta = [omega, t] (radians,
+    metres), J = dr/d delta at 0 (exact for the bilinear interpolant as sampled; dP/d omega =
+    -[P]x, dP/dt = I), IRLS weights w = psi(r)/r (1 at r = 0; 1 for "l2"), and
+
+        JtWJ = sum w J^T J (B, 6, 6),  JtWr = sum w J^T r (B, 6),  cost = sum rho(r) (B,),
+        count = number of reference pixels used (B,),
+
+    summed in float64 (row sums added in a fixed order: bitwise the same for any thread count),
+    returned in the input's float type. The step is delta = -JtWJ^-1 JtWr, pose <- exp(delta)
+    pose. Residuals or image gradients that are not finite (NaN/inf intensities) are skipped.
+
+    Args:
+        ref_image, live_image: (B, C, H, W) intensities.
+        ref_depth: (B, 1, H, W) depth (z, metres) of the reference frame; 0, negative, NaN or
+            inf: that pixel is skipped.
+        pose: (B,) 3x4 matrices mapping reference-camera points into the live camera.
+        K: (B,) 3x3 intrinsics, shared by both views.
+        robust: "huber" (default), "cauchy", "geman_mcclure", "tukey" (``gvnn_warp.robust_rho``
+            with ``scale``) or "l2" (r^2 / 2).
+        scale: the M-estimator's scale (ignored by "l2").
+        live_depth: (B, 1, H, W) depth of the live frame, for the depth term.
+        depth_weight: >= 0; the depth residual's weight (0: no depth term).
+        min_depth: metres (docs/conventions.md).
+        out: the result of an earlier call with the same shapes and float type: its buffers are
+            reused (and returned), and so are its recorded launches while the arrays passed are
+            the same (same data pointers) and the scalar arguments unchanged.
+
+    Returns:
+        :class:`NormalEquations` ``(JtWJ, JtWr, cost, count)``. Not differentiable.
+    """
+    fn = "photometric_normal_equations"
+    key = None
+    if out is not None:
+        try:
+            key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
+                              (robust, scale, depth_weight, min_depth, _launch.get_num_threads()))
+        except AttributeError:  # not wp.arrays: the checks below say so
+            pass
+        if key is not None and isinstance(out, NormalEquations) and out._key is not None and out._key[0] == key:
+            # the fast path: the same arrays (by pointer, shape, strides, type) and arguments
+            for cmd in out._cmds:
+                cmd()
+            return out
+    B, C, H, W, ft = _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth)
+    _check_penalty(fn, robust, scale, NORMAL_EQUATIONS_KINDS)
+    _expect(fn, "depth_weight", isinstance(depth_weight, (int, float)) and 0 <= depth_weight < math.inf,
+            "a finite number >= 0", repr(depth_weight))
+    if live_depth is not None:
+        _expect(fn, "live_depth", isinstance(live_depth, wp.array), "a wp.array or None", type(live_depth).__name__,
+                TypeError)
+        _expect(fn, "live_depth", tuple(live_depth.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}",
+                tuple(live_depth.shape))
+        _expect(fn, "live_depth", live_depth.dtype == ft, f"of dtype {ft.__name__}", _type_name(live_depth.dtype),
+                TypeError)
+        _expect(fn, "live_depth", live_depth.is_contiguous and live_depth.device.is_cpu, "contiguous, on the CPU",
+                str(live_depth.device))
+    if out is not None:
+        ok = (isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft
+              and out._rows.shape[0] == B * H * pk.ROW_STRIDE)
+        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B}, H={H} and {ft.__name__}",
+                "another" if isinstance(out, NormalEquations) else type(out).__name__, TypeError)
+    else:
+        out = NormalEquations(
+            JtWJ=wp.zeros((B, 6, 6), dtype=ft, device="cpu"),
+            JtWr=wp.zeros((B, 6), dtype=ft, device="cpu"),
+            cost=wp.zeros(B, dtype=ft, device="cpu"),
+            count=wp.zeros(B, dtype=ft, device="cpu"),
+            _rows=wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu"),
+        )
+    n_pix = B * C * H * W
+    no_depth = wp.zeros(0, dtype=ft, device="cpu")
+    inputs = [
+        _flat(ref_image, n_pix), _flat(ref_depth, B * H * W), _flat(live_image, n_pix),
+        _flat(live_depth, B * H * W) if live_depth is not None else no_depth,
+        pose, K, C, H, W, NORMAL_EQUATIONS_KINDS_CODES[robust], float(scale), float(min_depth), float(depth_weight),
+        out._rows,
+    ]
+    outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
+    rows_kernel = pk.normal_equations_rows[int(live_depth is not None and depth_weight > 0)][ft]
+    out._cmds = _record(rows_kernel, B * H, W, inputs) + _record(
+        pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1 << 30, [out._rows, H, *outputs]
+    )
+    if key is None:
+        key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
+                          (robust, scale, depth_weight, min_depth, _launch.get_num_threads()))
+    out._key = (key, inputs)  # the views stay alive with the recorded launches
+    for cmd in out._cmds:
+        cmd()
+    return out
+
+
+NORMAL_EQUATIONS_KINDS_CODES = {k: KINDS[k] for k in NORMAL_EQUATIONS_KINDS}
+
+
+def _launch_key(*arrays_and_args) -> tuple:
+    """What the recorded launches depend on: every array's address, shape, strides and type
+    (None stays None), and the scalar arguments (the last item)."""
+    *arrays, args = arrays_and_args
+    return (*((a.ptr, a.shape, a.strides, a.dtype) if a is not None else None for a in arrays), args)
+
+
+def _record(kernel: wp.Kernel, n: int, row_pixels: int, args: list) -> list:
+    """Callables that run ``kernel`` (first argument ``offset``) over [0, n): one recorded launch
+    when the work is small, else :func:`.launch.launch` (threads)."""
+    if n * row_pixels < 2 * pk._GRAIN_PIXELS or _launch.get_num_threads() == 1:
+        cmd = wp.launch(kernel, dim=n, inputs=[0, *args], device="cpu", record_cmd=True)
+        return [cmd.launch]
+    return [lambda: _launch.launch(kernel, n, args, [])]

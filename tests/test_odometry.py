@@ -1,0 +1,271 @@
+"""gvnn_warp.odometry.DirectAligner and the pyramid kernels (gvnn_warp.kernels.pyramid).
+
+The aligner is checked on rendered pairs with known relative poses (gvnn_warp.kernels.render); the
+pyramid kernels against a numpy reference. Images are small (160x120 and below) to stay fast.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import warp as wp
+from gvnn_warp.kernels import pyramid
+from odometry_refs import motion, pose_error, rendered_pair
+
+from gvnn_warp.odometry import DirectAligner, Frame
+
+# ----------------------------------------------------------------------------- pyramid kernels
+
+
+def _numpy_level0(image, weights, depth):
+    out = np.einsum("oc,bchw->bohw", weights.astype(np.float64), image.astype(np.float64))
+    bad = ~np.isfinite(out)
+    out[bad] = 0.0
+    d = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
+    d = np.where(bad.any(1, keepdims=True), 0.0, d)
+    return out, d
+
+
+def _numpy_downsample(image, depth, tolerance):
+    B, C, H, W = image.shape
+    Ho, Wo = H // 2, W // 2
+    blocks = image[:, :, : 2 * Ho, : 2 * Wo].astype(np.float64).reshape(B, C, Ho, 2, Wo, 2)
+    out = blocks.mean((3, 5))
+    d = depth[:, :, : 2 * Ho, : 2 * Wo].astype(np.float64)
+    d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
+    taps = d.reshape(B, 1, Ho, 2, Wo, 2).transpose(0, 1, 2, 4, 3, 5).reshape(B, 1, Ho, Wo, 4)
+    out_d = np.zeros((B, 1, Ho, Wo))
+    for idx in np.ndindex(B, 1, Ho, Wo):
+        t = taps[idx]
+        v = t[t > 0]
+        if v.size:
+            near = v[v <= v.min() * (1 + tolerance)]
+            out_d[idx] = near.mean()
+    return out, out_d
+
+
+def _depth_with_holes(rng, B, H, W):
+    d = rng.uniform(0.5, 4.0, (B, 1, H, W))
+    d[:, :, :, : W // 3] += 3.0  # a depth edge inside blocks (W // 3 odd for W = 15)
+    d[rng.random(d.shape) < 0.15] = 0.0
+    d[rng.random(d.shape) < 0.05] = np.nan
+    d[rng.random(d.shape) < 0.03] = -1.0
+    d[rng.random(d.shape) < 0.03] = np.inf
+    return d
+
+
+@pytest.mark.parametrize("ft", [np.float32, np.float64])
+def test_pyramid_kernels_match_numpy(ft):
+    rng = np.random.default_rng(0)
+    B, C, H, W = 2, 3, 11, 15  # odd sizes: the last row / column is dropped
+    image = rng.random((B, C, H, W)).astype(ft)
+    image[0, 1, 3, 4] = np.nan  # a non-finite intensity: read as 0, its depth missing
+    depth = _depth_with_holes(rng, B, H, W).astype(ft)
+    weights = np.array([[0.299, 0.587, 0.114], [0.0, 1.0, 0.0]], dtype=ft)
+    wtype = wp.float32 if ft == np.float32 else wp.float64
+    arr = lambda a: wp.array(np.ascontiguousarray(a), dtype=wtype, device="cpu")  # noqa: E731
+    out0 = wp.empty((B, 2, H, W), dtype=wtype, device="cpu")
+    dep0 = wp.empty((B, 1, H, W), dtype=wtype, device="cpu")
+    pyramid.prepare_level0(arr(image), arr(weights), arr(depth), out0, dep0)
+    ref_img, ref_d = _numpy_level0(image, weights, depth)
+    rtol = 1e-6 if ft == np.float32 else 1e-12
+    np.testing.assert_allclose(out0.numpy(), ref_img, rtol=rtol, atol=rtol)
+    np.testing.assert_array_equal(dep0.numpy(), ref_d.astype(ft))
+    assert dep0.numpy()[0, 0, 3, 4] == 0.0
+
+    out1 = wp.empty((B, 2, H // 2, W // 2), dtype=wtype, device="cpu")
+    dep1 = wp.empty((B, 1, H // 2, W // 2), dtype=wtype, device="cpu")
+    # downsample the raw depth (NaN, inf, negative taps) and the cleaned one: same result
+    for d in (depth, ref_d.astype(ft)):
+        pyramid.downsample(arr(ref_img.astype(ft)), arr(d), out1, dep1, tolerance=0.05)
+        exp_img, exp_d = _numpy_downsample(ref_img.astype(ft), d, 0.05)
+        np.testing.assert_allclose(out1.numpy(), exp_img, rtol=rtol, atol=rtol)
+        np.testing.assert_allclose(dep1.numpy(), exp_d, rtol=rtol, atol=0)
+        assert np.all(np.isfinite(dep1.numpy())) and np.all(dep1.numpy() >= 0)
+    # a block straddling a depth edge keeps the near surface only; an all-missing block gives 0
+    d = np.zeros((1, 1, 2, 4), dtype=ft)
+    d[0, 0] = [[1.0, 1.02, np.nan, 0.0], [3.0, 1.01, -2.0, np.inf]]
+    img, dep = wp.empty((1, 1, 1, 2), dtype=wtype, device="cpu"), wp.empty((1, 1, 1, 2), dtype=wtype, device="cpu")
+    pyramid.downsample(arr(np.zeros((1, 1, 2, 4), ft)), arr(d), img, dep)
+    np.testing.assert_allclose(dep.numpy()[0, 0, 0], [(1.0 + 1.02 + 1.01) / 3, 0.0], rtol=1e-6)
+
+
+def test_pyramid_errors():
+    img = wp.zeros((1, 1, 8, 8), dtype=wp.float32, device="cpu")
+    with pytest.raises(ValueError, match="downsample: argument 'out_image'"):
+        pyramid.downsample(img, None, wp.zeros((1, 1, 8, 8), dtype=wp.float32, device="cpu"), None)
+    with pytest.raises(TypeError, match="downsample: argument 'out_image'"):
+        pyramid.downsample(img, None, wp.zeros((1, 1, 4, 4), dtype=wp.float64, device="cpu"), None)
+    with pytest.raises(ValueError, match="downsample: argument 'out_depth'"):
+        pyramid.downsample(img, img, wp.zeros((1, 1, 4, 4), dtype=wp.float32, device="cpu"), None)
+    with pytest.raises(ValueError, match="downsample: argument 'tolerance'"):
+        out = wp.zeros((1, 1, 4, 4), dtype=wp.float32, device="cpu")
+        pyramid.downsample(img, None, out, None, tolerance=-1.0)
+    with pytest.raises(ValueError, match="prepare_level0: argument 'weights'"):
+        pyramid.prepare_level0(img, wp.zeros((1, 3), dtype=wp.float32, device="cpu"), None, img, None)
+
+
+def test_scale_intrinsics_follows_pixel_centres():
+    # a point projects at x at level 0 and at (x + 0.5) / 2^l - 0.5 at level l
+    K = np.array([[250.0, 0.7, 161.3], [0.0, 240.0, 118.9], [0, 0, 1]])
+    p = np.array([0.3, -0.2, 2.0])
+    x0 = K @ p / p[2]
+    for level in (1, 2, 3):
+        xl = pyramid.scale_intrinsics(K, level) @ p / p[2]
+        np.testing.assert_allclose(xl[:2], (x0[:2] + 0.5) / 2**level - 0.5, rtol=1e-12)
+    assert pyramid.pyramid_shapes(121, 160, 3) == [(121, 160), (60, 80), (30, 40)]
+
+
+# ----------------------------------------------------------------------------- aligner on rendered pairs
+
+W, H = 160, 120
+
+
+def _check(T, T_true, max_deg, max_m):
+    deg, m = pose_error(np.asarray(T), T_true)
+    assert deg < max_deg and m < max_m, (deg, m)
+
+
+@pytest.mark.parametrize(
+    "relative",
+    [
+        pytest.param(motion((1.5, -1.0, 0.5)), id="rotation"),
+        pytest.param(motion(t=(0.03, -0.02, 0.04)), id="translation"),
+        pytest.param(motion((-1.0, 1.5, -0.4), (-0.03, 0.01, 0.03)), id="both"),
+    ],
+)
+def test_recovers_known_motion(relative):
+    ri, rd, li, ld, K, T_true = rendered_pair(relative, width=W, height=H)
+    aligner = DirectAligner(K)
+    T, info = aligner.align(ri, rd, li)
+    assert T.shape == (4, 4) and T.dtype == np.float64
+    assert info["converged"]
+    _check(T, T_true, 0.08, 0.004)
+    # the motion was large: identity is far off, so this is not a trivial pass
+    assert pose_error(np.eye(4), T_true)[0] > 1.0 or pose_error(np.eye(4), T_true)[1] > 0.03
+    # levels=None: halvings while the shorter side stays >= 6 pixels (120 -> 60, 30, 15, 7)
+    assert [lv["level"] for lv in info["levels"]] == [4, 3, 2, 1, 0]
+    assert info["levels"][0]["size"] == (7, 10)
+    for lv in info["levels"]:
+        assert lv["iterations"] >= 1 and 0.5 < lv["valid_fraction"] <= 1.0 and math.isfinite(lv["cost"])
+
+
+def test_noise_and_missing_depth():
+    ri, rd, li, ld, K, T_true = rendered_pair(motion((0.8, -1.2, 0.3), (0.02, 0.01, -0.03)), width=W, height=H)
+    rng = np.random.default_rng(1)
+    ri = (ri + rng.normal(0, 0.02, ri.shape)).astype(np.float32)
+    li = (li + rng.normal(0, 0.02, li.shape)).astype(np.float32)
+    rd = rd.copy()
+    rd[:, 20:70, 30:100] = 0.0  # a hole (~18% of the pixels)
+    rd[:, ::7, :] = np.nan  # missing rows
+    rd[:, :, ::11] = -1.0  # and invalid columns
+    T, info = DirectAligner(K).align(ri, rd, li)
+    assert info["converged"]
+    _check(T, T_true, 0.15, 0.006)
+    assert info["levels"][-1]["valid_fraction"] < 0.75
+
+
+def test_identity_pair_gives_identity():
+    ri, rd, li, ld, K, _ = rendered_pair(np.eye(4), width=W, height=H)
+    T, info = DirectAligner(K).align(ri, rd, ri)
+    assert info["converged"]
+    np.testing.assert_allclose(T, np.eye(4), atol=1e-5)
+
+
+def test_batch_equals_single_calls_and_torch_equals_numpy():
+    pairs = [rendered_pair(m, width=W // 2, height=H // 2, seed=s) for s, m in
+             enumerate([motion((1.0, 0.5, 0.0), (0.02, 0, 0)), motion((0, -1.0, 0.3), (0, 0.01, 0.03))])]
+    K = pairs[0][4]
+    aligner = DirectAligner(K, levels=3)
+    singles = [aligner.align(p[0], p[1], p[2]) for p in pairs]
+    init = np.stack([np.eye(4), motion((0.2, 0, 0))])
+    T, info = aligner.align(*(np.stack([p[k] for p in pairs]) for k in range(3)), init=None)
+    assert T.shape == (2, 4, 4) and info["converged"].shape == (2,)
+    for b in range(2):
+        np.testing.assert_allclose(T[b], singles[b][0], atol=1e-6)
+        assert bool(info["converged"][b]) == singles[b][1]["converged"]
+        assert info["levels"][-1]["iterations"][b] == singles[b][1]["levels"][-1]["iterations"]
+    # torch tensors (and float64 inputs) give the same result, as a torch tensor
+    Tt, info_t = aligner.align(*(torch.from_numpy(np.stack([p[k] for p in pairs]).astype(np.float64))
+                                 for k in range(3)), init=torch.from_numpy(init))
+    Tn, _ = aligner.align(*(np.stack([p[k] for p in pairs]) for k in range(3)), init=init)
+    assert isinstance(Tt, torch.Tensor) and Tt.dtype == torch.float64
+    np.testing.assert_array_equal(Tt.numpy(), Tn)
+
+
+def test_prepared_frames_and_init():
+    ri, rd, li, ld, K, T_true = rendered_pair(motion((1.0, 0.0, -0.5), (0.0, 0.02, 0.02)), width=W, height=H)
+    aligner = DirectAligner(K)
+    ref, live = aligner.prepare(ri, rd), aligner.prepare(li, ld)
+    assert isinstance(ref, Frame) and ref.shape == (H, W) and len(ref.images) == 5
+    T1, _ = aligner.align_frames(ref, live)
+    T2, _ = aligner.align(ri, rd, li)
+    np.testing.assert_array_equal(T1, T2)
+    # prepared frames are copies: changing the input afterwards changes nothing
+    ri[:] = 0.0
+    T3, _ = aligner.align_frames(ref, live)
+    np.testing.assert_array_equal(T1, T3)
+    # starting at the answer stays there
+    T4, info = aligner.align_frames(ref, live, init=T_true)
+    assert info["converged"]
+    _check(T4, T_true, 0.08, 0.004)
+
+
+def test_colour_residuals_and_depth_term():
+    ri, rd, li, ld, K, T_true = rendered_pair(motion((0.5, 1.0, 0.0), (0.02, 0.0, 0.01)), width=W, height=H)
+    T, info = DirectAligner(K, color=True).align(ri, rd, li)
+    assert info["converged"]
+    _check(T, T_true, 0.08, 0.004)
+    # the depth term (edge pixels of the depth maps make it noisier than the photometric one)
+    T, info = DirectAligner(K, depth_weight=0.1).align(ri, rd, li, ld)
+    assert info["converged"]
+    _check(T, T_true, 0.15, 0.005)
+
+
+@pytest.mark.parametrize("fill", [0.0, np.nan])
+def test_too_few_valid_pixels_is_reported(fill):
+    ri, rd, li, ld, K, _ = rendered_pair(motion((1.0, 0, 0)), width=W // 2, height=H // 2)
+    rd = np.full_like(rd, fill)
+    rd[:, :3, :3] = 1.0  # 9 valid pixels: not enough at any level
+    init = motion((0.1, 0.2, 0.0), (0.01, 0, 0))
+    T, info = DirectAligner(K).align(ri, rd, li, init=init)
+    assert info["converged"] is False
+    np.testing.assert_array_equal(T, init)
+    # the live frame covered by nothing: the image moved far out of view
+    T, info = DirectAligner(K).align(ri, ld, li, init=motion(t=(50.0, 0.0, 0.0)))
+    assert info["converged"] is False and np.all(np.isfinite(T))
+
+
+def test_bad_inputs_raise():
+    K = np.array([[60.0, 0, 39.5], [0, 60.0, 29.5], [0, 0, 1]])
+    img = np.zeros((1, 60, 80), np.float32)
+    dep = np.ones((1, 60, 80), np.float32)
+    al = DirectAligner(K)
+    cases = [
+        (lambda: DirectAligner(np.eye(2)), ValueError, "DirectAligner: argument 'K'"),
+        (lambda: DirectAligner(K, levels=0), ValueError, "argument 'levels'"),
+        (lambda: DirectAligner(K, robust="l3"), ValueError, "argument 'robust'"),
+        (lambda: DirectAligner(K, scale=-1.0), ValueError, "argument 'scale'"),
+        (lambda: DirectAligner(K, iterations="many"), TypeError, "argument 'iterations'"),
+        (lambda: al.align(img.astype(np.int32), dep, img), TypeError, "align: argument 'ref_image'"),
+        (lambda: al.align(img[0], dep, img), ValueError, "align: argument 'ref_image'"),
+        (lambda: al.align(img, dep[:, :50], img), ValueError, "align: argument 'ref_depth'"),
+        (lambda: al.align(img, None, img), ValueError, "align: argument 'ref_depth'"),
+        (lambda: al.align(img, dep, img[:, :50]), ValueError, "align: argument 'live_image'"),
+        (lambda: al.align(img, dep, img[None]), ValueError, "align: argument 'live_image'"),
+        (lambda: al.align(img, dep, [[0.0]]), TypeError, "align: argument 'live_image'"),
+        (lambda: al.align(img, dep, img, init=np.eye(3)), ValueError, "align: argument 'init'"),
+        (lambda: al.align(img, dep, img, init=np.full((4, 4), np.nan)), ValueError, "align: argument 'init'"),
+        (lambda: al.align(np.zeros((1, 3, 3), np.float32), np.ones((1, 3, 3), np.float32),
+                          np.zeros((1, 3, 3), np.float32)), ValueError, "align: argument 'ref_image'"),
+        (lambda: DirectAligner(K, depth_weight=1.0).align(img, dep, img), ValueError, "argument 'live_depth'"),
+        (lambda: al.align_frames(img, al.prepare(img)), TypeError, "align_frames: argument 'ref'"),
+        (lambda: al.align_frames(al.prepare(img), al.prepare(img)), ValueError, "align_frames: argument 'ref'"),
+        (lambda: al.align_frames(al.prepare(img, dep), al.prepare(img[:, :40, :40])), ValueError,
+         "align_frames: arguments 'ref' and 'live'"),
+        (lambda: al.align(torch.zeros(1, 60, 80, dtype=torch.int64), dep, img), TypeError, "argument 'ref_image'"),
+    ]
+    for call, exc, msg in cases:
+        with pytest.raises(exc, match=msg):
+            call()

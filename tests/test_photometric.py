@@ -1,0 +1,348 @@
+"""The fused photometric objective: normal equations and error against independent torch
+references (grid_sample, torch autograd), gradients by float64 gradcheck, determinism, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+import warp as wp
+from gvnn_warp.kernels import launch
+from gvnn_warp.kernels import photometric_pipeline as pp
+from gvnn_warp.kernels.launch import mat34d, mat34f
+from refs import intrinsics, skew
+
+MIN_DEPTH = 1e-3
+TOL = 1e-3  # the inside tolerance of the valid rule, pixels
+
+
+# ----------------------------------------------------------------------------- scenes
+
+
+def smooth_image(B, C, H, W, seed, dtype=torch.float64):
+    """Smooth random intensities in about [0, 1] (a few low-frequency waves per channel)."""
+    g = torch.Generator().manual_seed(seed)
+    yy, xx = torch.meshgrid(torch.arange(H, dtype=dtype), torch.arange(W, dtype=dtype), indexing="ij")
+    out = torch.zeros(B, C, H, W, dtype=dtype)
+    for _ in range(3):
+        a, fx, fy, ph = torch.rand(4, B, C, 1, 1, generator=g, dtype=dtype)
+        out = out + (0.3 * a) * torch.sin(xx * (0.2 + 0.6 * fx) + yy * (0.15 + 0.5 * fy) + 6 * ph)
+    return 0.5 + out
+
+
+def scene(B=2, C=2, H=9, W=11, seed=0, angle=0.04, shift=0.05, dtype=torch.float64, holes=True):
+    """Reference and live images, reference depth (with invalid values), live depth, a pose that
+    moves some pixels outside, K: all torch float64 (or dtype)."""
+    g = torch.Generator().manual_seed(seed)
+    ref = smooth_image(B, C, H, W, seed, dtype)
+    live = smooth_image(B, C, H, W, seed + 1, dtype)
+    yy, xx = torch.meshgrid(torch.linspace(-1, 1, H, dtype=dtype), torch.linspace(-1, 1, W, dtype=dtype),
+                            indexing="ij")
+    depth = (2.0 + 0.3 * xx + 0.2 * torch.sin(2 * yy) + 0.05 * torch.rand(B, 1, H, W, generator=g, dtype=dtype))
+    live_depth = (2.1 - 0.2 * xx + 0.1 * torch.cos(3 * yy) + 0.05 * torch.rand(B, 1, H, W, generator=g, dtype=dtype))
+    if holes:
+        depth[0, 0, 0, 0] = 0.0
+        depth[0, 0, 1, 2] = -1.0
+        depth[-1, 0, 2, 3] = float("nan")
+        depth[-1, 0, 3, 1] = float("inf")
+        depth[0, 0, 2, 2] = 5e-4  # below MIN_DEPTH
+        live_depth[0, 0, 4, 5] = 0.0
+        live_depth[-1, 0, 1, 1] = float("nan")
+    omega = torch.randn(B, 3, generator=g, dtype=dtype) * angle
+    t = torch.randn(B, 3, generator=g, dtype=dtype) * shift
+    R = torch.linalg.matrix_exp(skew(omega))
+    pose = torch.cat([R, t[:, :, None]], dim=2)
+    K = intrinsics(W, H, dtype)
+    return ref, depth, live, pose, K, live_depth
+
+
+def to_wp(ref, depth, live, pose, K, live_depth=None):
+    ft = wp.float64 if ref.dtype == torch.float64 else wp.float32
+    m34 = mat34d if ft == wp.float64 else mat34f
+    m33 = wp.mat33d if ft == wp.float64 else wp.mat33f
+    B = ref.shape[0]
+    Kb = K.expand(B, 3, 3) if K.dim() == 2 else K
+    arrays = [
+        wp.array(ref.numpy(), dtype=ft),
+        wp.array(depth.numpy(), dtype=ft),
+        wp.array(live.numpy(), dtype=ft),
+        wp.array(pose.numpy(), dtype=m34),
+        wp.array(Kb.contiguous().numpy(), dtype=m33),
+    ]
+    return arrays, (wp.array(live_depth.numpy(), dtype=ft) if live_depth is not None else None)
+
+
+# ----------------------------------------------------------------------------- torch reference
+
+
+def weight_ref(r, kind, c):
+    """IRLS weights psi(r)/r, closed forms (1 at r = 0)."""
+    u2 = (r / c) ** 2
+    if kind == "l2":
+        return torch.ones_like(r)
+    if kind == "huber":
+        return torch.where(r.abs() <= c, torch.ones_like(r), c / r.abs())
+    if kind == "cauchy":
+        return 1 / (1 + u2)
+    if kind == "geman_mcclure":
+        return 1 / (1 + u2) ** 2
+    if kind == "tukey":
+        return torch.where(r.abs() <= c, (1 - u2) ** 2, torch.zeros_like(r))
+    raise AssertionError(kind)
+
+
+def rho_ref(r, kind, c):
+    """Penalties, closed forms (the gvnn paper's table)."""
+    u2 = (r / c) ** 2
+    if kind == "l1":
+        return r.abs()
+    if kind == "l2":
+        return r * r / 2
+    if kind == "huber":
+        return torch.where(r.abs() <= c, r * r / 2, c * (r.abs() - c / 2))
+    if kind == "cauchy":
+        return c * c / 2 * torch.log1p(u2)
+    if kind == "geman_mcclure":
+        return r * r / 2 / (1 + u2)
+    if kind == "tukey":
+        return torch.where(r.abs() <= c, c * c / 6 * (1 - (1 - u2) ** 3), torch.full_like(r, c * c / 6))
+    raise AssertionError(kind)
+
+
+def moved_points(depth, pose, K, delta=None):
+    """Reference pixels moved into the live camera: (B, H, W, 3); with ``delta`` (B, 6) the
+    first-order perturbation exp(delta) ~ I + [omega]x, t (same derivative at delta = 0)."""
+    B, _, H, W = depth.shape
+    dtype = depth.dtype
+    yy, xx = torch.meshgrid(torch.arange(H, dtype=dtype), torch.arange(W, dtype=dtype), indexing="ij")
+    fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    ry = (yy - cy) / fy
+    rx = (xx - cx - s * ry) / fx
+    ray = torch.stack([rx, ry, torch.ones_like(rx)], -1)  # (H, W, 3)
+    d = torch.where(torch.isfinite(depth) & (depth > MIN_DEPTH), depth, torch.ones_like(depth))[:, 0, :, :, None]
+    X = d * ray
+    P = torch.einsum("bij,bhwj->bhwi", pose[:, :, :3], X) + pose[:, None, None, :, 3]
+    if delta is not None:
+        omega, t = delta[:, None, None, :3], delta[:, None, None, 3:]
+        P = P + torch.cross(omega.expand_as(P), P, dim=-1) + t
+    return P
+
+
+def project(P, K):
+    fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    Z = P[..., 2]
+    return fx * P[..., 0] / Z + s * P[..., 1] / Z + cx, fy * P[..., 1] / Z + cy
+
+
+def sample(image, u, v):
+    """Bilinear samples of image (B, C, H, W) at pixel positions u, v (B, H', W'), zeros padding."""
+    H, W = image.shape[-2:]
+    grid = torch.stack([2 * u / (W - 1) - 1, 2 * v / (H - 1) - 1], -1)
+    return F.grid_sample(image, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+
+
+def valid_ref(depth, pose, K, min_depth=MIN_DEPTH):
+    """The valid rule of docs/conventions.md: (B, H, W) bool."""
+    H, W = depth.shape[-2:]
+    P = moved_points(depth, pose, K)
+    u, v = project(P, K)
+    d = depth[:, 0]
+    ok = torch.isfinite(d) & (d > min_depth) & (P[..., 2] > min_depth)
+    return ok & (u >= -TOL) & (u <= W - 1 + TOL) & (v >= -TOL) & (v <= H - 1 + TOL)
+
+
+def depth_taps_valid(live_depth, u, v, min_depth=MIN_DEPTH):
+    """All four bilinear taps of live_depth at (u, v) inside the image and valid depths."""
+    B, _, H, W = live_depth.shape
+    x0, y0 = torch.floor(u).long(), torch.floor(v).long()
+    ok = torch.ones_like(u, dtype=torch.bool)
+    for dx in (0, 1):
+        for dy in (0, 1):
+            x, y = x0 + dx, y0 + dy
+            inside = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+            idx = (y.clamp(0, H - 1) * W + x.clamp(0, W - 1)).reshape(B, -1)
+            val = torch.gather(live_depth.reshape(B, -1), 1, idx).reshape(u.shape)
+            ok = ok & inside & torch.isfinite(val) & (val > min_depth)
+    return ok
+
+
+def normal_equations_ref(ref, depth, live, pose, K, kind, c, live_depth=None, depth_weight=0.0):
+    """JtWJ, JtWr, cost, count from torch autograd's Jacobian of the residuals (float64)."""
+    B, C, H, W = ref.shape
+    valid = valid_ref(depth, pose, K)
+    with torch.no_grad():
+        P0 = moved_points(depth, pose, K)
+        u0, v0 = project(P0, K)
+        dvalid = valid & depth_taps_valid(live_depth, u0, v0) if live_depth is not None else None
+    sw = math.sqrt(depth_weight)
+    # 0 for NaN: masked out anyway, and reverse mode would spread 0 * NaN over every pixel
+    live_depth_finite = live_depth.nan_to_num(0.0, 0.0, 0.0) if live_depth is not None else None
+
+    def residuals(delta):
+        P = moved_points(depth, pose, K, delta)
+        u, v = project(P, K)
+        r = sample(live, u, v) - ref  # (B, C, H, W)
+        out = [r.reshape(B, -1)]
+        if live_depth is not None:
+            rd = sw * (P[..., 2] - sample(live_depth_finite, u, v)[:, 0])
+            out.append(rd.reshape(B, -1))
+        return torch.cat(out, 1)
+
+    delta0 = torch.zeros(B, 6, dtype=torch.float64)
+    r = residuals(delta0).detach()
+    J = torch.autograd.functional.jacobian(residuals, delta0)  # (B, n, B, 6)
+    J = torch.stack([J[b, :, b] for b in range(B)])  # (B, n, 6)
+    mask = [valid[:, None].expand(B, C, H, W).reshape(B, -1)]
+    if live_depth is not None:
+        mask.append(dvalid.reshape(B, -1))
+    mask = torch.cat(mask, 1)
+    rm = torch.where(mask, r, torch.zeros_like(r))
+    w = torch.where(mask, weight_ref(rm, kind, c), torch.zeros_like(r))
+    Jm = torch.where(mask[..., None], J, torch.zeros_like(J))
+    JtWJ = torch.einsum("bn,bni,bnj->bij", w, Jm, Jm)
+    JtWr = torch.einsum("bn,bni,bn->bi", w, Jm, rm)
+    cost = torch.where(mask, rho_ref(rm, kind, c), torch.zeros_like(r)).sum(1)
+    return JtWJ, JtWr, cost, valid.reshape(B, -1).sum(1).to(torch.float64)
+
+
+def assert_close_rel(got, want, rtol):
+    got = np.asarray(got, dtype=np.float64)
+    want = want.detach().numpy()
+    scale = max(np.abs(want).max(), 1e-300)
+    assert np.abs(got - want).max() <= rtol * scale, (np.abs(got - want).max() / scale, got, want)
+
+
+# ----------------------------------------------------------------------------- normal equations (pure Warp)
+
+
+@pytest.mark.parametrize("kind, c", [("huber", 0.1), ("l2", 1.0), ("cauchy", 0.2), ("geman_mcclure", 0.3),
+                                     ("tukey", 0.4)])
+def test_normal_equations_match_autograd_jacobian(kind, c):
+    ref, depth, live, pose, K, _ = scene()
+    want = normal_equations_ref(ref, depth, live, pose, K, kind, c)
+    assert 0 < want[3].min() and want[3].max() < 99  # some pixels are skipped, some used
+    arrays, _ = to_wp(ref, depth, live, pose, K)
+    got = pp.photometric_normal_equations(*arrays, robust=kind, scale=c)
+    for g, w in zip(got.numpy(), want):
+        assert_close_rel(g, w, 1e-9)
+    assert np.array_equal(got.count.numpy(), want[3].numpy())
+
+
+@pytest.mark.parametrize("kind, c", [("huber", 0.1), ("l2", 1.0), ("tukey", 0.5)])
+def test_normal_equations_depth_term(kind, c):
+    ref, depth, live, pose, K, live_depth = scene(seed=3)
+    lam = 2.5
+    want = normal_equations_ref(ref, depth, live, pose, K, kind, c, live_depth, lam)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    got = pp.photometric_normal_equations(*arrays, robust=kind, scale=c, live_depth=ld, depth_weight=lam)
+    for g, w in zip(got.numpy(), want):
+        assert_close_rel(g, w, 1e-9)
+    # the depth term changes the system; without it (weight 0) it is the photometric one alone
+    photo = normal_equations_ref(ref, depth, live, pose, K, kind, c)
+    assert not np.allclose(got.JtWJ.numpy(), photo[0].numpy())
+    got0 = pp.photometric_normal_equations(*arrays, robust=kind, scale=c, live_depth=ld, depth_weight=0.0)
+    for g, w in zip(got0.numpy(), photo):
+        assert_close_rel(g, w, 1e-9)
+
+
+def test_normal_equations_float32_close_to_float64():
+    ref, depth, live, pose, K, live_depth = scene(seed=5, holes=False)
+    want = normal_equations_ref(ref, depth, live, pose, K, "huber", 0.1, live_depth, 1.0)
+    arrays, ld = to_wp(*(t.float() for t in (ref, depth, live, pose, K, live_depth)))
+    got = pp.photometric_normal_equations(*arrays, robust="huber", scale=0.1, live_depth=ld, depth_weight=1.0)
+    assert got.JtWJ.dtype == wp.float32
+    for g, w in zip(got.numpy(), want):
+        assert_close_rel(g, w, 1e-4)
+
+
+def test_normal_equations_out_reuses_buffers_and_follows_inputs():
+    ref, depth, live, pose, K, _ = scene(seed=7)
+    arrays, _ = to_wp(ref, depth, live, pose, K)
+    first = pp.photometric_normal_equations(*arrays, robust="huber", scale=0.1)
+    H0 = first.JtWJ.numpy().copy()
+    again = pp.photometric_normal_equations(*arrays, robust="huber", scale=0.1, out=first)
+    assert again is first and np.array_equal(again.JtWJ.numpy(), H0)
+    # the pose array updated in place: the recorded launches read the new values
+    pose2 = pose.clone()
+    pose2[:, :, 3] += 0.01
+    arrays[3].assign(wp.array(pose2.numpy(), dtype=mat34d))
+    got = pp.photometric_normal_equations(*arrays, robust="huber", scale=0.1, out=first)
+    want = normal_equations_ref(ref, depth, live, pose2, K, "huber", 0.1)
+    for g, w in zip(got.numpy(), want):
+        assert_close_rel(g, w, 1e-9)
+    # another scale, other arrays: recomputed
+    got = pp.photometric_normal_equations(*to_wp(ref, depth, live, pose, K)[0], robust="l2", out=first)
+    want = normal_equations_ref(ref, depth, live, pose, K, "l2", 1.0)
+    for g, w in zip(got.numpy(), want):
+        assert_close_rel(g, w, 1e-9)
+
+
+def test_normal_equations_deterministic_across_threads():
+    # large enough for the rows to be split into several chunks
+    ref, depth, live, pose, K, live_depth = scene(B=1, C=1, H=60, W=900, seed=11, holes=True)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    results = []
+    try:
+        for n in (1, 2, 3):
+            launch.set_num_threads(n)
+            got = pp.photometric_normal_equations(*arrays, live_depth=ld, depth_weight=1.0, scale=0.1)
+            results.append([a.copy() for a in got.numpy()])
+    finally:
+        launch.set_num_threads(None)
+    for other in results[1:]:
+        for a, b in zip(results[0], other):
+            assert np.array_equal(a, b)
+    # batch items are independent: B=3 equals three B=1 calls, bitwise
+    ref, depth, live, pose, K, live_depth = scene(B=3, C=3, H=8, W=10, seed=12)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    whole = pp.photometric_normal_equations(*arrays, live_depth=ld, depth_weight=0.5).numpy()
+    for b in range(3):
+        one, ldb = to_wp(ref[b:b + 1], depth[b:b + 1], live[b:b + 1], pose[b:b + 1], K, live_depth[b:b + 1])
+        part = pp.photometric_normal_equations(*one, live_depth=ldb, depth_weight=0.5).numpy()
+        for a, p in zip(whole, part):
+            assert np.array_equal(a[b], p[0])
+
+
+def test_normal_equations_skip_invalid_and_stay_finite():
+    ref, depth, live, pose, K, live_depth = scene(seed=13)
+    B, C, H, W = ref.shape
+    depth[0] = float("nan")  # batch item 0: no valid depth at all
+    depth[1, 0, :, : W // 2] = -2.0
+    pose[1, 2, 3] = -3.0  # batch item 1: everything behind the camera but a few
+    live = live.clone()
+    live[1, 0, 0, 0] = float("nan")  # a non-finite intensity: its residuals are skipped
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    got = pp.photometric_normal_equations(*arrays, live_depth=ld, depth_weight=1.0)
+    for a in got.numpy():
+        assert np.isfinite(a).all()
+    assert got.count.numpy()[0] == 0 and np.all(got.JtWJ.numpy()[0] == 0) and got.cost.numpy()[0] == 0
+    want = normal_equations_ref(ref, depth, live.nan_to_num(0.5), pose, K, "huber", 1.0, live_depth, 1.0)
+    assert got.count.numpy()[1] == want[3][1]
+
+
+def test_normal_equations_bad_arguments():
+    ref, depth, live, pose, K, live_depth = scene(B=1, C=2, H=4, W=5, holes=False)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    f32, _ = to_wp(*(t.float() for t in (ref, depth, live, pose, K)))
+    fn = r"gvnn_warp\.kernels\.photometric_normal_equations: argument "
+    cases = [
+        ((arrays[0], arrays[1], f32[2], *arrays[3:]), {}, TypeError, "'live_image' must be of dtype float64"),
+        ((arrays[0], arrays[0], *arrays[2:]), {}, ValueError, r"'ref_depth' must be of shape \(1, 1, 4, 5\)"),
+        ((*arrays[:3], f32[3], arrays[4]), {}, TypeError, "'pose' must be an array of 3x4 float64 matrices"),
+        (arrays, {"robust": "l1"}, ValueError, r"'robust' must be one of \['l2', 'huber'"),
+        (arrays, {"robust": "welsch"}, ValueError, "'robust' must be one of"),
+        (arrays, {"scale": 0.0}, ValueError, "'scale' must be a positive finite number"),
+        (arrays, {"scale": float("nan")}, ValueError, "'scale' must be a positive finite number"),
+        (arrays, {"depth_weight": -1.0}, ValueError, "'depth_weight' must be a finite number >= 0"),
+        (arrays, {"min_depth": 0.0}, ValueError, "'min_depth' must be a positive finite number"),
+        (arrays, {"live_depth": arrays[0][:, :, :3]}, ValueError, "'live_depth' must be of shape"),
+        ((ref, *arrays[1:]), {}, TypeError, "'ref_image' must be a 4-D"),
+    ]
+    for args, kw, exc, msg in cases:
+        with pytest.raises(exc, match=fn + msg):
+            pp.photometric_normal_equations(*args, **kw)
+    first = pp.photometric_normal_equations(*arrays)
+    big, _ = to_wp(*scene(B=2, C=2, H=4, W=5, holes=False)[:5])
+    with pytest.raises(TypeError, match=fn + "'out' must be a NormalEquations of an earlier call with B=2"):
+        pp.photometric_normal_equations(*big, out=first)
