@@ -97,7 +97,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"new keyframe below this valid fraction (default {kf.min_valid})")
     p.add_argument("--init", choices=("identity", "velocity"), default="identity",
                    help="initial guess: identity (the default) or constant velocity")
-    p.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
+    p.add_argument("--levels", type=positive_int, default=None,
+                   help="pyramid levels (default: the aligner's, as many as keep the coarsest level >= 6 px)")
     p.add_argument("--iterations", type=positive_int, default=None,
                    help="iterations per level (default: the aligner's)")
     p.add_argument("--robust", choices=ROBUST, default="huber", help="photometric penalty (default huber)")
@@ -122,12 +123,14 @@ def _error(message: str) -> SystemExit:
     return SystemExit(f"gvnn-warp track: error: {message}")
 
 
-def make_aligner(K, *, levels: int = 4, iterations: int | None = None, robust: str = "huber",
+def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
                  depth_weight: float = 0.0, color: bool = False):
-    """The ``gvnn_warp.odometry.DirectAligner`` that ``gvnn-warp track`` uses."""
+    """The ``gvnn_warp.odometry.DirectAligner`` that ``gvnn-warp track`` uses (None: the aligner's default)."""
     from ..odometry import DirectAligner
 
-    kwargs = {"levels": levels, "robust": robust, "depth_weight": depth_weight, "color": color}
+    kwargs = {"robust": robust, "depth_weight": depth_weight, "color": color}
+    if levels is not None:
+        kwargs["levels"] = levels
     if iterations is not None:
         kwargs["iterations"] = iterations
     return DirectAligner(K, **kwargs)
@@ -198,8 +201,9 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
         "size": [seq.width, seq.height],
         "intrinsics": {"fx": seq.K[0, 0], "fy": seq.K[1, 1], "cx": seq.K[0, 2], "cy": seq.K[1, 2],
                        "source": seq.intrinsics_source},
-        "settings": {"mode": "keyframe" if policy else "frame-to-frame", "init": args.init, "levels": args.levels,
-                     "iterations": args.iterations, "robust": args.robust, "depth_weight": args.depth_weight,
+        "settings": {"mode": "keyframe" if policy else "frame-to-frame", "init": args.init,
+                     "levels": args.levels or "auto", "iterations": args.iterations, "robust": args.robust,
+                     "depth_weight": args.depth_weight,
                      "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale},
         "ms_per_pair": result.ms_per_pair,
         "ms_per_pair_note": "alignment incl. pyramids and image gradients; file reading excluded",
