@@ -307,3 +307,19 @@ def test_track_cli_ctrl_c_exits_130_with_one_line(tmp_path, monkeypatch, capsys)
     monkeypatch.setattr(track_cli, "make_aligner", lambda K, **kw: Interrupted(read_tum(data).gt_poses))
     assert main(["track", str(data), "--out", str(tmp_path / "o"), "--no-progress"]) == 130
     assert capsys.readouterr().err.strip() == "gvnn-warp track: interrupted"
+
+
+def test_odometry_benchmark_runs_without_open3d(tmp_path):
+    # benchmarks/odometry.py end to end on a tiny sequence, our tracker only (tests never need Open3D)
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-m", "benchmarks.odometry", "--frames", "8", "--sizes", "80x60",
+                          "--strides", "5", "--no-open3d", "--no-progress", "--json", str(tmp_path / "r.json")],
+                         cwd=root, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "| gvnn_warp DirectAligner |" in out.stdout
+    r = json.loads((tmp_path / "r.json").read_text())["results"]["80x60"]["gvnn_warp DirectAligner"]
+    assert r["failed_pairs"] == 0 and r["basin_5_pairs"] == 3 and 0 <= r["basin_5"] <= 1

@@ -34,12 +34,13 @@ MOTIONS = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, required=True, help="folder to write the sequence into (created)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder to write the sequence into (created)")
     p.add_argument("--motion", choices=tuple(MOTIONS), default="se3",
                    help="; ".join(f"{k}: {v}" for k, v in MOTIONS.items()) + " (default se3)")
-    p.add_argument("--frames", type=positive_int, default=200, help="number of frames (default 200)")
-    p.add_argument("--size", type=_SIZE, default=(320, 240), help="image size WxH (default 320x240)")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the room and the trajectory (default 0)")
+    p.add_argument("--frames", type=positive_int, default=200, metavar="N", help="number of frames (default 200)")
+    p.add_argument("--size", type=_SIZE, default=(320, 240), metavar="WxH", help="image size WxH (default 320x240)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, metavar="S",
+                   help="seed of the room and the trajectory (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace a TUM sequence already in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

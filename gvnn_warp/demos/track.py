@@ -79,13 +79,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     kf = KeyframePolicy()
     p.add_argument("data", type=Path, metavar="DIR", help="TUM RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])")
     p.add_argument("--out", type=Path, required=True, help="output folder (trajectory.txt, metrics.json, figures)")
-    p.add_argument("--intrinsics", type=intrinsics_arg, default=None,
+    p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY",
                    help="fr1, fr2, fr3, icl (published 640x480 values) or fx,fy,cx,cy (default: DIR/intrinsics.txt, "
                         "else the Freiburg preset named by the folder)")
-    p.add_argument("--depth-scale", type=positive_float, default=5000.0,
+    p.add_argument("--depth-scale", type=positive_float, default=5000.0, metavar="S",
                    help="raw depth units per metre (default 5000, as TUM and ICL-NUIM)")
-    p.add_argument("--max-frames", type=positive_int, default=None, help="track only the first N frames")
-    p.add_argument("--max-difference", type=positive_float, default=0.02,
+    p.add_argument("--max-frames", type=positive_int, default=None, metavar="N", help="track only the first N frames")
+    p.add_argument("--max-difference", type=positive_float, default=0.02, metavar="SEC",
                    help="seconds: colour/depth association and ground-truth matching (default 0.02)")
     p.add_argument("--keyframes", action="store_true",
                    help="align to a keyframe, replaced when the thresholds below are passed (default: previous frame)")
@@ -97,12 +97,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"new keyframe below this valid fraction (default {kf.min_valid})")
     p.add_argument("--init", choices=("identity", "velocity"), default="identity",
                    help="initial guess: identity (the default) or constant velocity")
-    p.add_argument("--levels", type=positive_int, default=None,
+    p.add_argument("--levels", type=positive_int, default=None, metavar="L",
                    help="pyramid levels (default: the aligner's, as many as keep the coarsest level >= 6 px)")
-    p.add_argument("--iterations", type=positive_int, default=None,
+    p.add_argument("--iterations", type=positive_int, default=None, metavar="N",
                    help="iterations per level (default: the aligner's)")
     p.add_argument("--robust", choices=ROBUST, default="huber", help="photometric penalty (default huber)")
-    p.add_argument("--depth-weight", type=nonnegative_float, default=0.0,
+    p.add_argument("--depth-weight", type=nonnegative_float, default=0.0, metavar="W",
                    help="weight of the depth term (default 0: photometric only)")
     p.add_argument("--color", action="store_true", help="photometric term on RGB instead of grey")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
