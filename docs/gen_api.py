@@ -15,7 +15,13 @@ SECTIONS = [
     ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.perpixel"),
     ("Layers (nn.Module)", "gvnn_warp.layers"),
     ("Per-pixel layers (nn.Module)", "gvnn_warp.perpixel_layers"),
+    ("The fused photometric objective (direct RGB-D alignment)", "gvnn_warp.photometric"),
     ("Threads", "gvnn_warp.kernels.launch", ["get_num_threads", "set_num_threads"]),
+    (
+        "Pure Warp: the fused photometric objective on wp.arrays (from gvnn_warp.kernels, no torch)",
+        "gvnn_warp.kernels.photometric_pipeline",
+        ["NormalEquations", "photometric_error", "photometric_normal_equations"],
+    ),
 ]
 
 
@@ -25,7 +31,8 @@ def render() -> str:
         "",
         "Generated from the docstrings by `docs/gen_api.py`. Conventions (pixel centres, (x, y) order,",
         "`[omega, t]` order, quaternion order, units, valid masks, minimum depth):",
-        "[conventions.md](conventions.md). Everything below is importable from `gvnn_warp`.",
+        "[conventions.md](conventions.md). Everything below is importable from `gvnn_warp`, except the",
+        "last section's pure-Warp functions (from `gvnn_warp.kernels`).",
         "",
     ]
     for title, modname, *names in SECTIONS:
@@ -37,7 +44,7 @@ def render() -> str:
                 continue
             sig = str(inspect.signature(obj)).replace("torch.Tensor", "Tensor")
             out += [f"### `{name}{sig}`", "", inspect.cleandoc(obj.__doc__ or "(undocumented)"), ""]
-            if inspect.isclass(obj) and obj.forward.__doc__:
+            if inspect.isclass(obj) and getattr(obj, "forward", None) and obj.forward.__doc__:
                 out += [inspect.cleandoc(obj.forward.__doc__), ""]
     return "\n".join(out)
 

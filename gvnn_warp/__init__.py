@@ -74,16 +74,19 @@ _PERPIXEL_LAYERS = (
     "SlantedPlaneDisparity",
     "SmoothnessLoss",
 )
+_PHOTOMETRIC = ("PhotometricLoss", "photometric_error", "photometric_normal_equations")
 _LAZY = {
     **{n: "functional" for n in _FUNCTIONAL},
     **{n: "layers" for n in _LAYERS},
     **{n: "perpixel" for n in _PERPIXEL},
     **{n: "perpixel_layers" for n in _PERPIXEL_LAYERS},
+    **{n: "photometric" for n in _PHOTOMETRIC},
 }
-_SUBMODULES = ("functional", "layers", "perpixel", "perpixel_layers")
+_SUBMODULES = ("functional", "layers", "perpixel", "perpixel_layers", "photometric")
 
 __all__ = [
-    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_SUBMODULES, "kernels", "get_num_threads", "set_num_threads"
+    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_PHOTOMETRIC, *_SUBMODULES, "kernels", "get_num_threads",
+    "set_num_threads",
 ]
 
 

@@ -24,11 +24,17 @@ How it works
    the robust (IRLS) photometric residuals, for a left-multiplied update ``T <- exp(delta) T``,
    ``delta = [omega, t]``: the step solves ``(JtWJ + lambda diag(JtWJ)) delta = -JtWr``; it is
    accepted if the cost per valid pixel goes down (then ``lambda`` shrinks by ``lm_down``), else
-   rejected (``lambda`` grows by ``lm_up``). Every trial is one fused pass over the level.
+   rejected (``lambda`` grows by ``lm_up``). Every trial is one fused pass over the level. The
+   whole step (accept/reject, damping, the 6x6 solve, the pose update, the stop test) runs in a
+   Warp kernel (:mod:`gvnn_warp.kernels.lm`), so a trial is a few recorded launches.
 3. A level stops after ``iterations[l]`` trials, or when a step moves the image by less than
    ``tolerance`` pixels of that level: ``f_l (|omega| + |t| / z)`` with ``f_l`` the level's focal
    length and ``z`` the mean valid reference depth, or when ``lambda`` exceeds ``1e8`` (no step
-   lowers the cost).
+   lowers the cost), or (if ``min_decrease > 0``) when an accepted step lowered the cost per
+   pixel by less than that fraction. A step shorter than ``take_step / 2^l`` pixels of level
+   ``l`` (``take_step`` in pixels of the finest level; at least ``tolerance``) is taken without
+   evaluating it and ends the level: near the optimum a Gauss-Newton step is reliable, and the
+   evaluation would cost a full pass (at the finest level this halves the work).
 
 ``info`` (a dict) reports per level (coarse to fine) the trials made, the final cost per valid
 pixel and the fraction of the level's pixels that were valid, and ``converged``: the finest level
@@ -46,6 +52,11 @@ For frame-to-frame tracking, build each frame's pyramid once and reuse it::
         T_cur_prev, info = aligner.align_frames(prev, cur)
         prev = cur
 
+A frame's pyramid lives in buffers the aligner owns and reuses once the :class:`Frame` is gone
+(a tracker drops one frame per step), and each (level, frame pair) keeps its recorded launches,
+so steady-state tracking allocates nothing. One aligner is not meant to be used from several
+threads at once (use one aligner per thread).
+
 Import needs no torch; torch is imported only when a tensor comes in.
 """
 
@@ -60,6 +71,7 @@ import numpy as np
 import warp as wp
 
 from .kernels import launch as _launch
+from .kernels import lm as _lm
 from .kernels import pyramid as _pyramid
 from .kernels.camera import MIN_DEPTH
 
@@ -142,33 +154,6 @@ class Frame:
         return self._mean_depth
 
 
-def _se3_exp(w0: float, w1: float, w2: float, t0: float, t1: float, t2: float) -> np.ndarray:
-    """The SE(3) exponential of one twist [omega, t] as a (4, 4) float64 array (scalar math: this
-    runs once per trial and batch item, where numpy's per-call overhead would dominate)."""
-    th2 = w0 * w0 + w1 * w1 + w2 * w2
-    if th2 < 1e-8:
-        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = math.sqrt(th2)
-        sn = math.sin(th)
-        a, b, c = sn / th, (1.0 - math.cos(th)) / th2, (th - sn) / (th2 * th)
-    # W = hat(w); W^2 = w w^T - th2 I
-    q00, q11, q22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
-    q01, q02, q12 = w0 * w1, w0 * w2, w1 * w2
-    r = (1.0 + b * q00, -a * w2 + b * q01, a * w1 + b * q02,
-         a * w2 + b * q01, 1.0 + b * q11, -a * w0 + b * q12,
-         -a * w1 + b * q02, a * w0 + b * q12, 1.0 + b * q22)
-    v = (1.0 + c * q00, -b * w2 + c * q01, b * w1 + c * q02,
-         b * w2 + c * q01, 1.0 + c * q11, -b * w0 + c * q12,
-         -b * w1 + c * q02, b * w0 + c * q12, 1.0 + c * q22)
-    return np.array([
-        [r[0], r[1], r[2], v[0] * t0 + v[1] * t1 + v[2] * t2],
-        [r[3], r[4], r[5], v[3] * t0 + v[4] * t1 + v[5] * t2],
-        [r[6], r[7], r[8], v[6] * t0 + v[7] * t1 + v[8] * t2],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
-
-
 def _recycle(pool: list, pyramid: _Pyramid) -> None:
     if len(pool) < _POOL_SIZE:
         pool.append(pyramid)
@@ -235,6 +220,10 @@ class DirectAligner:
         min_depth: depths at or below it count as missing (metres).
         color: keep every colour channel in the residual (C per pixel) instead of one intensity.
         tolerance: a level stops when a step moves the image by less than this many pixels.
+        take_step: steps shorter than this many finest-level pixels are taken unevaluated (see
+            the module docstring).
+        min_decrease: stop a level when an accepted step lowers the cost per pixel by less than
+            this fraction (0: never; it saves trials at coarse levels but narrows the basin).
         lm_lambda: initial Levenberg-Marquardt damping (relative to diag(JtWJ)); ``lm_up`` /
             ``lm_down``: its growth after a rejected / shrink after an accepted step.
         min_valid_fraction: fewest valid pixels (fraction of the level's) to trust a level.
@@ -254,6 +243,8 @@ class DirectAligner:
         min_depth: float = MIN_DEPTH,
         color: bool = False,
         tolerance: float = 0.05,
+        take_step: float = 0.5,
+        min_decrease: float = 0.0,
         lm_lambda: float = 1e-4,
         lm_up: float = 4.0,
         lm_down: float = 0.25,
@@ -285,7 +276,8 @@ class DirectAligner:
             if not (isinstance(v, (int, float)) and lo < v < math.inf):
                 _fail(fn, ValueError, f"argument '{name}' must be a finite number > {lo}, got {v!r}")
         for name, v in (("depth_weight", depth_weight), ("lm_lambda", lm_lambda),
-                        ("depth_tolerance", depth_tolerance)):
+                        ("depth_tolerance", depth_tolerance), ("take_step", take_step),
+                        ("min_decrease", min_decrease)):
             if not (isinstance(v, (int, float)) and 0.0 <= v < math.inf):
                 _fail(fn, ValueError, f"argument '{name}' must be a finite number >= 0, got {v!r}")
         if not (isinstance(lm_down, (int, float)) and 0.0 < lm_down <= 1.0):
@@ -297,13 +289,15 @@ class DirectAligner:
         self.min_depth = float(min_depth)
         self.color = bool(color)
         self.tolerance = float(tolerance)
+        self.min_decrease = float(min_decrease)
+        self.take_step = float(take_step)
         self.lm_lambda = float(lm_lambda)
         self.lm_up = float(lm_up)
         self.lm_down = float(lm_down)
         self.min_valid_fraction = float(min_valid_fraction)
         self.depth_tolerance = float(depth_tolerance)
         self._weights: dict[int, wp.array] = {}
-        self._buffers: dict[tuple, dict] = {}  # per (B, level shapes): K per level, pose, outputs
+        self._states: dict[tuple, _State] = {}  # per (B, level shapes)
         self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free _Pyramid buffers
 
     # ------------------------------------------------------------------------------ pyramids
@@ -336,7 +330,7 @@ class DirectAligner:
         The inputs are copied (later changes to them do not affect the frame)."""
         return self._prepare("prepare", "image", "depth", image, depth)
 
-    def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth) -> Frame:
+    def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth, use_depth: bool = True) -> Frame:
         torch_in = _is_torch(image)
         img = _as_numpy(fn, image_name, image, (3, 4))
         batched = img.ndim == 4
@@ -357,6 +351,8 @@ class DirectAligner:
             if d.shape != (B, 1, H, W):
                 want = (B, 1, H, W) if batched else (1, H, W)
                 _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}")
+        if not use_depth:
+            depth = None  # checked, but not needed
         key = (B, C, H, W, depth is not None)
         pool = self._frame_pool.setdefault(key, [])
         pyr = pool.pop() if pool else _Pyramid(self, B, C, H, W, depth is not None)
@@ -389,8 +385,7 @@ class DirectAligner:
         if live_depth is None and self.depth_weight > 0:
             _fail(fn, ValueError, "argument 'live_depth' must be given when depth_weight > 0")
         ref = self._prepare(fn, "ref_image", "ref_depth", ref_image, ref_depth)
-        live = self._prepare(fn, "live_image", "live_depth", live_image,
-                             live_depth if self.depth_weight > 0 else None)
+        live = self._prepare(fn, "live_image", "live_depth", live_image, live_depth, self.depth_weight > 0)
         if live.batched != ref.batched or live.images[0].shape != ref.images[0].shape:
             got = tuple(np.shape(live_image))
             want = tuple(ref.images[0].shape[:1] if ref.batched else ()) + (np.shape(ref_image)[-3],) + ref.shape
@@ -409,11 +404,14 @@ class DirectAligner:
             _fail(fn, ValueError, "argument 'ref' must be prepared with a depth")
         if self.depth_weight > 0 and live.depths is None:
             _fail(fn, ValueError, "argument 'live' must be prepared with a depth when depth_weight > 0")
-        if live.batched != ref.batched or tuple(live.images[0].shape) != tuple(ref.images[0].shape) or len(
-            live.images
-        ) != len(ref.images):
+        if live.batched != ref.batched or tuple(live.images[0].shape) != tuple(ref.images[0].shape):
             _fail(fn, ValueError, f"arguments 'ref' and 'live' must have the same shape, got "
                   f"{tuple(ref.images[0].shape)} and {tuple(live.images[0].shape)}")
+        n_levels = self._levels_for(*ref.shape)
+        grey_mismatch = not self.color and ref.images[0].shape[1] != 1
+        if len(ref.images) != n_levels or len(live.images) != n_levels or grey_mismatch:
+            _fail(fn, ValueError, "arguments 'ref' and 'live' must be prepared by an aligner with these levels and "
+                  "colour settings")
         return self._align(fn, ref, live, init)
 
     def _init_pose(self, fn: str, init, B: int, batched: bool) -> np.ndarray:
@@ -431,135 +429,129 @@ class DirectAligner:
         out[:, :3, :] = T[:, :3, :]
         return out
 
-    def _level_buffers(self, B: int, shapes) -> dict:
-        """Per (batch size, level shapes): the intrinsics of every level (wp.array (B,) of 3x3
-        float32), the pose buffer the system reads (wp.array (B,) of 3x4 float32, with its numpy
-        view), each level's mean focal length, and the system function."""
+    def _state(self, B: int, shapes) -> _State:
         key = (B, tuple(shapes))
-        buf = self._buffers.get(key)
-        if buf is None:
-            Ks = [_pyramid.scale_intrinsics(self.K, level) for level in range(len(shapes))]
-            K_wp = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
-                    for Kl in Ks]
-            pose = wp.zeros(B, dtype=_launch.mat34f, device="cpu")
-            buf = {"pose_np": pose.numpy().reshape(B, 3, 4), "f": [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks],
-                   "system": self._make_system(B, shapes, pose, K_wp)}
-            self._buffers[key] = buf
-        return buf
-
-    def _make_system(self, B: int, shapes, pose: wp.array, K: list):
-        """Returns ``system(ref, live, level) -> (JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,))``
-        (float64 numpy copies) at the pose in ``pose``, by the fused Warp normal equations.
-
-        The outputs of every (level, reference pyramid, live pyramid) seen lately are kept, with
-        their numpy views: pyramids are pooled, so in frame-to-frame tracking the same few
-        combinations recur and each call re-launches the launches recorded the first time."""
-        from .kernels import photometric_normal_equations
-
-        cache: dict[tuple, tuple] = {}
-        kw = {"robust": self.robust, "scale": self.scale, "depth_weight": self.depth_weight,
-              "min_depth": self.min_depth}
-        use_depth = self.depth_weight > 0
-
-        def system(ref: Frame, live: Frame, level: int):
-            key = (level, id(ref.images[level]), id(live.images[level]))
-            entry = cache.get(key)
-            live_depth = live.depths[level] if use_depth else None
-            if entry is None:
-                if len(cache) >= _SYSTEM_CACHE:
-                    cache.pop(next(iter(cache)))
-                ne = photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
-                                                  K[level], live_depth=live_depth, **kw)
-                entry = cache[key] = (ne, tuple(a.numpy() for a in ne))
-            else:
-                photometric_normal_equations(ref.images[level], ref.depths[level], live.images[level], pose,
-                                             K[level], live_depth=live_depth, out=entry[0], **kw)
-            JtWJ, JtWr, cost, count = entry[1]
-            return (JtWJ.astype(np.float64), JtWr.astype(np.float64), cost.astype(np.float64),
-                    count.astype(np.float64))
-
-        return system
+        st = self._states.get(key)
+        if st is None:
+            st = self._states[key] = _State(self, B, shapes)
+        return st
 
     def _align(self, fn: str, ref: Frame, live: Frame, init):
         B = ref.batch
-        T = self._init_pose(fn, init, B, ref.batched)
+        T0 = self._init_pose(fn, init, B, ref.batched)
         shapes = [(int(a.shape[2]), int(a.shape[3])) for a in ref.images]
-        buf = self._level_buffers(B, shapes)
-        system = buf["system"]
-        pose_np = buf["pose_np"]
-        zmean = ref.mean_depth().tolist()
-        diag = np.arange(6)
-        tol, lam_up, lam_down = self.tolerance, self.lm_up, self.lm_down
-        items = range(B)
+        st = self._state(B, shapes)
+        st.T_np[:] = T0[:, :3, :]
+        st.zmean_np[:] = ref.mean_depth()
         level_info = []
-        converged = [False] * B
         for level in range(len(shapes) - 1, -1, -1):
-            h, w = shapes[level]
-            n_pix = float(h * w)
-            min_count = max(_MIN_VALID_PIXELS, self.min_valid_fraction * n_pix)
-            f = buf["f"][level]
-            evaluate = functools.partial(system, ref, live, level)
-            pose_np[:] = T[:, :3, :]
-            H, g, cost, count = evaluate()
-            mean = [c / max(n, 1.0) for c, n in zip(cost.tolist(), count.tolist())]
-            count = count.tolist()
-            active = [n >= min_count for n in count]
-            ok = list(active)
-            lam = [self.lm_lambda] * B
-            trials = [0] * B
-            last_step = [math.inf] * B
+            ne, lm_first, lm_next = st.runner(ref, live, level)
+            st.pose_np[:] = st.T_np
+            for cmd in ne:
+                cmd()
+            lm_first()
+            active = st.active_np
             for _ in range(self.iterations[min(level, len(self.iterations) - 1)]):
-                if not any(active):
+                if not active.any():
                     break
-                A = H.copy()
-                A[:, diag, diag] *= 1.0 + np.array(lam)[:, None]
-                A[:, diag, diag] += 1e-9 * (1.0 + H[:, diag, diag].sum(1, keepdims=True))
-                try:
-                    delta = np.linalg.solve(A, g[..., None])[..., 0].tolist()
-                except np.linalg.LinAlgError:  # a singular system: stop this level
-                    break
-                Tn = T.copy()
-                step = [0.0] * B
-                for b in items:
-                    d = delta[b]
-                    if active[b]:
-                        if not all(map(math.isfinite, d)):
-                            active[b] = False
-                            continue
-                        Tn[b] = _se3_exp(-d[0], -d[1], -d[2], -d[3], -d[4], -d[5]) @ T[b]
-                        step[b] = f * (math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                                       + math.sqrt(d[3] * d[3] + d[4] * d[4] + d[5] * d[5]) / zmean[b])
-                pose_np[:] = Tn[:, :3, :]
-                Hn, gn, costn, countn = evaluate()
-                costn, countn = costn.tolist(), countn.tolist()
-                for b in items:
-                    if not active[b]:
-                        continue
-                    trials[b] += 1
-                    last_step[b] = step[b]
-                    meann = costn[b] / max(countn[b], 1.0)
-                    if countn[b] >= min_count and meann < mean[b]:
-                        T[b] = Tn[b]
-                        H[b] = Hn[b]
-                        g[b] = gn[b]
-                        mean[b] = meann
-                        count[b] = countn[b]
-                        lam[b] *= lam_down
-                    else:
-                        lam[b] *= lam_up
-                    if step[b] < tol or lam[b] > _LAMBDA_MAX:
-                        active[b] = False
-            converged = [ok[b] and last_step[b] < 10.0 * tol for b in items]
+                for cmd in ne:
+                    cmd()
+                lm_next()
+            h, w = shapes[level]
+            frac = st.count_np / float(h * w)
             level_info.append({
                 "level": level, "size": (h, w),
-                "iterations": np.array(trials) if ref.batched else trials[0],
-                "cost": np.array(mean) if ref.batched else mean[0],
-                "valid_fraction": np.array(count) / n_pix if ref.batched else count[0] / n_pix,
+                "iterations": st.trials_np.copy() if ref.batched else int(st.trials_np[0]),
+                "cost": st.mean_np.copy() if ref.batched else float(st.mean_np[0]),
+                "valid_fraction": np.where(st.ok_np > 0, frac, 0.0) if ref.batched else
+                float(frac[0] if st.ok_np[0] else 0.0),
             })
-        info = {"converged": np.array(converged) if ref.batched else converged[0], "levels": level_info}
+        converged = (st.ok_np > 0) & (st.step_np < 10.0 * self.tolerance)
+        T = np.zeros((B, 4, 4))
+        T[:, :3, :] = st.T_np
+        T[:, 3, 3] = 1.0
+        info = {"converged": converged if ref.batched else bool(converged[0]), "levels": level_info}
         out = T if ref.batched else T[0]
         if ref.torch:
             import torch
 
             out = torch.from_numpy(out)
         return out, info
+
+
+class _State:
+    """Per (batch size, level shapes): the Levenberg-Marquardt state of :mod:`.kernels.lm` (with
+    numpy views), the intrinsics of every level, and per (level, reference pyramid, live pyramid)
+    the normal equations' outputs with the launches that fill them and the LM step launches,
+    recorded once: in frame-to-frame tracking pyramids are pooled, so the same few combinations
+    recur, and a trial costs a few recorded launches."""
+
+    def __init__(self, aligner: DirectAligner, B: int, shapes):
+        self.aligner = aligner
+        self.B = B
+        Ks = [_pyramid.scale_intrinsics(aligner.K, level) for level in range(len(shapes))]
+        self.K = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
+                  for Kl in Ks]
+        self.f = [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks]
+        self.min_count = [max(_MIN_VALID_PIXELS, aligner.min_valid_fraction * h * w) for h, w in shapes]
+
+        def arr(dtype, n=B):
+            a = wp.zeros(n, dtype=dtype, device="cpu")
+            return a, a.numpy()
+
+        self.pose, pose_np = arr(_launch.mat34f)
+        self.pose_np = pose_np.reshape(B, 3, 4)
+        self.T, T_np = arr(_launch.mat34d)
+        self.T_np = T_np.reshape(B, 3, 4)
+        self.Tn, _ = arr(_launch.mat34d)
+        self.H, _ = arr(wp.float64, B * 36)
+        self.g, _ = arr(wp.float64, B * 6)
+        self.zmean, self.zmean_np = arr(wp.float64)
+        self.mean, self.mean_np = arr(wp.float64)
+        self.count, self.count_np = arr(wp.float64)
+        self.lam, _ = arr(wp.float64)
+        self.step, self.step_np = arr(wp.float64)
+        self.trials, self.trials_np = arr(wp.int32)
+        self.active, self.active_np = arr(wp.int32)
+        self.ok, self.ok_np = arr(wp.int32)
+        self._runners: dict[tuple, tuple] = {}
+
+    def runner(self, ref: Frame, live: Frame, level: int):
+        """(normal-equation launches, first LM step, next LM step) for this pair at ``level``."""
+        use_depth = self.aligner.depth_weight > 0
+        key = (level, id(ref.images[level]), id(ref.depths[level]), id(live.images[level]),
+               id(live.depths[level]) if use_depth else None)
+        run = self._runners.get(key)
+        if run is None:
+            if len(self._runners) >= _SYSTEM_CACHE:
+                self._runners.pop(next(iter(self._runners)))
+            run = self._runners[key] = self._make_runner(ref, live, level, use_depth)
+        return run[:3]
+
+    def _make_runner(self, ref: Frame, live: Frame, level: int, use_depth: bool):
+        from .kernels import photometric_normal_equations
+
+        al = self.aligner
+        args = (ref.images[level], ref.depths[level], live.images[level], self.pose, self.K[level])
+        kw = {"robust": al.robust, "scale": al.scale, "depth_weight": al.depth_weight, "min_depth": al.min_depth,
+              "live_depth": live.depths[level] if use_depth else None}
+        ne = photometric_normal_equations(*args, **kw)
+        cmds = getattr(ne, "_cmds", None)
+        if not cmds:  # no recorded launches to replay: the public call with out= each time
+            cmds = [functools.partial(photometric_normal_equations, *args, out=ne, **kw)]
+        lm = []
+        for first in (1, 0):
+            lm.append(wp.launch(
+                _lm.lm_step, dim=self.B,
+                inputs=[ne.JtWJ.flatten(), ne.JtWr.flatten(), ne.cost, ne.count, self.zmean, first,
+                        self.min_count[level], self.f[level], al.tolerance, max(al.tolerance, al.take_step / 2**level),
+                        al.lm_lambda, al.lm_up, al.lm_down,
+                        _LAMBDA_MAX, al.min_decrease],
+                outputs=[self.T, self.Tn, self.pose, self.H, self.g, self.mean, self.count, self.lam, self.step,
+                         self.trials, self.active, self.ok],
+                device="cpu", record_cmd=True,
+            ).launch)
+        # the arrays stay referenced with their recorded launches: their ids (the cache key) and
+        # addresses cannot be reused by other arrays while the entry exists
+        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne)
+        return tuple(cmds), lm[0], lm[1], keep

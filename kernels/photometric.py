@@ -118,3 +118,310 @@ def twist_jacobian(p: Any, gp: Any):
     delta = [omega, t]: dP/domega = -[P]x, dP/dt = I, so J = [P x gp, gp]."""
     c = wp.cross(p, gp)
     return c[0], c[1], c[2], gp[0], gp[1], gp[2]
+
+
+# ----------------------------------------------------------------------------- one pixel's penalty
+
+
+@wp.func
+def pixel_penalty_grad(
+    live: wp.array(dtype=Any),
+    g_live: wp.array(dtype=Any),
+    ref: wp.array(dtype=Any),
+    g_ref: wp.array(dtype=Any),
+    live0: int,
+    ref_i: int,
+    C: int,
+    hw: int,
+    H: int,
+    W: int,
+    u: Any,
+    v: Any,
+    kind: int,
+    c: Any,
+    adj: Any,
+):
+    """The adjoint of :func:`pixel_penalty` where active: given ``adj`` = d loss / d (its value),
+    adds d loss / d live (the four taps of every channel) into ``g_live`` and d loss / d ref into
+    ``g_ref`` (null arrays, with no elements, are left alone) and returns (d loss / du, d loss / dv):
+    with g = adj rho'(r_c), d/du = g d live_c/du (the bilinear interpolant's derivative)."""
+    zero = type(u)(0.0)
+    big = type(u)(1.0e30)
+    i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = taps(u, v, H, W)
+    wx0 = type(u)(1.0) - wx1
+    wy0 = type(u)(1.0) - wy1
+    scatter = g_live.shape[0] > 0
+    to_ref = g_ref.shape[0] > 0
+    gu = zero
+    gv = zero
+    for ch in range(C):
+        base = live0 + ch * hw
+        val, dx, dy = interpolate(
+            read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
+            read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
+        )
+        r = val - ref[ref_i + ch * hw]
+        if wp.abs(r) + wp.abs(dx) + wp.abs(dy) < big:  # finite residual and derivatives
+            g = adj * penalty_grad(r, kind, c)
+            gu += g * dx
+            gv += g * dy
+            if scatter:
+                if k00:
+                    g_live[base + i00] += g * (wx0 * wy0)
+                if k10:
+                    g_live[base + i10] += g * (wx1 * wy0)
+                if k01:
+                    g_live[base + i01] += g * (wx0 * wy1)
+                if k11:
+                    g_live[base + i11] += g * (wx1 * wy1)
+            if to_ref:
+                g_ref[ref_i + ch * hw] -= g
+    return gu, gv
+
+
+def _make_pixel_penalty(T, pixel_penalty=None):
+    """float type ``T`` overload of pixel_penalty (Warp custom adjoints need concrete types); the
+    parameter named like the function is the overload made before (see sampler.py)."""
+
+    @wp.func
+    def pixel_penalty(
+        live: wp.array(dtype=T),
+        ref: wp.array(dtype=T),
+        live0: int,
+        ref_i: int,
+        C: int,
+        hw: int,
+        H: int,
+        W: int,
+        u: T,
+        v: T,
+        kind: int,
+        c: T,
+        active: wp.bool,
+    ):
+        """sum over channels ch of rho(live_ch(u, v) - ref[ref_i + ch hw]) where ``active``, else 0.
+
+        ``live`` and ``ref`` are flat (B, C, H, W); ``live0`` is the flat offset of the batch
+        item's first live plane, ``ref_i`` that of the reference pixel in its first plane. When
+        active, the caller guarantees -1 < u < W and -1 < v < H. Residuals that are not finite
+        (NaN/inf intensities) count 0. Gradients (hand-written adjoint, below): to u, v, live
+        (scattered to the four taps) and ref; none to the rest.
+        """
+        total = T(0.0)
+        if active:
+            big = T(1.0e30)
+            i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = taps(u, v, H, W)
+            for ch in range(C):
+                base = live0 + ch * hw
+                val, dx, dy = interpolate(
+                    read_tap(live, base + i00, k00), read_tap(live, base + i10, k10),
+                    read_tap(live, base + i01, k01), read_tap(live, base + i11, k11), wx1, wy1,
+                )
+                r = val - ref[ref_i + ch * hw]
+                total += wp.where(wp.abs(r) + wp.abs(dx) + wp.abs(dy) < big, penalty(r, kind, c), T(0.0))
+        return total
+
+    @wp.func_grad(pixel_penalty)
+    def adj_pixel_penalty(
+        live: wp.array(dtype=T),
+        ref: wp.array(dtype=T),
+        live0: int,
+        ref_i: int,
+        C: int,
+        hw: int,
+        H: int,
+        W: int,
+        u: T,
+        v: T,
+        kind: int,
+        c: T,
+        active: wp.bool,
+        adj_ret: T,
+    ):
+        if active:
+            gu, gv = pixel_penalty_grad(
+                live, wp.adjoint[live], ref, wp.adjoint[ref], live0, ref_i, C, hw, H, W, u, v, kind, c, adj_ret
+            )
+            wp.adjoint[u] += gu
+            wp.adjoint[v] += gv
+
+    @wp.func_replay(pixel_penalty)
+    def replay_pixel_penalty(
+        live: wp.array(dtype=T),
+        ref: wp.array(dtype=T),
+        live0: int,
+        ref_i: int,
+        C: int,
+        hw: int,
+        H: int,
+        W: int,
+        u: T,
+        v: T,
+        kind: int,
+        c: T,
+        active: wp.bool,
+    ):
+        # the backward pass needs no value of it: skip re-sampling every channel
+        return T(0.0)
+
+    return pixel_penalty
+
+
+pixel_penalty = _make_pixel_penalty(wp.float64, _make_pixel_penalty(wp.float32))
+
+
+# ----------------------------------------------------------------------------- 8 pixels at a time
+#
+# Warp compiles a thread's work as scalar code, except arithmetic on its fixed-length vector types,
+# which LLVM vectorises (see sampler.py). The normal equations' row kernel handles 8 consecutive
+# pixels of a row as length-8 vectors ("lanes"): projection, taps, interpolation, Jacobian,
+# weights and the 27 running sums are SIMD; only the image reads and the per-lane tests are
+# scalar. Masks are 0/1 vectors; every value a masked lane computes is finite (its inputs are
+# replaced first), so multiplying by the mask is exact.
+
+
+@wp.func
+def splat8(s: Any):
+    """(s, s, s, s, s, s, s, s)."""
+    return wp.vector(s, s, s, s, s, s, s, s)
+
+
+@wp.func
+def iota8(x0: int, one: Any):
+    """(x0, x0 + 1, ..., x0 + 7) in the float type of ``one``."""
+    return wp.vector(
+        type(one)(x0), type(one)(x0 + 1), type(one)(x0 + 2), type(one)(x0 + 3),
+        type(one)(x0 + 4), type(one)(x0 + 5), type(one)(x0 + 6), type(one)(x0 + 7),
+    )
+
+
+@wp.func
+def load8(a: wp.array(dtype=Any), base: int, x0: int, last: int):
+    """a[base + min(x0 + k, last)] for k in 0..7 (lanes past ``last`` repeat it)."""
+    return wp.vector(
+        a[base + wp.min(x0, last)], a[base + wp.min(x0 + 1, last)], a[base + wp.min(x0 + 2, last)],
+        a[base + wp.min(x0 + 3, last)], a[base + wp.min(x0 + 4, last)], a[base + wp.min(x0 + 5, last)],
+        a[base + wp.min(x0 + 6, last)], a[base + wp.min(x0 + 7, last)],
+    )
+
+
+@wp.func
+def flag(cond: bool, one: Any):
+    return wp.where(cond, one, type(one)(0.0))
+
+
+@wp.func
+def above(v: Any, lo: Any):
+    """1 where v > lo, else 0 (NaN: 0)."""
+    return wp.where(v > lo, type(lo)(1.0), type(lo)(0.0))
+
+
+@wp.func
+def at_least(v: Any, lo: Any):
+    """1 where v >= lo, else 0 (NaN: 0)."""
+    return wp.where(v >= lo, type(lo)(1.0), type(lo)(0.0))
+
+
+@wp.func
+def open_mask8(v: Any, lo: Any, hi: Any):
+    """1 where lo < v < hi (NaN: 0), per lane. Products of per-lane selects, no ``and``: Warp
+    turns ``and`` into branches, which LLVM does not vectorise."""
+    return wp.cw_mul(
+        wp.vector(above(v[0], lo), above(v[1], lo), above(v[2], lo), above(v[3], lo),
+                  above(v[4], lo), above(v[5], lo), above(v[6], lo), above(v[7], lo)),
+        wp.vector(above(-v[0], -hi), above(-v[1], -hi), above(-v[2], -hi), above(-v[3], -hi),
+                  above(-v[4], -hi), above(-v[5], -hi), above(-v[6], -hi), above(-v[7], -hi)),
+    )
+
+
+@wp.func
+def closed_mask8(v: Any, lo: Any, hi: Any):
+    """1 where lo <= v <= hi (NaN: 0), per lane (see :func:`open_mask8`)."""
+    return wp.cw_mul(
+        wp.vector(at_least(v[0], lo), at_least(v[1], lo), at_least(v[2], lo), at_least(v[3], lo),
+                  at_least(v[4], lo), at_least(v[5], lo), at_least(v[6], lo), at_least(v[7], lo)),
+        wp.vector(at_least(-v[0], -hi), at_least(-v[1], -hi), at_least(-v[2], -hi), at_least(-v[3], -hi),
+                  at_least(-v[4], -hi), at_least(-v[5], -hi), at_least(-v[6], -hi), at_least(-v[7], -hi)),
+    )
+
+
+@wp.func
+def select8(m: Any, a: Any, b: Any):
+    """a where the mask m is 1, else b, per lane (a select: a NaN in the other input is dropped)."""
+    z = type(m[0])(0.0)
+    return wp.vector(
+        wp.where(m[0] != z, a[0], b[0]), wp.where(m[1] != z, a[1], b[1]),
+        wp.where(m[2] != z, a[2], b[2]), wp.where(m[3] != z, a[3], b[3]),
+        wp.where(m[4] != z, a[4], b[4]), wp.where(m[5] != z, a[5], b[5]),
+        wp.where(m[6] != z, a[6], b[6]), wp.where(m[7] != z, a[7], b[7]),
+    )
+
+
+@wp.func
+def hsum8(v: Any):
+    """The sum of the 8 lanes, in float64, in lane order."""
+    return (
+        wp.float64(v[0]) + wp.float64(v[1]) + wp.float64(v[2]) + wp.float64(v[3])
+        + wp.float64(v[4]) + wp.float64(v[5]) + wp.float64(v[6]) + wp.float64(v[7])
+    )
+
+
+@wp.func
+def interpolate8(v00: Any, v10: Any, v01: Any, v11: Any, wx1: Any, wy1: Any):
+    """:func:`interpolate` on 8 lanes."""
+    ones = splat8(type(wx1[0])(1.0))
+    wx0 = ones - wx1
+    wy0 = ones - wy1
+    value = wp.cw_mul(wp.cw_mul(v00, wx0) + wp.cw_mul(v10, wx1), wy0) + wp.cw_mul(
+        wp.cw_mul(v01, wx0) + wp.cw_mul(v11, wx1), wy1
+    )
+    gx = wp.cw_mul(v10 - v00, wy0) + wp.cw_mul(v11 - v01, wy1)
+    gy = wp.cw_mul(v01 - v00, wx0) + wp.cw_mul(v11 - v10, wx1)
+    return value, gx, gy
+
+
+@wp.func
+def weight8(r: Any, kind: int, c: Any):
+    """:func:`irls_weight` on 8 lanes, in closed forms without branches: Huber c / max(|r|, c);
+    Cauchy 1 / (1 + u^2); Geman-McClure its square; Tukey (1 - min(u^2, 1))^2 (u = r / c)."""
+    one = type(c)(1.0)
+    ones = splat8(one)
+    w = ones
+    if kind == robust.HUBER:
+        w = wp.cw_div(splat8(c), wp.max(wp.max(r, -r), splat8(c)))
+    elif kind != L2:
+        u2 = wp.cw_mul(r, r) * (one / (c * c))
+        w = wp.cw_div(ones, ones + u2)
+        if kind == robust.GEMAN_MCCLURE:
+            w = wp.cw_mul(w, w)
+        elif kind == robust.TUKEY:
+            z = ones - wp.min(u2, ones)
+            w = wp.cw_mul(z, z)
+    return w
+
+
+@wp.func
+def penalty8(r: Any, kind: int, c: Any):
+    """:func:`penalty` on 8 lanes (Huber, Geman-McClure, Tukey, L2 in closed forms without
+    branches; Cauchy per lane through :func:`.robust.rho`)."""
+    one = type(c)(1.0)
+    half = type(c)(0.5)
+    ones = splat8(one)
+    p = wp.cw_mul(r, r) * half
+    if kind == robust.HUBER:
+        a = wp.max(r, -r)
+        m = wp.min(a, splat8(c))
+        p = wp.cw_mul(m, a - m * half)  # r^2 / 2 inside, c (|r| - c / 2) beyond
+    elif kind == robust.CAUCHY:
+        p = wp.vector(
+            robust.rho(r[0], kind, c), robust.rho(r[1], kind, c), robust.rho(r[2], kind, c),
+            robust.rho(r[3], kind, c), robust.rho(r[4], kind, c), robust.rho(r[5], kind, c),
+            robust.rho(r[6], kind, c), robust.rho(r[7], kind, c),
+        )
+    elif kind == robust.GEMAN_MCCLURE:
+        u2 = wp.min(wp.cw_mul(r, r) * (one / (c * c)), splat8(type(c)(1.0e30)))  # no inf / inf
+        p = wp.cw_div(u2, ones + u2) * (c * c * half)  # (c^2 / 2) u^2 / (1 + u^2) = (r^2 / 2) / (1 + u^2)
+    elif kind == robust.TUKEY:
+        z = wp.min(wp.cw_mul(r, r) * (one / (c * c)), ones)
+        p = wp.cw_mul(z, splat8(type(c)(3.0)) - wp.cw_mul(z, splat8(type(c)(3.0)) - z)) * (c * c / type(c)(6.0))
+    return p

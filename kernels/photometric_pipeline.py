@@ -48,6 +48,7 @@ class NormalEquations:
     _rows: wp.array = field(repr=False)  # (B * H * ROW_STRIDE,) float64 row partial sums
     _key: tuple | None = field(default=None, repr=False)
     _cmds: list = field(default_factory=list, repr=False)  # recorded launches for _key
+    _args: tuple = field(default=(), repr=False)  # the arguments of the call that recorded them
 
     def __iter__(self):
         return iter((self.JtWJ, self.JtWr, self.cost, self.count))
@@ -149,14 +150,25 @@ def photometric_normal_equations(
     """
     fn = "photometric_normal_equations"
     key = None
-    if out is not None:
+    if out is not None and isinstance(out, NormalEquations) and out._cmds:
+        a = out._args
+        if (  # the fastest path: the very same array objects and arguments, nothing allocated
+            a[0] is ref_image and a[1] is ref_depth and a[2] is live_image and a[3] is pose and a[4] is K
+            and a[5] is live_depth and a[6] == robust and a[7] == scale and a[8] == depth_weight
+            and a[9] == min_depth and a[10] == _launch.get_num_threads()
+        ):
+            for cmd in out._cmds:
+                cmd()
+            return out
         try:
             key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
                               (robust, scale, depth_weight, min_depth, _launch.get_num_threads()))
         except AttributeError:  # not wp.arrays: the checks below say so
             pass
-        if key is not None and isinstance(out, NormalEquations) and out._key is not None and out._key[0] == key:
-            # the fast path: the same arrays (by pointer, shape, strides, type) and arguments
+        if key is not None and out._key is not None and out._key[0] == key:
+            # other array objects over the same memory (address, shape, strides, type)
+            out._args = (ref_image, ref_depth, live_image, pose, K, live_depth, robust, scale, depth_weight,
+                         min_depth, _launch.get_num_threads())
             for cmd in out._cmds:
                 cmd()
             return out
@@ -195,7 +207,7 @@ def photometric_normal_equations(
         out._rows,
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
-    rows_kernel = pk.normal_equations_rows[int(live_depth is not None and depth_weight > 0)][ft]
+    rows_kernel = pk.normal_equations_lanes[int(live_depth is not None and depth_weight > 0)][ft]
     out._cmds = _record(rows_kernel, B * H, W, inputs) + _record(
         pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1 << 30, [out._rows, H, *outputs]
     )
@@ -203,6 +215,8 @@ def photometric_normal_equations(
         key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
                           (robust, scale, depth_weight, min_depth, _launch.get_num_threads()))
     out._key = (key, inputs)  # the views stay alive with the recorded launches
+    out._args = (ref_image, ref_depth, live_image, pose, K, live_depth, robust, scale, depth_weight, min_depth,
+                 _launch.get_num_threads())
     for cmd in out._cmds:
         cmd()
     return out
@@ -219,9 +233,78 @@ def _launch_key(*arrays_and_args) -> tuple:
 
 
 def _record(kernel: wp.Kernel, n: int, row_pixels: int, args: list) -> list:
-    """Callables that run ``kernel`` (first argument ``offset``) over [0, n): one recorded launch
-    when the work is small, else :func:`.launch.launch` (threads)."""
-    if n * row_pixels < 2 * pk._GRAIN_PIXELS or _launch.get_num_threads() == 1:
-        cmd = wp.launch(kernel, dim=n, inputs=[0, *args], device="cpu", record_cmd=True)
-        return [cmd.launch]
-    return [lambda: _launch.launch(kernel, n, args, [])]
+    """Callables that run ``kernel`` (first argument ``offset``) over [0, n) with ``args``: recorded
+    launches (~2 us each to re-launch, against ~15 us for ``wp.launch``); above
+    ``2 * _GRAIN_PIXELS`` pixels of work, one per thread over equal runs of elements, run on the
+    thread pool of :mod:`.launch` (the kernels write disjoint slots per element: any split gives
+    the same bits)."""
+    threads = _launch.get_num_threads()
+    pieces = min(threads, n, (n * row_pixels) // pk._GRAIN_PIXELS)
+    bounds = [n * k // max(1, pieces) for k in range(max(1, pieces) + 1)]
+    cmds = [
+        wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *args], device="cpu", record_cmd=True)
+        for k in range(max(1, pieces))
+    ]
+    runs = [c.launch for c in cmds]
+    if len(runs) == 1:
+        return runs
+    if getattr(_launch, "_pool", None) is None:  # the launch layer changed: its public launcher
+        return [lambda: _launch.launch(kernel, n, args, [])]
+    return [lambda: _launch._pool.run(lambda k: runs[k](), len(runs), threads)]
+
+
+#: penalties of :func:`photometric_error`
+ERROR_KINDS = ("l1", "l2", "huber", "cauchy", "geman_mcclure", "tukey")
+
+
+def photometric_error(
+    ref_image: wp.array,
+    ref_depth: wp.array,
+    live_image: wp.array,
+    pose: wp.array,
+    K: wp.array,
+    *,
+    robust: str = "l1",
+    scale: float = 1.0,
+    min_depth: float = MIN_DEPTH,
+) -> tuple[wp.array, wp.array]:
+    """The mean robust photometric error of the reference frame warped into the live image.
+
+    For every reference pixel u with a valid depth whose moved point P = pose * (depth K^-1
+    [u, 1]) has z > min_depth and projects inside the live image (the ``valid`` rule of
+    ``warp_frame_depth``, docs/conventions.md), r_c = live_c(project(P)) - ref_c(u) per channel
+    (bilinear sample); error = mean over those pixels and all channels of rho(r_c), count = the
+    number of those pixels (error 0 where count is 0). Residuals that are not finite (NaN/inf
+    intensities) count 0.
+
+    Args:
+        ref_image, live_image: (B, C, H, W) intensities.
+        ref_depth: (B, 1, H, W) depth of the reference frame; 0, negative, NaN or inf: skipped.
+        pose: (B,) 3x4 matrices mapping reference-camera points into the live camera.
+        K: (B,) 3x3 intrinsics.
+        robust: "l1" (|r|, default), "l2" (r^2 / 2), "huber", "cauchy", "geman_mcclure", "tukey"
+            (``gvnn_warp.robust_rho`` with ``scale``).
+        scale: the M-estimator's scale (ignored by "l1" and "l2").
+
+    Returns:
+        error (B,) and count (B,) (float, integer-valued). ``error`` has a gradient buffer when an
+        input does, so the call can be recorded on a ``wp.Tape``: one row-blocked kernel and a
+        reduction over rows, differentiated by Warp (gradients to both images, depth, pose, K).
+    """
+    fn = "photometric_error"
+    B, C, H, W, ft = _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth)
+    _check_penalty(fn, robust, scale, ERROR_KINDS)
+    grad = any(a.requires_grad for a in (ref_image, ref_depth, live_image, pose, K))
+    row_sum = wp.zeros(B * H, dtype=ft, device="cpu", requires_grad=grad)
+    row_count = wp.zeros(B * H, dtype=ft, device="cpu")
+    error = wp.zeros(B, dtype=ft, device="cpu", requires_grad=grad)
+    count = wp.zeros(B, dtype=ft, device="cpu")
+    wp.launch(
+        pk.photometric_rows[ft], dim=B * H,
+        inputs=[0, ref_image.flatten(), ref_depth.flatten(), live_image.flatten(), pose, K, C, H, W,
+                KINDS[robust], float(scale), float(min_depth)],
+        outputs=[row_sum, row_count], device="cpu",
+    )
+    wp.launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C], outputs=[error, count],
+              device="cpu")
+    return error, count

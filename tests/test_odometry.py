@@ -148,7 +148,8 @@ def test_recovers_known_motion(relative):
     assert [lv["level"] for lv in info["levels"]] == [4, 3, 2, 1, 0]
     assert info["levels"][0]["size"] == (7, 10)
     for lv in info["levels"]:
-        assert lv["iterations"] >= 1 and 0.5 < lv["valid_fraction"] <= 1.0 and math.isfinite(lv["cost"])
+        assert lv["iterations"] >= 0 and 0.5 < lv["valid_fraction"] <= 1.0 and math.isfinite(lv["cost"])
+    assert info["levels"][0]["iterations"] >= 1  # the coarsest level had work to do
 
 
 def test_noise_and_missing_depth():
@@ -212,6 +213,24 @@ def test_prepared_frames_and_init():
     _check(T4, T_true, 0.08, 0.004)
 
 
+def test_tracking_with_recycled_buffers_matches_single_pairs():
+    # frame-to-frame tracking recycles pyramid buffers and replays recorded launches: every pair
+    # must still give exactly what a fresh aligner gives for it
+    cams = [np.eye(4), motion((0.5, 0, 0), (0.01, 0, 0)), motion((0.5, 1.0, 0), (0.01, 0.01, 0)),
+            motion((1.0, 1.0, 0.2), (0.02, 0.01, 0.01)), motion((1.0, 0.5, 0.2), (0.03, 0.01, 0.01))]
+    frames = [rendered_pair(c, width=W // 2, height=H // 2)[2:4] for c in cams]
+    K = rendered_pair(np.eye(4), width=W // 2, height=H // 2)[4]
+    tracker = DirectAligner(K)
+    prev = tracker.prepare(*frames[0])
+    for i in range(1, len(frames)):
+        cur = tracker.prepare(*frames[i])
+        T, _ = tracker.align_frames(prev, cur)
+        T_fresh, _ = DirectAligner(K).align(frames[i - 1][0], frames[i - 1][1], frames[i][0])
+        np.testing.assert_array_equal(T, T_fresh)
+        prev = cur
+    assert sum(len(p) for p in tracker._frame_pool.values()) >= 1  # buffers were recycled
+
+
 def test_colour_residuals_and_depth_term():
     ri, rd, li, ld, K, T_true = rendered_pair(motion((0.5, 1.0, 0.0), (0.02, 0.0, 0.01)), width=W, height=H)
     T, info = DirectAligner(K, color=True).align(ri, rd, li)
@@ -265,7 +284,26 @@ def test_bad_inputs_raise():
         (lambda: al.align_frames(al.prepare(img, dep), al.prepare(img[:, :40, :40])), ValueError,
          "align_frames: arguments 'ref' and 'live'"),
         (lambda: al.align(torch.zeros(1, 60, 80, dtype=torch.int64), dep, img), TypeError, "argument 'ref_image'"),
+        (lambda: al.align(img, dep, img, dep[:, :10]), ValueError, "align: argument 'live_depth'"),
+        (lambda: al.align_frames(DirectAligner(K, levels=2).prepare(img, dep), al.prepare(img, dep)), ValueError,
+         "align_frames: arguments 'ref' and 'live' must be prepared"),
     ]
     for call, exc, msg in cases:
         with pytest.raises(exc, match=msg):
             call()
+
+
+def test_readme_example_runs_and_module_needs_no_torch():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    start = text.index("```python", text.index("<!-- odometry-example -->")) + len("```python")
+    code = text[start : text.index("```", start)]
+    code += "\nimport sys\nassert 'torch' not in sys.modules, 'torch was imported'\n"
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    lines = out.strip().splitlines()
+    assert lines[0].startswith("True")
+    errors = [float(line.split("error ")[1].split()[0]) for line in lines if "error" in line]
+    assert len(errors) == 5 and max(errors) < 0.5, out

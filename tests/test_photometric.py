@@ -346,3 +346,227 @@ def test_normal_equations_bad_arguments():
     big, _ = to_wp(*scene(B=2, C=2, H=4, W=5, holes=False)[:5])
     with pytest.raises(TypeError, match=fn + "'out' must be a NormalEquations of an earlier call with B=2"):
         pp.photometric_normal_equations(*big, out=first)
+
+
+# ----------------------------------------------------------------------------- photometric error (torch)
+
+KINDS = [("l1", 1.0), ("l2", 1.0), ("huber", 0.1), ("cauchy", 0.2), ("geman_mcclure", 0.3), ("tukey", 0.4)]
+
+
+def unfused_error(ref, depth, live, pose, K, kind, c):
+    """warp_frame_depth + penalty + masked mean (the unfused path a user would write)."""
+    import gvnn_warp as G
+
+    warped, valid = G.warp_frame_depth(live, depth, pose, K)
+    r = warped - ref
+    if kind in ("l1", "l2"):
+        rho = r.abs() if kind == "l1" else r * r / 2
+    else:
+        rho = G.robust_rho(r, kind, c)
+    n = valid.sum((1, 2, 3)).to(ref.dtype)
+    total = (rho * valid).sum((1, 2, 3))
+    return torch.where(n > 0, total / (ref.shape[1] * n.clamp(min=1)), torch.zeros_like(n)), n
+
+
+@pytest.mark.parametrize("kind, c", KINDS)
+def test_error_matches_unfused_path(kind, c, dtype):
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = (t.to(dtype) for t in scene(B=3, C=3, H=10, W=12, seed=2))
+    err, n = photometric_error(ref, depth, live, pose, K, robust=kind, scale=c)
+    want, want_n = unfused_error(ref, depth, live, pose, K, kind, c)
+    assert err.dtype == dtype and err.shape == (3,) and n.shape == (3,)
+    assert torch.equal(n, want_n) and n.min() > 0
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    torch.testing.assert_close(err, want, rtol=tol, atol=tol)
+    # and against the independent references (valid rule, grid_sample, closed-form penalties)
+    ref64, depth64, live64, pose64, K64 = (t.double() for t in (ref, depth, live, pose, K))
+    valid = valid_ref(depth64, pose64, K64)
+    u, v = project(moved_points(depth64, pose64, K64), K64)
+    rho = rho_ref(sample(live64, u, v) - ref64, kind, c) * valid[:, None]
+    assert torch.equal(n.double(), valid.sum((1, 2)).double())
+    torch.testing.assert_close(err.double(), rho.sum((1, 2, 3)) / (3 * valid.sum((1, 2))), rtol=tol * 10, atol=tol)
+
+
+@pytest.mark.parametrize("kind, c", [("l1", 1.0), ("huber", 0.15), ("tukey", 0.6), ("cauchy", 0.2)])
+def test_error_gradcheck_every_input(kind, c):
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=1, H=6, W=7, seed=4, angle=0.03, shift=0.04)
+    args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(2, 3, 3).contiguous())]
+
+    def fn(*a):
+        return photometric_error(*a, robust=kind, scale=c)[0]
+
+    # away from the kinks: no residual at 0 or at +-c, no projection near a pixel edge or the border
+    with torch.no_grad():
+        P = moved_points(depth, pose, K)
+        u, v = project(P, K)
+        valid = valid_ref(depth, pose, K)
+        r = (sample(live, u, v) - ref)[:, 0][valid]
+        for x in (u[valid], v[valid]):
+            assert (x - x.round()).abs().min() > 1e-4
+        assert r.abs().min() > 1e-4 and (r.abs() - c).abs().min() > 1e-4
+        assert 10 < valid.sum() < 2 * 6 * 7
+        outside = valid_ref(depth, pose, K, min_depth=MIN_DEPTH) ^ valid
+        assert not outside.any()
+    assert torch.autograd.gradcheck(fn, args, eps=1e-6, atol=1e-8, rtol=1e-6)
+
+
+def test_error_invalid_inputs_are_skipped_with_finite_gradients():
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=3, C=2, H=8, W=9, seed=6)
+    depth[0] = float("nan")  # nothing valid
+    depth[1, 0, ::2] = -1.0
+    depth[1, 0, 1::2] = float("inf")  # nothing valid either
+    pose[2, 2, 3] = -2.1  # most points behind the camera or outside
+    live[2, 1, 3, 3] = float("nan")
+    args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K)]
+    err, n = photometric_error(*args, robust="huber", scale=0.1)
+    assert n[0] == 0 and n[1] == 0 and err[0] == 0 and err[1] == 0
+    assert torch.isfinite(err).all()
+    err.sum().backward()
+    for a in args:
+        assert torch.isfinite(a.grad).all()
+    assert args[3].grad[:2].abs().max() == 0 and args[1].grad[:2].abs().max() == 0
+    want, want_n = unfused_error(ref, depth, live.nan_to_num(0.0), pose, K, "huber", 0.1)
+    assert torch.equal(n, want_n)
+
+
+def test_error_deterministic_across_threads_and_batch():
+    from gvnn_warp.kernels.launch import set_num_threads
+
+    from gvnn_warp.photometric import photometric_error
+
+    def run(B, C, H, W):
+        ref, depth, live, pose, K, _ = scene(B=B, C=C, H=H, W=W, seed=8)
+        outs = []
+        for n in (1, 2, 3):
+            set_num_threads(n)
+            try:
+                args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K)]
+                err, _ = photometric_error(*args, robust="huber", scale=0.1)
+                (err * torch.arange(1, B + 1, dtype=err.dtype)).sum().backward()
+                outs.append([err.detach()] + [a.grad for a in args])
+            finally:
+                set_num_threads(None)
+        for other in outs[1:]:
+            for a, b in zip(outs[0], other):
+                assert torch.equal(a, b)
+        return outs[0]
+
+    run(1, 1, 60, 900)  # one batch item: rows and adjoint reductions cut into pieces
+    whole = run(3, 2, 24, 400)
+    ref, depth, live, pose, K, _ = scene(B=3, C=2, H=24, W=400, seed=8)
+    args = [t[1:2].clone().requires_grad_() for t in (ref, depth, live, pose)] + [K.clone().requires_grad_()]
+    err, _ = photometric_error(*args, robust="huber", scale=0.1)
+    (2 * err).sum().backward()
+    assert torch.equal(err.detach(), whole[0][1:2])
+    for a, w in zip(args[:4], whole[1:5]):
+        assert torch.equal(a.grad, w[1:2])
+
+
+def test_error_only_wanted_gradients_and_layer():
+    from refs import assert_only_wanted_gradients
+
+    import gvnn_warp as G
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=2, H=7, W=8, seed=9)
+    assert_only_wanted_gradients(lambda *a: photometric_error(*a, robust="cauchy", scale=0.3)[0],
+                                 [ref, depth, live, pose, K.expand(2, 3, 3).contiguous()])
+    loss = G.PhotometricLoss(robust="cauchy", scale=0.3)
+    torch.testing.assert_close(loss(ref, depth, live, pose, K), photometric_error(ref, depth, live, pose, K,
+                                                                                   robust="cauchy", scale=0.3)[0],
+                               rtol=0, atol=0)
+    assert "cauchy" in repr(loss)
+
+
+def test_error_pure_warp_tape_matches_torch():
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=2, H=7, W=9, seed=10)
+    args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(2, 3, 3).contiguous())]
+    err, n = photometric_error(*args, robust="tukey", scale=0.5)
+    (err * torch.tensor([1.0, -2.0], dtype=torch.float64)).sum().backward()
+    arrays, _ = to_wp(ref, depth, live, pose, K)
+    for a in arrays:
+        a.requires_grad = True
+    tape = wp.Tape()
+    with tape:
+        e, c = pp.photometric_error(*arrays, robust="tukey", scale=0.5)
+    tape.backward(grads={e: wp.array([1.0, -2.0], dtype=wp.float64)})
+    assert np.array_equal(e.numpy(), err.detach().numpy()) and np.array_equal(c.numpy(), n.detach().numpy())
+    for a, t in zip(arrays, args):
+        np.testing.assert_allclose(a.grad.numpy().reshape(t.shape), t.grad.numpy(), rtol=1e-12, atol=1e-14)
+
+
+def test_normal_equations_torch_equals_pure_warp():
+    from gvnn_warp.photometric import photometric_normal_equations
+
+    ref, depth, live, pose, K, live_depth = scene(seed=14)
+    got = photometric_normal_equations(ref, depth, live, pose, K, robust="tukey", scale=0.4,
+                                       live_depth=live_depth, depth_weight=3.0)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    want = pp.photometric_normal_equations(*arrays, robust="tukey", scale=0.4, live_depth=ld, depth_weight=3.0)
+    for g, w in zip(got, want.numpy()):
+        assert np.array_equal(g.numpy(), w)
+    # 4x4 poses and shared K accepted; outputs carry no gradient
+    pose44 = torch.cat([pose, torch.tensor([[[0.0, 0, 0, 1]]], dtype=torch.float64).expand(2, 1, 4)], 1)
+    again = photometric_normal_equations(ref, depth, live, pose44.requires_grad_(), K, robust="tukey", scale=0.4,
+                                         live_depth=live_depth, depth_weight=3.0)
+    for a, b in zip(again, got):
+        assert torch.equal(a, b) and not a.requires_grad
+
+
+def test_torch_functions_bad_arguments():
+    from gvnn_warp.photometric import PhotometricLoss, photometric_error, photometric_normal_equations
+
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=2, H=5, W=6, holes=False)
+    for fn, name in ((photometric_error, "photometric_error"),
+                     (photometric_normal_equations, "photometric_normal_equations")):
+        pre = rf"gvnn_warp\.{name}: argument "
+        with pytest.raises(ValueError, match=pre + "'ref_depth' must have shape"):
+            fn(ref, depth[:, :, 0], live, pose, K)
+        with pytest.raises(ValueError, match=pre + "'live_image' has H=4"):
+            fn(ref, depth, live[:, :, :4], pose, K)
+        with pytest.raises(TypeError, match=pre + "'live_image' has dtype torch.float32"):
+            fn(ref, depth, live.float(), pose, K)
+        with pytest.raises(ValueError, match=pre + "'pose' must have shape"):
+            fn(ref, depth, live, pose[:, :2], K)
+        with pytest.raises(ValueError, match=pre + "'robust' must be one of"):
+            fn(ref, depth, live, pose, K, robust="welsch")
+        with pytest.raises(ValueError, match=pre + "'scale' must be a positive finite number"):
+            fn(ref, depth, live, pose, K, scale=-1.0)
+        with pytest.raises(TypeError, match=pre + "'K' must be a torch.Tensor"):
+            fn(ref, depth, live, pose, K.numpy())
+    pre = r"gvnn_warp\.photometric_normal_equations: argument "
+    with pytest.raises(ValueError, match=pre + "'robust' must be one of"):
+        photometric_normal_equations(ref, depth, live, pose, K, robust="l1")
+    with pytest.raises(ValueError, match=pre + "'depth_weight' must be a finite number >= 0"):
+        photometric_normal_equations(ref, depth, live, pose, K, live_depth=live_depth, depth_weight=float("inf"))
+    with pytest.raises(ValueError, match=pre + "'live_depth' has W=5"):
+        photometric_normal_equations(ref, depth, live, pose, K, live_depth=live_depth[..., :5])
+    with pytest.raises(ValueError, match=r"gvnn_warp\.PhotometricLoss: argument 'robust'"):
+        PhotometricLoss(robust="huberr")
+
+
+def test_normal_equations_lanes_kernel_equals_scalar_kernel():
+    # the 8-lane row kernel (used) against the plain one-pixel-at-a-time kernel, row by row,
+    # with a width that is not a multiple of 8 (masked tail lanes)
+    from gvnn_warp.kernels import photometric_kernels as pk
+
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=13, seed=15)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    B, C, H, W = ref.shape
+    for use_depth in (0, 1):
+        rows = []
+        for kernels in (pk.normal_equations_rows, pk.normal_equations_lanes):
+            out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
+            wp.launch(kernels[use_depth][wp.float64], dim=B * H,
+                      inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
+                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, out])
+            rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
+        np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
+        assert rows[0][:, 28].sum() > 0
