@@ -19,7 +19,7 @@ from .demos._args import HelpFormatter, UsageError, plain_text
 
 # subcommand modules in gvnn_warp.demos; each has add_parser(subparsers), its own run(args), and
 # optionally REQUIRES: the importable packages it needs, checked before it starts
-DEMOS = ("align", "flow", "vo")
+DEMOS = ("align", "flow", "vo", "render", "track")
 
 # what to tell a user who lacks a package a command needs
 INSTALL_HINTS = {

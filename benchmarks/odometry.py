@@ -1,0 +1,276 @@
+"""Direct RGB-D odometry against Open3D's, on the same frames of a TUM-format sequence.
+
+    python -m benchmarks.odometry [--frames 200] [--sizes 320x240,640x480] [--seed 0] [--data DIR]
+                                  [--strides 5,10] [--no-open3d] [--no-ours] [--json PATH]
+
+(run from the repository root; Open3D is the optional extra ``pip install -e ".[bench]"``, whose
+wheel needs the system's libusb-1.0). For each size a se3 sequence (1.5-4 cm and 0.6-1.6 deg per
+frame) is rendered by ``gvnn-warp render``'s code into a temporary TUM folder and read back
+through ``gvnn_warp.datasets.tum`` (or ``--data DIR`` is read: one existing TUM folder). Then:
+
+1. Tracking: frame-to-frame odometry over the whole sequence (identity initial guess, as Open3D's
+   examples), by Open3D 0.20's tensor ``rgbd_odometry_multi_scale`` (``Method.Intensity``,
+   its default pyramid of 3 levels with 10/5/3 iterations, depth_max 10 m) and by
+   ``gvnn_warp.odometry.DirectAligner`` (grey images, as Open3D's Intensity term). Reported: ms per
+   pair (alignment incl. pyramids and image gradients; file reading excluded), RPE translation /
+   rotation RMSE over 1-frame steps, ATE RMSE (SE(3) Umeyama) - all by ``evo`` - and the failed
+   pairs (RPE above 1 cm or 0.25 deg).
+2. Basin: every pair (i, i + s) for s in ``--strides`` (every offset i), aligned from the identity;
+   the fraction whose relative pose is within 0.25 deg and 1 cm.
+
+The two trackers run in lockstep, frame by frame, in alternating order, so that both see the same
+machine load (the machine is shared and noisy: compare the ratio). ms per pair is the mean over
+the sequence (as ``gvnn-warp track`` reports it) and, in the JSON, also the median. Idle OpenMP
+threads sleep (``OMP_WAIT_POLICY=PASSIVE`` unless set): Open3D's spinning threads would otherwise
+steal the cores from the other method's, and torch is not imported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before Open3D loads its OpenMP runtime
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from gvnn_warp.datasets.tum import read_tum  # noqa: E402
+from gvnn_warp.evaluation import FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.synthetic import relative_pose  # noqa: E402
+from gvnn_warp.tracking import Tracker, frame_aligner  # noqa: E402
+
+OPEN3D_DEPTH_MAX = 10.0  # metres; the rendered room is 8 m deep (Open3D's default, 3 m, drops much of it)
+
+
+class Open3DAligner:
+    """Open3D's tensor multi-scale RGB-D odometry (Intensity term) behind the tracking interface."""
+
+    name = "Open3D 0.20 Intensity"
+
+    def __init__(self, K: np.ndarray, depth_scale: float):
+        import open3d as o3d
+
+        self.o3d = o3d
+        self.odo = o3d.t.pipelines.odometry
+        self.K = o3d.core.Tensor(np.asarray(K, dtype=np.float64))
+        self.depth_scale = float(depth_scale)
+
+    def prepare(self, image_u8: np.ndarray, depth_u16: np.ndarray):
+        o3d = self.o3d
+        return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3d.core.Tensor(image_u8)),
+                                        o3d.t.geometry.Image(o3d.core.Tensor(depth_u16)))
+
+    def align_frames(self, ref, live, init=None):
+        init = np.eye(4) if init is None else np.asarray(init, dtype=np.float64)
+        try:
+            result = self.odo.rgbd_odometry_multi_scale(
+                ref, live, self.K, self.o3d.core.Tensor(init), self.depth_scale, OPEN3D_DEPTH_MAX,
+                method=self.odo.Method.Intensity,
+            )
+        except RuntimeError:  # "Singular 6x6 linear system detected, tracking failed."
+            return init, {"converged": False}
+        # source = reference, target = live: the transformation maps reference points into the live camera
+        return result.transformation.numpy(), {"valid_fraction": float(result.fitness)}
+
+
+def _raw_reader(seq):
+    """Frames as Open3D takes them from files: uint8 (H, W, 3) colour, uint16 (H, W) depth."""
+    from PIL import Image
+
+    def read(i):
+        rgb = np.ascontiguousarray(np.asarray(Image.open(seq.rgb_files[i]).convert("RGB")))
+        depth = np.ascontiguousarray(np.asarray(Image.open(seq.depth_files[i])).astype(np.uint16))
+        return rgb, depth
+
+    return read
+
+
+def _gray_reader(seq):
+    return lambda i: (seq.image(i, gray=True), seq.depth(i))
+
+
+def our_aligner(K: np.ndarray):
+    """``gvnn_warp.odometry.DirectAligner`` with the settings ``gvnn-warp track`` uses, or None if
+    that module is not there yet."""
+    try:
+        from gvnn_warp.demos.track import make_aligner
+    except ImportError:
+        return None
+    try:
+        return make_aligner(K)
+    except ImportError:
+        return None
+
+
+def _cache(reader, n, aligner):
+    """Every frame read and prepared once (for the basin test's many pairs)."""
+    fa = frame_aligner(aligner)
+    return [fa.prepare(*reader(i)) for i in range(n)]
+
+
+def basin(prepared, aligner, gt_poses, stride: int) -> tuple[float, int]:
+    """(fraction of pairs (i, i + stride), every i, aligned within 1 cm and 0.25 deg, number of pairs)."""
+    fa = frame_aligner(aligner)
+    ok = []
+    for i in range(len(prepared) - stride):
+        T, _ = fa.align_frames(prepared[i], prepared[i + stride], init=np.eye(4))
+        T_true = relative_pose(gt_poses[i + stride], gt_poses[i])
+        if not np.all(np.isfinite(T)):
+            ok.append(False)
+            continue
+        dt, dr = pose_error(np.asarray(T, dtype=np.float64), T_true)
+        ok.append(bool(dt <= FAIL_TRANS_M and dr <= FAIL_ROT_DEG))
+    return (float(np.mean(ok)) if ok else float("nan")), len(ok)
+
+
+def run_size(seq, methods: dict, strides: list[int], progress: bool) -> dict:
+    from tqdm import tqdm
+
+    n = len(seq)
+    gt, valid = seq.gt_poses, seq.gt_valid
+    if gt is None or not valid.all():
+        raise SystemExit("benchmarks.odometry: the sequence needs ground truth for every frame")
+    names = list(methods)
+    trackers = {name: Tracker(methods[name][0], n, start_pose=gt[0]) for name in names}
+    for i in tqdm(range(n), unit="frame", desc="tracking", disable=not progress):
+        frames = {name: methods[name][1](i) for name in names}  # file reading: not timed
+        for k in range(len(names)):
+            name = names[(k + i) % len(names)]
+            trackers[name].add(*frames[name])
+    results = {}
+    for name in names:
+        res = trackers[name].result()
+        m = evaluate_trajectory(seq.timestamps, res.poses, gt, valid)
+        results[name] = dict(
+            ms_per_pair=res.ms_per_pair,
+            ms_per_pair_median=1e3 * float(np.median(res.seconds[1:])),
+            rpe_trans_rmse_cm=100 * m.rpe_trans_rmse_m,
+            rpe_rot_rmse_deg=m.rpe_rot_rmse_deg,
+            ate_rmse_cm=100 * m.ate_rmse_m,
+            ate_alignment=m.ate_alignment,
+            failed_pairs=int(m.failed.sum()),
+            unconverged_pairs=len(res.unconverged_frames),
+        )
+    for name, (aligner, reader) in methods.items():
+        prepared = _cache(reader, n, aligner)
+        for s in strides:
+            t = time.perf_counter()
+            frac, pairs = basin(prepared, aligner, gt, s)
+            results[name][f"basin_{s}"] = frac
+            results[name][f"basin_{s}_pairs"] = pairs
+            if progress:
+                print(f"  basin {name} every {s}th: {100 * frac:.1f}% of {pairs} pairs "
+                      f"({time.perf_counter() - t:.0f} s)", file=sys.stderr)
+    return results
+
+
+def table(size: str, n: int, results: dict, strides: list[int]) -> str:
+    head = ["method", "ms/pair (mean / median)", "RPE trans (cm)", "RPE rot (deg)", "ATE (cm)", "failed pairs",
+            "unconverged"]
+    head += [f"every {s}th within 1 cm & 0.25 deg" for s in strides]
+    lines = [f"### {size}, {n} frames", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, r in results.items():
+        row = [name, f"{r['ms_per_pair']:.1f} / {r['ms_per_pair_median']:.1f}", f"{r['rpe_trans_rmse_cm']:.3f}",
+               f"{r['rpe_rot_rmse_deg']:.4f}", f"{r['ate_rmse_cm']:.2f}", f"{r['failed_pairs']} of {n - 1}",
+               str(r["unconverged_pairs"])]
+        row += [f"{100 * r[f'basin_{s}']:.0f}% of {r[f'basin_{s}_pairs']}" for s in strides]
+        lines.append("| " + " | ".join(row) + " |")
+    if len(results) == 2:
+        (a, ra), (b, rb) = results.items()
+        lines += ["", f"time ratio {b} / {a}: {rb['ms_per_pair'] / ra['ms_per_pair']:.2f} (mean), "
+                      f"{rb['ms_per_pair_median'] / ra['ms_per_pair_median']:.2f} (median); "
+                      f"ATE ratio {rb['ate_rmse_cm'] / ra['ate_rmse_cm']:.2f}"]
+    return "\n".join(lines)
+
+
+def machine() -> dict:
+    """nproc, CPU model, load and versions (without importing torch)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    model = platform.processor() or "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), model)
+    except OSError:
+        pass
+    info = {"nproc": os.cpu_count(), "cpu": model, "python": platform.python_version(),
+            "load_average": os.getloadavg(), "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY")}
+    for pkg in ("warp-lang", "open3d", "numpy", "evo"):
+        try:
+            info[pkg] = version(pkg)
+        except PackageNotFoundError:
+            info[pkg] = None
+    return info
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gvnn_warp.demos._args import image_size, positive_int
+
+    p = argparse.ArgumentParser(prog="python -m benchmarks.odometry", description=__doc__.split("\n\n")[0])
+    p.add_argument("--frames", type=positive_int, default=200, help="frames to render (default 200)")
+    p.add_argument("--sizes", default="320x240,640x480", help="comma-separated WxH sizes (default 320x240,640x480)")
+    p.add_argument("--seed", type=int, default=0, help="scene and trajectory seed (default 0)")
+    p.add_argument("--data", type=Path, default=None, help="read this TUM folder instead of rendering")
+    p.add_argument("--strides", default="5,10", help="basin-test frame strides (default 5,10)")
+    p.add_argument("--no-open3d", action="store_true", help="skip Open3D")
+    p.add_argument("--no-ours", action="store_true", help="skip gvnn_warp's aligner")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--json", type=Path, default=None, help="also write the results as JSON here")
+    args = p.parse_args(argv)
+    size_type = image_size(16)
+    try:
+        sizes = [size_type(s) for s in args.sizes.split(",")]
+        strides = [positive_int(s) for s in args.strides.split(",")]
+    except argparse.ArgumentTypeError as e:
+        p.error(str(e))
+
+    print(f"machine: {machine()}")
+    all_results = {}
+    with tempfile.TemporaryDirectory(prefix="gvnn_odometry_") as tmp:
+        sources = [(args.data, None)] if args.data else [(Path(tmp) / f"{w}x{h}", (w, h)) for w, h in sizes]
+        for folder, size in sources:
+            if size is not None:
+                from gvnn_warp.demos.render import render_sequence
+
+                t = time.perf_counter()
+                render_sequence(folder, "se3", args.frames, size, args.seed, progress=False)
+                print(f"rendered {args.frames} frames at {size[0]}x{size[1]} in {time.perf_counter() - t:.0f} s",
+                      file=sys.stderr)
+            seq = read_tum(folder)
+            methods = {}
+            if not args.no_open3d:
+                try:
+                    methods[Open3DAligner.name] = (Open3DAligner(seq.K, seq.depth_scale), _raw_reader(seq))
+                except ImportError:
+                    print("Open3D is not installed (pip install -e '.[bench]'); skipped", file=sys.stderr)
+            if not args.no_ours:
+                ours = our_aligner(seq.K)
+                if ours is None:
+                    print("gvnn_warp.odometry.DirectAligner is not available yet; skipped", file=sys.stderr)
+                else:
+                    methods["gvnn_warp DirectAligner"] = (ours, _gray_reader(seq))
+            if not methods:
+                raise SystemExit("benchmarks.odometry: nothing to run")
+            label = f"{seq.width}x{seq.height}"
+            results = run_size(seq, methods, strides, progress=not args.no_progress)
+            all_results[label] = results
+            print(table(label, len(seq), results, strides), flush=True)
+            print()
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"machine": machine(), "results": all_results}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,326 @@
+"""gvnn_warp.evaluation (evo metrics against closed forms), gvnn_warp.tracking (pose chaining, keyframes,
+failures reported) and `gvnn-warp track` end to end."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from gvnn_warp.datasets.tum import read_trajectory, read_tum
+from gvnn_warp.evaluation import (
+    ATE_ALIGNMENT,
+    ATE_ALIGNMENT_ORIGIN,
+    FAIL_ROT_DEG,
+    FAIL_TRANS_M,
+    evaluate_trajectory,
+    pose_error,
+)
+from gvnn_warp.synthetic import relative_pose
+from gvnn_warp.tracking import KeyframePolicy, track
+
+
+def _circle_trajectory(n=8, radius=1.0, seed=0):
+    """Camera centres on a circle in the x-y plane at angles 2 pi k / n; random orientations."""
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = Rotation.random(n, random_state=seed).as_matrix()
+    a = 2 * np.pi * np.arange(n) / n
+    T[:, 0, 3], T[:, 1, 3] = radius * np.cos(a), radius * np.sin(a)
+    return T
+
+
+# ------------------------------------------------------------------------------------------------
+# evaluation: evo's metrics on trajectories with closed-form errors
+
+
+def test_rigidly_moved_estimate_has_zero_ate_and_rpe():
+    gt = _circle_trajectory(12)
+    A = np.eye(4)
+    A[:3, :3] = Rotation.from_rotvec([0.3, -1.0, 2.0]).as_matrix()
+    A[:3, 3] = [5.0, -2.0, 1.0]
+    m = evaluate_trajectory(np.arange(12) / 30, A @ gt, gt)
+    assert m.ate_rmse_m < 1e-9 and m.rpe_trans_rmse_m < 1e-9 and m.rpe_rot_rmse_deg < 1e-5
+    np.testing.assert_allclose(m.aligned, gt, atol=1e-9)
+
+
+@pytest.mark.parametrize("eps", [0.004, 0.006])
+def test_alternating_offset_gives_closed_form_ate_rpe_and_failures(eps):
+    # centres k * 45 deg around a circle, moved by +-eps along z alternately: by symmetry the best
+    # rigid alignment is the identity, so ATE = eps; each 1-frame step is off by 2 eps; rotations
+    # are untouched
+    gt = _circle_trajectory(8, seed=1)
+    est = gt.copy()
+    est[:, 2, 3] += eps * (-1.0) ** np.arange(8)
+    m = evaluate_trajectory(np.arange(8) / 30, est, gt)
+    assert m.ate_rmse_m == pytest.approx(eps, rel=1e-9) and m.ate_alignment == ATE_ALIGNMENT
+    assert m.rpe_trans_rmse_m == pytest.approx(2 * eps, rel=1e-9)
+    assert m.rpe_rot_rmse_deg < 1e-5
+    np.testing.assert_allclose(m.rpe_trans_m, 2 * eps, rtol=1e-9)
+    assert m.failed.all() == (2 * eps > FAIL_TRANS_M) and m.failed.any() == (2 * eps > FAIL_TRANS_M)
+    np.testing.assert_array_equal(m.pair_frames, np.stack([np.arange(7), np.arange(1, 8)], 1))
+
+
+def test_rotation_error_per_step_and_missing_ground_truth():
+    # a camera turning about its optical axis (z) at a fixed centre; the estimate turns by an extra
+    # theta_k about z, so step k is off by |theta_{k+1} - theta_k| in rotation and not in translation
+    n = 6
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, :3, :3] = Rotation.from_rotvec(np.outer(np.linspace(0, 1, n), [0, 0, 1])).as_matrix()
+    theta = np.radians([0.0, 0.1, 0.4, 0.2, 0.2, 0.9])
+    est = gt @ np.stack([np.block([[Rotation.from_rotvec([0, 0, t]).as_matrix(), np.zeros((3, 1))],
+                                   [np.zeros((1, 3)), np.ones((1, 1))]]) for t in theta])
+    m = evaluate_trajectory(np.arange(n) / 30, est, gt)
+    np.testing.assert_allclose(m.rpe_rot_deg, np.degrees(np.abs(np.diff(theta))), atol=1e-6)
+    assert m.rpe_trans_rmse_m < 1e-12
+    # all centres equal: no Umeyama alignment exists; the first poses are aligned instead (ATE 0 here)
+    assert m.ate_alignment == ATE_ALIGNMENT_ORIGIN and m.ate_rmse_m < 1e-12
+    np.testing.assert_array_equal(m.failed, np.degrees(np.abs(np.diff(theta))) > FAIL_ROT_DEG)
+    # frames without ground truth are left out; steps join the frames that have it
+    valid = np.array([True, True, False, True, True, True])
+    gt_nan = gt.copy()
+    gt_nan[2] = np.nan
+    m = evaluate_trajectory(np.arange(n) / 30, est, gt_nan, valid)
+    np.testing.assert_array_equal(m.frames, [0, 1, 3, 4, 5])
+    np.testing.assert_array_equal(m.pair_frames[1], [1, 3])
+    np.testing.assert_allclose(m.rpe_rot_deg[1], np.degrees(theta[3] - theta[1]), atol=1e-6)
+    with pytest.raises(ValueError, match="at least 2 frames with ground truth"):
+        evaluate_trajectory(np.arange(n) / 30, est, gt, np.eye(1, n, dtype=bool)[0])
+
+
+def test_pose_error_closed_form():
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0, np.radians(0.3), 0]).as_matrix()
+    T[:3, 3] = [0.003, 0.004, 0.0]
+    dt, dr = pose_error(T, np.eye(4))
+    assert dt == pytest.approx(0.005) and dr == pytest.approx(0.3)
+    dt, dr = pose_error(np.eye(4), np.eye(4))
+    assert dt == 0 and dr == 0
+
+
+# ------------------------------------------------------------------------------------------------
+# tracking loop, with a test aligner that knows the true motion
+
+
+class TrueMotion:
+    """An aligner whose frames are frame indices (images numbered in order of first appearance) and
+    whose answer is the true relative pose, optionally perturbed for some (ref, live) pairs and
+    flagged not converged for some live frames."""
+
+    def __init__(self, gt, perturb=None, unconverged=(), valid=0.9):
+        self.gt, self.perturb, self.unconverged, self.valid = gt, perturb or {}, set(unconverged), valid
+        self.pairs, self.inits, self.ids = [], [], {}
+
+    def prepare(self, image, depth):
+        return self.ids.setdefault(np.asarray(image).tobytes(), len(self.ids))
+
+    def align_frames(self, ref, live, init=None):
+        if ref == live:  # track's untimed warm-up
+            return np.eye(4), {"converged": True}
+        self.pairs.append((ref, live))
+        self.inits.append(np.array(init))
+        T = relative_pose(self.gt[live], self.gt[ref])
+        if (ref, live) in self.perturb:
+            T = self.perturb[(ref, live)] @ T
+        info = {"converged": live not in self.unconverged,
+                "levels": [{"valid_fraction": 0.1}, {"valid_fraction": self.valid}]}
+        return T, info
+
+
+def _nothing(i):
+    return np.full((1, 2, 2), i, np.float32), np.ones((1, 2, 2), np.float32)
+
+
+def _shift(x):
+    T = np.eye(4)
+    T[0, 3] = x
+    return T
+
+
+def test_track_chains_true_motion_frame_to_frame():
+    gt = _circle_trajectory(7, seed=4)
+    bad = _shift(0.02)
+    al = TrueMotion(gt, perturb={(2, 3): bad}, unconverged=[5])
+    res = track(_nothing, 7, al, start_pose=gt[0], progress=False, init="velocity")
+    assert al.pairs == [(i, i + 1) for i in range(6)]
+    np.testing.assert_allclose(res.poses[:3], gt[:3], atol=1e-12)
+    # from the perturbed pair on, the trajectory is the truth moved rigidly: frame 3's error carried along
+    C = gt[3] @ np.linalg.inv(bad) @ np.linalg.inv(gt[3])
+    np.testing.assert_allclose(res.poses[3:], C @ gt[3:], atol=1e-12)
+    assert res.unconverged_frames == [5]
+    np.testing.assert_allclose(res.valid_fraction[1:], 0.9)  # the finest (last) level's
+    # constant velocity: the guess for pair (i, i+1) is the motion of pair (i-1, i)
+    np.testing.assert_allclose(al.inits[2], relative_pose(gt[2], gt[1]), atol=1e-12)
+    m = evaluate_trajectory(np.arange(7) / 30, res.poses, gt)
+    np.testing.assert_array_equal(m.pair_frames[m.failed], [[2, 3]])
+    assert res.ms_per_pair > 0
+
+
+def test_track_keyframes_switch_on_motion_and_valid_fraction():
+    n = 9
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = 0.02 * np.arange(n)  # 2 cm per frame along x
+    al = TrueMotion(gt)
+    res = track(_nothing, n, al, keyframes=KeyframePolicy(max_trans_m=0.05, max_rot_deg=5, min_valid=0.5),
+                progress=False)
+    # a frame > 5 cm from its keyframe becomes the next keyframe: 0 -> 3 -> 6
+    assert res.keyframes == [0, 3, 6]
+    assert list(res.reference[1:]) == [0, 0, 0, 3, 3, 3, 6, 6]
+    np.testing.assert_allclose(res.poses, gt, atol=1e-12)
+    # the identity guess of a keyframe pair is the previous frame's pose relative to the keyframe
+    np.testing.assert_allclose(al.inits[1], relative_pose(gt[1], gt[0]), atol=1e-12)
+    # too few valid pixels: every frame becomes a keyframe
+    res = track(_nothing, 4, TrueMotion(gt, valid=0.3), keyframes=KeyframePolicy(min_valid=0.5), progress=False)
+    assert res.keyframes == [0, 1, 2, 3]
+
+
+def test_track_survives_a_non_finite_pose_and_reports_it():
+    gt = _circle_trajectory(4, seed=2)
+
+    class NaNOnce(TrueMotion):
+        def align_frames(self, ref, live, init=None):
+            T, info = super().align_frames(ref, live, init)
+            return (np.full((4, 4), np.nan), info) if live == 2 else (T, info)
+
+    res = track(_nothing, 4, NaNOnce(gt), progress=False)
+    assert np.all(np.isfinite(res.poses)) and res.unconverged_frames == [2]
+    np.testing.assert_allclose(res.poses[2], res.poses[1])  # the identity guess was kept
+
+
+# ------------------------------------------------------------------------------------------------
+# gvnn-warp track
+
+
+def _render(tmp_path, frames=6, size="80x60", seed=0):
+    from gvnn_warp.cli import main
+
+    out = tmp_path / "seq"
+    assert main(["render", "--out", str(out), "--frames", str(frames), "--size", size, "--seed", str(seed),
+                 "--no-progress"]) == 0
+    return out
+
+
+def test_track_cli_writes_files_and_reports_failures(tmp_path, monkeypatch, capsys):
+    # the CLI around a test aligner that knows the truth, perturbed once: files, metrics, figures
+    from gvnn_warp.cli import main
+    from gvnn_warp.demos import track as track_cli
+
+    data = _render(tmp_path)
+    gt = read_tum(data).gt_poses
+    made = {}
+
+    def fake(K, **kwargs):
+        made.update(kwargs, K=K)
+        return TrueMotion(gt, perturb={(3, 4): _shift(0.015)}, unconverged=[2])
+
+    monkeypatch.setattr(track_cli, "make_aligner", fake)
+    out = tmp_path / "out"
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--robust", "cauchy", "--levels", "3"]) == 0
+    assert made["robust"] == "cauchy" and made["levels"] == 3 and made["depth_weight"] == 0.0
+    np.testing.assert_allclose(made["K"], read_tum(data).K)
+    text = capsys.readouterr().out
+    assert re.search(r"failed pairs +1 of 5", text) and re.search(r"unconverged pairs +1 \(frames 2\)", text)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frames"] == 6 and m["failed_pairs"] == 1 and m["failed_pair_frames"] == [[3, 4]]
+    assert m["unconverged_pairs"] == 1 and m["unconverged_frames"] == [2]
+    assert m["rpe_trans_rmse_m"] == pytest.approx(0.015 / np.sqrt(5), rel=1e-6)
+    assert m["rpe_rot_rmse_deg"] < 1e-5 and 0 < m["ate_rmse_m"] < 0.015
+    assert "Umeyama" in m["ate_alignment"] and m["metrics_by"] == "evo"
+    stamps, poses = read_trajectory(out / "trajectory.txt")
+    np.testing.assert_allclose(stamps, read_tum(data).timestamps, atol=1e-6)
+    np.testing.assert_allclose(poses[:4], gt[:4], atol=1e-8)  # starts at the ground truth's first pose
+    for png in ("trajectory.png", "errors.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
+    from gvnn_warp.cli import main
+    from gvnn_warp.demos import track as track_cli
+
+    data = _render(tmp_path, frames=3, size="32x24")
+    gt = read_tum(data).gt_poses
+    (data / "groundtruth.txt").unlink()
+    monkeypatch.setattr(track_cli, "make_aligner", lambda K, **kw: TrueMotion(gt))
+    out = tmp_path / "out"
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--max-frames", "2"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frames"] == 2 and not m["ground_truth"] and "ate_rmse_m" not in m
+    _, poses = read_trajectory(out / "trajectory.txt")
+    np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-9)  # identity start without ground truth
+    np.testing.assert_allclose(poses[1], relative_pose(gt[0], gt[1]), atol=1e-8)
+    assert (out / "trajectory.png").exists() and not (out / "errors.png").exists()
+
+
+def test_track_cli_argument_errors(tmp_path, capsys):
+    from gvnn_warp.cli import main
+
+    data = _render(tmp_path, frames=2, size="16x16")
+    with pytest.raises(SystemExit, match=r"gvnn-warp track: error: .*nowhere: no such directory"):
+        main(["track", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")])
+    (data / "rgb.txt").rename(data / "rgb.old")
+    with pytest.raises(SystemExit, match=r"gvnn-warp track: error: .*rgb.txt: missing colour list file"):
+        main(["track", str(data), "--out", str(tmp_path / "o")])
+    (data / "rgb.old").rename(data / "rgb.txt")
+    with pytest.raises(SystemExit, match="need at least 2 frames"):
+        main(["track", str(data), "--out", str(tmp_path / "o"), "--max-frames", "1"])
+    for bad in (["--intrinsics", "fr9"], ["--intrinsics", "1,2,3"], ["--intrinsics", "0,1,2,3"],
+                ["--depth-scale", "0"], ["--keyframe-valid", "1.5"], ["--robust", "l7"], ["--depth-weight", "-1"],
+                ["--max-frames", "0"], ["--init", "magic"]):
+        with pytest.raises(SystemExit) as e:
+            main(["track", str(data), "--out", str(tmp_path / "o"), *bad])
+        assert e.value.code == 2, bad
+    assert not (tmp_path / "o").exists()  # nothing is written before the arguments are checked
+
+
+def test_track_cli_end_to_end_with_the_direct_aligner(tmp_path, capsys):
+    from gvnn_warp.cli import main
+
+    data = _render(tmp_path, frames=6, size="160x120")
+    out = tmp_path / "out"
+    assert main(["track", str(data), "--out", str(out), "--no-progress"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frames"] == 6 and m["ms_per_pair"] > 0
+    # every 1.5-4 cm / 0.6-1.6 deg step recovered within the failure thresholds (1 cm, 0.25 deg; at
+    # 160x120, f = 120 px, 1 cm is ~0.5 px), and far better than standing still would be
+    gt = read_tum(data).gt_poses
+    still_t, still_r = pose_error(np.eye(4), relative_pose(gt[:-1], gt[1:]))
+    assert m["failed_pairs"] == 0 and m["ate_rmse_m"] < 0.01
+    assert m["rpe_trans_rmse_m"] < 0.4 * np.sqrt(np.mean(still_t**2))
+    assert m["rpe_rot_rmse_deg"] < 0.4 * np.sqrt(np.mean(still_r**2))
+    assert m["unconverged_pairs"] == 0
+    assert (out / "trajectory.png").exists() and (out / "errors.png").exists()
+    assert "ATE RMSE" in capsys.readouterr().out
+
+
+def test_track_cli_ctrl_c_exits_130_with_one_line(tmp_path, monkeypatch, capsys):
+    from gvnn_warp.cli import main
+    from gvnn_warp.demos import track as track_cli
+
+    data = _render(tmp_path, frames=3, size="16x16")
+
+    class Interrupted(TrueMotion):
+        def align_frames(self, ref, live, init=None):
+            if ref != live:
+                raise KeyboardInterrupt
+            return super().align_frames(ref, live, init)
+
+    monkeypatch.setattr(track_cli, "make_aligner", lambda K, **kw: Interrupted(read_tum(data).gt_poses))
+    assert main(["track", str(data), "--out", str(tmp_path / "o"), "--no-progress"]) == 130
+    assert capsys.readouterr().err.strip() == "gvnn-warp track: interrupted"
+
+
+def test_odometry_benchmark_runs_without_open3d(tmp_path):
+    # benchmarks/odometry.py end to end on a tiny sequence, our tracker only (tests never need Open3D)
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-m", "benchmarks.odometry", "--frames", "8", "--sizes", "80x60",
+                          "--strides", "5", "--no-open3d", "--no-progress", "--json", str(tmp_path / "r.json")],
+                         cwd=root, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "| gvnn_warp DirectAligner |" in out.stdout
+    r = json.loads((tmp_path / "r.json").read_text())["results"]["80x60"]["gvnn_warp DirectAligner"]
+    assert r["basin_5_pairs"] == 3 and 0 <= r["basin_5"] <= 1 and 0 <= r["failed_pairs"] <= 7
+    assert r["ms_per_pair"] > 0 and 0 < r["rpe_trans_rmse_cm"] < 1.0 and r["ate_alignment"].startswith("SE(3)")
