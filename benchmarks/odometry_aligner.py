@@ -30,10 +30,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from gvnn_warp.kernels.render import make_room_scene, render_rgbd  # noqa: E402
-
 from gvnn_warp.odometry import DirectAligner  # noqa: E402
-from gvnn_warp.synthetic import default_intrinsics, relative_pose, smooth_se3_trajectory  # noqa: E402
+from gvnn_warp.synthetic import default_intrinsics, make_room_scene, relative_pose, render_rgbd, smooth_se3_trajectory  # noqa: E402  # noqa: E402
 
 MAX_DEG, MAX_M = 0.25, 0.01
 

@@ -3,7 +3,7 @@
 - :func:`normal_equations_torch`: a slow, independent float64 Gauss-Newton system of the
   photometric residuals, with the Jacobian from torch's forward-mode autograd through a plain torch
   warp (unproject, move, project, bilinear sample), not from gvnn_warp's kernels.
-- :func:`rendered_pair`: a reference / live RGB-D pair rendered by ``gvnn_warp.kernels.render``
+- :func:`rendered_pair`: a reference / live RGB-D pair rendered by ``gvnn_warp.synthetic``
   with a known relative pose.
 """
 
@@ -101,7 +101,7 @@ def normal_equations_torch(ref_image, ref_depth, live_image, pose, K, *, robust=
 
 @functools.lru_cache(maxsize=8)
 def _scene(seed):
-    from gvnn_warp.kernels.render import make_room_scene
+    from gvnn_warp.synthetic import make_room_scene
 
     return make_room_scene(seed)
 
@@ -119,7 +119,7 @@ def rendered_pair(T_ref_live: np.ndarray, *, width=80, height=60, seed=0, scene_
     The reference camera is ``look_pose(seed)``; the live camera is ``T_world_ref @ T_ref_live``.
     ``T_live_ref`` is what the aligner estimates (points of the reference camera into the live one).
     """
-    from gvnn_warp.kernels.render import render_rgbd
+    from gvnn_warp.synthetic import render_rgbd
 
     T_world_ref = look_pose(seed)
     T_world_live = T_world_ref @ T_ref_live

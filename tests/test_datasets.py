@@ -354,10 +354,8 @@ def test_writer_quantises_and_drops_out_of_range_depth(tmp_path):
 
 
 def test_render_writes_a_sequence_the_reader_reads_back(tmp_path, capsys):
-    from gvnn_warp.kernels.render import make_room_scene, render_rgbd
-
     from gvnn_warp.cli import main
-    from gvnn_warp.synthetic import default_intrinsics, smooth_se3_trajectory
+    from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd, smooth_se3_trajectory
 
     out = tmp_path / "seq"
     assert main(["render", "--out", str(out), "--frames", "4", "--size", "40x30", "--seed", "3", "--no-progress"]) == 0

@@ -1,6 +1,6 @@
 """gvnn_warp.odometry.DirectAligner and the pyramid kernels (gvnn_warp.kernels.pyramid).
 
-The aligner is checked on rendered pairs with known relative poses (gvnn_warp.kernels.render); the
+The aligner is checked on rendered pairs with known relative poses (gvnn_warp.synthetic); the
 pyramid kernels against a numpy reference. Images are small (160x120 and below) to stay fast.
 """
 

@@ -85,8 +85,7 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
     from tqdm import tqdm
 
     from ..datasets.tum import TUMWriter
-    from ..kernels.render import make_room_scene, render_rgbd
-    from ..synthetic import default_intrinsics
+    from ..synthetic import default_intrinsics, make_room_scene, render_rgbd
 
     width, height = size
     K = default_intrinsics(width, height)
