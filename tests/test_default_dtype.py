@@ -74,6 +74,9 @@ SCRIPT = textwrap.dedent(
             "robust_rho": (lambda x: G.robust_rho(x, "cauchy"), r(B, 1, H, W)),
             "robust_psi": (lambda x: G.robust_psi(x, "cauchy"), r(B, 1, H, W)),
             "smoothness_loss": (G.smoothness_loss, r(B, 2, H, W)),
+            "photometric_error": (lambda *a: G.photometric_error(*a, robust="huber", scale=0.1),
+                                  image, depth, image.flip(-1), pose, K),
+            "PhotometricLoss": (G.PhotometricLoss("cauchy", 0.2), image, depth, image.flip(-1), pose, K),
             # layers (the intrinsics layers get K of this dtype: their buffer/parameter keeps it)
             "SO3": (G.SO3(), r(4, 3)),
             "SE3": (G.SE3(), xi6),
@@ -98,6 +101,10 @@ SCRIPT = textwrap.dedent(
         }
         for name, (fn, *args) in cases.items():
             check(name, fn, *args, dtype=dt)
+        # not differentiable (a Gauss-Newton system): its outputs' dtype
+        seen.add("photometric_normal_equations")
+        system = G.photometric_normal_equations(image, depth, image.flip(-1), pose, K)
+        assert all(o.dtype == dt for o in system if o.is_floating_point()), [o.dtype for o in system]
         for layer in (G.PinholeProjection(K, learnable=True), G.SpatialTransformer3D(K, learnable_intrinsics=True),
                       G.GridGenerator3D(K)):
             assert layer.K.dtype == dt
@@ -116,7 +123,8 @@ SCRIPT = textwrap.dedent(
         assert out.dtype == torch.float32 and out.shape == (2, 6)
         out.sum().backward()
 
-    public = set(G.__all__) - set(G._SUBMODULES) - {"kernels", "get_num_threads", "set_num_threads", "MIN_DEPTH"}
+    not_ops = {"kernels", "get_num_threads", "set_num_threads", "info", "MIN_DEPTH"}
+    public = set(G.__all__) - set(G._SUBMODULES) - not_ops
     assert seen == public, sorted(public ^ seen)
     print("ok", len(seen))
     """
