@@ -560,13 +560,13 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
     ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=13, seed=15)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
-    for use_depth in (0, 1):
+    for variant in range(4):  # depth term (1) + 2 * occlusion test
         rows = []
         for kernels in (pk.normal_equations_rows, pk.normal_equations_lanes):
             out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
-            wp.launch(kernels[use_depth][wp.float64], dim=B * H,
+            wp.launch(kernels[variant][wp.float64], dim=B * H,
                       inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
-                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, out])
+                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out])
             rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
         assert rows[0][:, 28].sum() > 0
