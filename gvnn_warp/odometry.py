@@ -219,7 +219,7 @@ class DirectAligner:
             needs live depths.
         occlusion: the occlusion test's relative depth difference (0: none): when the live frame
             has a depth, a reference pixel is skipped where a live depth under its bilinear sample
-            differs from its moved point's z by more than ``occlusion * z`` (occluded in the live
+            (the diagonal taps) differs from its moved point's z by more than ``occlusion * z`` (occluded in the live
             view, or a sample across a depth edge). Without it, such pixels bias the optimum
             (issue 15: +0.05 cm in y and +0.0075 deg about x per pair on the rendered sequence).
             Applied at the finest level only: at the coarse levels, far from the optimum, it

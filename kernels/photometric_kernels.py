@@ -125,13 +125,11 @@ def _make_normal_equations_rows(static_depth: int, static_occlusion: int = 0):
             vs = wp.where(ok, v, zero)
             i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = ph.taps(us, vs, H, W)
             if wp.static(static_occlusion != 0):
-                # occlusion test: every tap inside the image has a live depth within occlusion * z
-                # of the moved point's (a missing or NaN depth fails)
+                # occlusion test: the diagonal taps 00 and 11, where inside the image, have live
+                # depths within occlusion * z of the moved point's (a missing or NaN depth fails)
                 lim = type(one)(occlusion) * q2
                 ok = (
                     ok and (not k00 or wp.abs(q2 - live_depth[dep0 + i00]) <= lim)
-                    and (not k10 or wp.abs(q2 - live_depth[dep0 + i10]) <= lim)
-                    and (not k01 or wp.abs(q2 - live_depth[dep0 + i01]) <= lim)
                     and (not k11 or wp.abs(q2 - live_depth[dep0 + i11]) <= lim)
                 )
             p = wp.vector(q0, q1, q2)
@@ -337,16 +335,13 @@ def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
             m01 = wp.cw_mul(my1, mx0)
             m11 = wp.cw_mul(my1, mx1)
             if wp.static(static_occlusion != 0):
-                # occlusion test: every tap inside the image has a live depth within occlusion * z
-                # of the moved point's (a missing or NaN depth fails; taps outside read z)
+                # occlusion test: the diagonal taps 00 and 11, where inside the image, have live
+                # depths within occlusion * z of the moved point's (a missing or NaN depth fails;
+                # taps outside read z). Two taps catch a depth edge that splits them; all four
+                # cost twice the gathers (the kernel's main cost) for ~4% less pose error.
                 o00 = sampler.gather_lanes(live_depth, dep0, i00, m00) + wp.cw_mul(ones - m00, q2)
-                o10 = sampler.gather_lanes(live_depth, dep0, i10, m10) + wp.cw_mul(ones - m10, q2)
-                o01 = sampler.gather_lanes(live_depth, dep0, i01, m01) + wp.cw_mul(ones - m01, q2)
                 o11 = sampler.gather_lanes(live_depth, dep0, i11, m11) + wp.cw_mul(ones - m11, q2)
-                dev = wp.max(
-                    wp.max(wp.max(q2 - o00, o00 - q2), wp.max(q2 - o10, o10 - q2)),
-                    wp.max(wp.max(q2 - o01, o01 - q2), wp.max(q2 - o11, o11 - q2)),
-                )
+                dev = wp.max(wp.max(q2 - o00, o00 - q2), wp.max(q2 - o11, o11 - q2))
                 ok = wp.cw_mul(ok, ph.closed_mask8(q2 * type(one)(occlusion) - dev, zero, big))
             count = count + ok
             for ch in range(C):
