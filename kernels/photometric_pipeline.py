@@ -122,8 +122,8 @@ def photometric_normal_equations(
     same penalty. With ``live_depth`` and ``occlusion > 0``, a pixel is skipped (occluded in the
     live view, or its sample straddles a depth edge) where one of the diagonal bilinear taps (00,
     11) inside the image has no valid live depth or one that differs from the moved point's z by
-    more than ``occlusion * z`` (as Open3D's ``depth_diff_max`` on its nearest pixel, but relative). For the perturbation
-    pose <- exp(delta) pose, delta = [omega, t] (radians, metres), J = dr/d delta at 0 (exact for
+    more than ``occlusion * z`` (as Open3D's ``depth_diff_max`` on its nearest pixel, but
+    relative). For the perturbation pose <- exp(delta) pose, delta = [omega, t] (radians, metres), J = dr/d delta at 0 (exact for
     the bilinear interpolant as sampled; dP/d omega = -[P]x, dP/dt = I), IRLS weights
     w = psi(r)/r (1 at r = 0; 1 for "l2"), and
 
