@@ -123,9 +123,9 @@ def photometric_normal_equations(
     live view, or its sample straddles a depth edge) where one of the diagonal bilinear taps (00,
     11) inside the image has no valid live depth or one that differs from the moved point's z by
     more than ``occlusion * z`` (as Open3D's ``depth_diff_max`` on its nearest pixel, but
-    relative). For the perturbation pose <- exp(delta) pose, delta = [omega, t] (radians, metres), J = dr/d delta at 0 (exact for
-    the bilinear interpolant as sampled; dP/d omega = -[P]x, dP/dt = I), IRLS weights
-    w = psi(r)/r (1 at r = 0; 1 for "l2"), and
+    relative). For the perturbation pose <- exp(delta) pose, delta = [omega, t] (radians,
+    metres), J = dr/d delta at 0 (exact for the bilinear interpolant as sampled; dP/d omega =
+    -[P]x, dP/dt = I), IRLS weights w = psi(r)/r (1 at r = 0; 1 for "l2"), and
 
         JtWJ = sum w J^T J (B, 6, 6),  JtWr = sum w J^T r (B, 6),  cost = sum rho(r) (B,),
         count = number of reference pixels used (B,),

@@ -560,6 +560,7 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
     ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=13, seed=15)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
+    counts = []
     for variant in range(4):  # depth term (1) + 2 * occlusion test
         rows = []
         for kernels in (pk.normal_equations_rows, pk.normal_equations_lanes):
@@ -570,3 +571,5 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
             rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
         assert rows[0][:, 28].sum() > 0
+        counts.append(rows[0][:, 28].sum())
+    assert counts[2] < counts[0] and counts[3] < counts[1]  # the occlusion test dropped pixels
