@@ -84,7 +84,7 @@ def photometric_normal_equations(
     if H * W > 0:
         for run in _record(
             pk.normal_equations_lanes[int(depth_term)][ft], B * H, W,
-            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, rows_d],
+            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, rows_d],
         ):
             run()
     else:

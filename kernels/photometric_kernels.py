@@ -44,9 +44,9 @@ vec6d = wp.types.vector(length=6, dtype=wp.float64)
 mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
 
 
-def _make_normal_equations_rows(static_depth: int):
-    """The row kernel of the normal equations, with (static_depth 1) or without the depth term
-    (compile-time: no per-pixel test)."""
+def _make_normal_equations_rows(static_depth: int, static_occlusion: int = 0):
+    """The row kernel of the normal equations, with (static_depth 1) or without the depth term,
+    with (static_occlusion 1) or without the occlusion test (compile-time: no per-pixel test)."""
 
     @wp.kernel(module="unique", enable_backward=False)
     def _normal_equations_rows(
@@ -64,6 +64,7 @@ def _make_normal_equations_rows(static_depth: int):
         scale: wp.float64,
         min_depth: wp.float64,
         depth_weight: wp.float64,
+        occlusion: wp.float64,
         rows: wp.array(dtype=wp.float64),
     ):
         # Element r = one reference row (flat (b, y)); ref_image/live_image flat (B, C, H, W),
@@ -123,6 +124,14 @@ def _make_normal_equations_rows(static_depth: int):
             us = wp.where(ok, u, zero)
             vs = wp.where(ok, v, zero)
             i00, i10, i01, i11, k00, k10, k01, k11, wx1, wy1 = ph.taps(us, vs, H, W)
+            if wp.static(static_occlusion != 0):
+                # occlusion test: the diagonal taps 00 and 11, where inside the image, have live
+                # depths within occlusion * z of the moved point's (a missing or NaN depth fails)
+                lim = type(one)(occlusion) * q2
+                ok = (
+                    ok and (not k00 or wp.abs(q2 - live_depth[dep0 + i00]) <= lim)
+                    and (not k11 or wp.abs(q2 - live_depth[dep0 + i11]) <= lim)
+                )
             p = wp.vector(q0, q1, q2)
             count += wp.where(ok, wp.float64(1.0), f0)
             for ch in range(C):
@@ -196,7 +205,7 @@ def _make_normal_equations_rows(static_depth: int):
     )
 
 
-def _make_normal_equations_lanes(static_depth: int):
+def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
     """The row kernel of the normal equations, 8 pixels of the row at a time (SIMD lanes, see
     :mod:`.photometric`); same arguments, values and row slots as
     :func:`_make_normal_equations_rows`'s kernel (up to rounding: its running sums are per lane,
@@ -218,6 +227,7 @@ def _make_normal_equations_lanes(static_depth: int):
         scale: wp.float64,
         min_depth: wp.float64,
         depth_weight: wp.float64,
+        occlusion: wp.float64,
         rows: wp.array(dtype=wp.float64),
     ):
         r = wp.tid() + offset  # one reference row, flat (b, y)
@@ -324,6 +334,15 @@ def _make_normal_equations_lanes(static_depth: int):
             m10 = wp.cw_mul(my0, mx1)
             m01 = wp.cw_mul(my1, mx0)
             m11 = wp.cw_mul(my1, mx1)
+            if wp.static(static_occlusion != 0):
+                # occlusion test: the diagonal taps 00 and 11, where inside the image, have live
+                # depths within occlusion * z of the moved point's (a missing or NaN depth fails;
+                # taps outside read z). Two taps catch a depth edge that splits them; all four
+                # cost twice the gathers (the kernel's main cost) for ~4% less pose error.
+                o00 = sampler.gather_lanes(live_depth, dep0, i00, m00) + wp.cw_mul(ones - m00, q2)
+                o11 = sampler.gather_lanes(live_depth, dep0, i11, m11) + wp.cw_mul(ones - m11, q2)
+                dev = wp.max(wp.max(q2 - o00, o00 - q2), wp.max(q2 - o11, o11 - q2))
+                ok = wp.cw_mul(ok, ph.closed_mask8(q2 * type(one)(occlusion) - dev, zero, big))
             count = count + ok
             for ch in range(C):
                 base = live0 + ch * hw
@@ -483,8 +502,8 @@ def _make_normal_equations_lanes(static_depth: int):
     )
 
 
-#: the 8-lane row kernels of the normal equations: without ([0]) and with ([1]) the depth term
-normal_equations_lanes = (_make_normal_equations_lanes(0), _make_normal_equations_lanes(1))
+#: the 8-lane row kernels of the normal equations, indexed by depth term (1) + 2 * occlusion test (1)
+normal_equations_lanes = tuple(_make_normal_equations_lanes(k & 1, k >> 1) for k in range(4))
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -522,8 +541,8 @@ def _normal_equations_reduce(
         count[b] = v
 
 
-#: the row kernels of the normal equations: without ([0]) and with ([1]) the depth term
-normal_equations_rows = (_make_normal_equations_rows(0), _make_normal_equations_rows(1))
+#: the row kernels of the normal equations, indexed like :data:`normal_equations_lanes`
+normal_equations_rows = tuple(_make_normal_equations_rows(k & 1, k >> 1) for k in range(4))
 normal_equations_reduce = FloatKernel(
     _normal_equations_reduce, JtWJ="scalar", JtWr="scalar", cost="scalar", count="scalar"
 ).set_parallel(scopes={"rows": "any"}, forward=True, grain=1 << 30)

@@ -110,6 +110,7 @@ def photometric_normal_equations(
     live_depth: wp.array | None = None,
     depth_weight: float = 0.0,
     min_depth: float = MIN_DEPTH,
+    occlusion: float = 0.0,
     out: NormalEquations | None = None,
 ) -> NormalEquations:
     """The Gauss-Newton system of the photometric residuals, for a left-multiplied pose update.
@@ -120,7 +121,11 @@ def photometric_normal_equations(
     channel c (bilinear sample). With ``live_depth`` and ``depth_weight > 0`` each such pixel
     adds the depth residual r_d = sqrt(depth_weight) (z(P) - live_depth(project(P))) (bilinear;
     skipped where any of the four taps lies outside the image or is not a valid depth), with the
-    same penalty. For the perturbation pose <- exp(delta) pose, delta = [omega, t] (radians,
+    same penalty. With ``live_depth`` and ``occlusion > 0``, a pixel is skipped (occluded in the
+    live view, or its sample straddles a depth edge) where one of the diagonal bilinear taps (00,
+    11) inside the image has no valid live depth or one that differs from the moved point's z by
+    more than ``occlusion * z`` (as Open3D's ``depth_diff_max`` on its nearest pixel, but
+    relative). For the perturbation pose <- exp(delta) pose, delta = [omega, t] (radians,
     metres), J = dr/d delta at 0 (exact for the bilinear interpolant as sampled; dP/d omega =
     -[P]x, dP/dt = I), IRLS weights w = psi(r)/r (1 at r = 0; 1 for "l2"), and
 
@@ -142,6 +147,8 @@ def photometric_normal_equations(
         scale: the M-estimator's scale (ignored by "l2").
         live_depth: (B, 1, H, W) depth of the live frame, for the depth term.
         depth_weight: >= 0; the depth residual's weight (0: no depth term).
+        occlusion: >= 0; the relative depth difference of the occlusion test (0: no test; needs
+            ``live_depth``).
         min_depth: metres (docs/conventions.md).
         out: the result of an earlier call with the same shapes and float type: its buffers are
             reused (and returned), and so are its recorded launches while the arrays passed are
@@ -157,20 +164,20 @@ def photometric_normal_equations(
         if (  # the fastest path: the very same array objects and arguments, nothing allocated
             a[0] is ref_image and a[1] is ref_depth and a[2] is live_image and a[3] is pose and a[4] is K
             and a[5] is live_depth and a[6] == robust and a[7] == scale and a[8] == depth_weight
-            and a[9] == min_depth and a[10] == _launch.get_num_threads()
+            and a[9] == min_depth and a[10] == _launch.get_num_threads() and a[11] == occlusion
         ):
             for cmd in out._cmds:
                 cmd()
             return out
         try:
             key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
-                              (robust, scale, depth_weight, min_depth, _launch.get_num_threads()))
+                              (robust, scale, depth_weight, min_depth, occlusion, _launch.get_num_threads()))
         except AttributeError:  # not wp.arrays: the checks below say so
             pass
         if key is not None and out._key is not None and out._key[0] == key:
             # other array objects over the same memory (address, shape, strides, type)
             out._args = (ref_image, ref_depth, live_image, pose, K, live_depth, robust, scale, depth_weight,
-                         min_depth, _launch.get_num_threads())
+                         min_depth, _launch.get_num_threads(), occlusion)
             for cmd in out._cmds:
                 cmd()
             return out
@@ -178,6 +185,8 @@ def photometric_normal_equations(
     _check_penalty(fn, robust, scale, NORMAL_EQUATIONS_KINDS)
     _expect(fn, "depth_weight", isinstance(depth_weight, (int, float)) and 0 <= depth_weight < math.inf,
             "a finite number >= 0", repr(depth_weight))
+    _expect(fn, "occlusion", isinstance(occlusion, (int, float)) and 0 <= occlusion < math.inf,
+            "a finite number >= 0", repr(occlusion))
     if live_depth is not None:
         _expect(fn, "live_depth", isinstance(live_depth, wp.array), "a wp.array or None", type(live_depth).__name__,
                 TypeError)
@@ -204,19 +213,20 @@ def photometric_normal_equations(
         _flat(ref_image, n_pix), _flat(ref_depth, B * H * W), _flat(live_image, n_pix),
         _flat(live_depth, B * H * W) if live_depth is not None else no_depth,
         pose, K, C, H, W, NORMAL_EQUATIONS_KINDS_CODES[robust], float(scale), float(min_depth), float(depth_weight),
-        out._rows,
+        float(occlusion), out._rows,
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
-    rows_kernel = pk.normal_equations_lanes[int(live_depth is not None and depth_weight > 0)][ft]
+    variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
+    rows_kernel = pk.normal_equations_lanes[variant][ft]
     out._cmds = _record(rows_kernel, B * H, W, inputs) + _record(
         pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1, [out._rows, H, *outputs]
     )
     if key is None:
         key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
-                          (robust, scale, depth_weight, min_depth, _launch.get_num_threads()))
+                          (robust, scale, depth_weight, min_depth, occlusion, _launch.get_num_threads()))
     out._key = (key, inputs)  # the views stay alive with the recorded launches
     out._args = (ref_image, ref_depth, live_image, pose, K, live_depth, robust, scale, depth_weight, min_depth,
-                 _launch.get_num_threads())
+                 _launch.get_num_threads(), occlusion)
     for cmd in out._cmds:
         cmd()
     return out

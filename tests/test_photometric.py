@@ -560,16 +560,19 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
     ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=13, seed=15)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
-    for use_depth in (0, 1):
+    counts = []
+    for variant in range(4):  # depth term (1) + 2 * occlusion test
         rows = []
         for kernels in (pk.normal_equations_rows, pk.normal_equations_lanes):
             out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
-            wp.launch(kernels[use_depth][wp.float64], dim=B * H,
+            wp.launch(kernels[variant][wp.float64], dim=B * H,
                       inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
-                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, out])
+                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out])
             rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
         assert rows[0][:, 28].sum() > 0
+        counts.append(rows[0][:, 28].sum())
+    assert counts[2] < counts[0] and counts[3] < counts[1]  # the occlusion test dropped pixels
 
 
 def test_opcheck_photometric_ops():
@@ -585,4 +588,3 @@ def test_opcheck_photometric_ops():
     torch.library.opcheck(ops.photometric_mean, (row_sum.requires_grad_(), row_count, 5, 2))
     torch.library.opcheck(ops.photometric_normal_equations,
                           (ref, depth, live, live_depth, pose, Kb, CODES["tukey"], 0.4, MIN_DEPTH, 2.0))
-
