@@ -281,9 +281,13 @@ def test_optimum_of_rendered_sequence_pairs_is_unbiased():
     # depth under the diagonal taps within 5% of the moved point's z, finest level) drops them. On these 20
     # pairs (320x240 se3 sequence) the error from the true pose was 0.025 deg / 0.12 cm RMS
     # without the test, 0.012 deg / 0.076 cm with it (Open3D on the full sequence: 0.037 / 0.24).
-    from gvnn_warp.kernels.render import make_room_scene, render_rgbd
-
-    from gvnn_warp.synthetic import default_intrinsics, relative_pose, smooth_se3_trajectory
+    from gvnn_warp.synthetic import (
+        default_intrinsics,
+        make_room_scene,
+        relative_pose,
+        render_rgbd,
+        smooth_se3_trajectory,
+    )
 
     w, h, n = 320, 240, 21
     K = default_intrinsics(w, h)
