@@ -28,6 +28,7 @@ INSTALL_HINTS = {
     # plain dependencies of gvnn_warp: missing only from a broken installation
     "matplotlib": "matplotlib, which is not installed: pip install matplotlib",
     "tqdm": "tqdm, which is not installed: pip install tqdm",
+    "evo": "evo (trajectory metrics), which is not installed: pip install evo",
 }
 
 INTERRUPTED_STATUS = 130  # 128 + SIGINT, as a shell reports a process ended by Ctrl-C

@@ -21,6 +21,8 @@ from gvnn_warp.demos import _args
 
 BAD = "BAD"  # replaced by the path of an existing file
 FILE_CHILD = "BAD/sub"  # a directory below that file
+NOWHERE = "NOWHERE"  # track: replaced by a folder that does not exist
+SHORT = "SHORT"  # track: replaced by a sequence of 1 frame
 
 
 def _bad_cases():
@@ -77,27 +79,88 @@ def _bad_cases():
             (["--size", "1024x1024", "--trajectories", "200"], "GiB of rendered frames and warps in memory"),
             (["--motion", "se2"], "argument --motion: invalid choice: 'se2'"),
         ],
+        "render": [
+            (["--out", BAD], "argument --out: '{BAD}' exists and is not a directory"),
+            (["--out", FILE_CHILD], "argument --out: cannot make directory"),
+            (["--frames", "0"], "argument --frames: expected an integer from 1 to 100000, got '0'"),
+            (["--frames", "1e9"], "argument --frames: expected an integer from 1 to 100000"),
+            (["--size", "5000x5000"], "argument --size: each side must be between 16 and 2048 pixels"),
+            (["--size", "2049x16"], "argument --size: each side must be between 16 and 2048 pixels"),
+            (["--size", "15x40"], "argument --size: each side must be between 16"),
+            (["--size", "320"], "argument --size: size must be WxH"),
+            (["--motion", "se2"], "argument --motion: invalid choice: 'se2'"),
+            (["--seed", "-1"], "argument --seed: expected an integer from 0 to 4294967295"),
+            (["--seed", str(2**32)], "argument --seed: expected an integer from 0 to 4294967295"),
+        ],
+        "track": [
+            (["--out", BAD], "argument --out: '{BAD}' exists and is not a directory"),
+            (["--out", FILE_CHILD], "argument --out: cannot make directory"),
+            ([NOWHERE], "nowhere: no such directory"),
+            ([SHORT], "need at least 2 frames to track, found 1"),
+            (["--max-frames", "1"], "argument --max-frames: expected an integer >= 2, got '1'"),
+            (["--intrinsics", "fr9"], "argument --intrinsics: expected one of fr1, fr2, fr3, icl or fx,fy,cx,cy"),
+            (["--intrinsics", "1,2,3"], "argument --intrinsics: expected one of fr1"),
+            (["--intrinsics", "0,1,2,3"], "argument --intrinsics: expected one of fr1"),
+            (["--intrinsics", "500,500,nan,240"], "argument --intrinsics: expected one of fr1"),
+            (["--depth-scale", "0"], "argument --depth-scale: expected a positive number, got '0'"),
+            (["--depth-scale", "nan"], "argument --depth-scale: expected a positive number"),
+            (["--max-difference", "inf"], "argument --max-difference: expected a number from 0 to 1 s"),
+            (["--keyframe-trans", "-1"], "argument --keyframe-trans: expected a positive number"),
+            (["--keyframe-rot", "nan"], "argument --keyframe-rot: expected a number from 0 to 180 deg"),
+            (["--keyframe-valid", "1.5"], "argument --keyframe-valid: expected a number from 0 to 1, got '1.5'"),
+            (["--init", "magic"], "argument --init: invalid choice: 'magic'"),
+            (["--levels", "0"], "argument --levels: expected an integer from 1 to 12"),
+            (["--levels", "13"], "argument --levels: expected an integer from 1 to 12"),
+            (["--iterations", "0"], "argument --iterations: expected an integer from 1 to 1000"),
+            (["--robust", "l7"], "argument --robust: invalid choice: 'l7'"),
+            (["--depth-weight", "-1"], "argument --depth-weight: expected a number from 0 to 1e+06"),
+            (["--depth-weight", "inf"], "argument --depth-weight: expected a number from 0 to 1e+06"),
+        ],
     }
     for command, rows in cases.items():
         for extra, message in rows:
             yield pytest.param(command, extra, message, id=f"{command}{' '.join(extra)}")
 
 
-def _argv(command, extra, out):
-    base = {"align": ["align"], "flow": ["flow"], "vo": ["vo", "--motion", "so3"]}[command]
+def _argv(command, extra, out, sequence):
+    base = {"align": ["align"], "flow": ["flow"], "vo": ["vo", "--motion", "so3"], "render": ["render"],
+            "track": ["track"]}[command]
+    if command == "track" and (not extra or extra[0].startswith("-")):
+        base.append(str(sequence))  # a valid sequence unless the case names another folder
     if "--out" not in extra:
         base += ["--out", str(out)]
     return base + extra
 
 
+@pytest.fixture(scope="module")
+def sequences(tmp_path_factory):
+    """A 2-frame rendered sequence and a copy cut to 1 frame (for track's cases)."""
+    root = tmp_path_factory.mktemp("sequences")
+    assert cli.main(["render", "--out", str(root / "seq"), "--frames", "2", "--size", "16x16", "--no-progress"]) == 0
+    short = root / "short"
+    short.mkdir()
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt", "intrinsics.txt"):
+        lines = (root / "seq" / name).read_text().splitlines()
+        data = [line for line in lines if line and not line.startswith("#")]
+        (short / name).write_text("\n".join([line for line in lines if line.startswith("#")] + data[:1]) + "\n")
+    for kind in ("rgb", "depth"):
+        (short / kind).symlink_to(root / "seq" / kind)
+    return root / "seq", short
+
+
 @pytest.mark.parametrize("command, extra, message", list(_bad_cases()))
-def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, message, tmp_path, capsys):
+def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, message, tmp_path, capsys,
+                                                                 request):
     bad_file = tmp_path / "a_file"
     bad_file.write_text("not a directory")
     out = tmp_path / "out"
-    extra = [a.replace(BAD, str(bad_file)) for a in extra]
+    sequence = short = None
+    if command == "track":
+        sequence, short = request.getfixturevalue("sequences")
+    replace = {BAD: str(bad_file), NOWHERE: str(tmp_path / "nowhere"), SHORT: str(short)}
+    extra = [replace.get(a, a.replace(BAD, str(bad_file))) for a in extra]
     with pytest.raises(SystemExit) as exc:
-        cli.main(_argv(command, extra, out))
+        cli.main(_argv(command, extra, out, sequence))
     assert exc.value.code == 2
     err = capsys.readouterr().err
     lines = err.strip().splitlines()
@@ -173,7 +236,12 @@ def test_vo_loss_choices_match_the_losses():
 # ----------------------------------------------------------------------------- Ctrl-C, missing packages
 
 
-_VALID = {"align": ["--out", "{out}"], "flow": ["--out", "{out}"], "vo": ["--motion", "so3", "--out", "{out}"]}
+_VALID = {"align": ["--out", "{out}"], "flow": ["--out", "{out}"], "vo": ["--motion", "so3", "--out", "{out}"],
+          "render": ["--out", "{out}"], "track": ["{out}/sequence", "--out", "{out}"]}
+
+
+def _requires(command):
+    return cli.build_parser().parse_args([command, *(a.format(out="o") for a in _VALID[command])])._requires
 
 
 @pytest.mark.parametrize("command", cli.DEMOS)
@@ -381,7 +449,17 @@ def test_flow_figure_colour_bars_have_units():
         plt.close(fig)
 
 
-@pytest.mark.parametrize("command", cli.DEMOS)
+def test_commands_need_what_they_import():
+    """render and track never import torch (the renderer, reader, aligner and tracking loop are
+    numpy and Warp); track needs evo for its metrics and matplotlib for its figures."""
+    assert set(_requires("align")) >= {"torch", "matplotlib"} and set(_requires("vo")) >= {"torch", "matplotlib"}
+    assert "torch" not in _requires("render") and "matplotlib" not in _requires("render")
+    assert {"evo", "matplotlib"} <= set(_requires("track")) and "torch" not in _requires("track")
+    for name in {n for c in cli.DEMOS for n in _requires(c)}:
+        assert name in cli.INSTALL_HINTS, name
+
+
+@pytest.mark.parametrize("command", [c for c in cli.DEMOS if "matplotlib" in _requires(c)])
 def test_missing_figure_library_is_reported_before_work(command, tmp_path, capsys, monkeypatch):
     """matplotlib is a dependency; in a broken installation without it a command stops at once
     (it used to train for minutes and then fail writing the figure)."""
@@ -392,3 +470,47 @@ def test_missing_figure_library_is_reported_before_work(command, tmp_path, capsy
     assert err == f"gvnn-warp {command}: error: this command needs matplotlib, which is not installed: " \
                   "pip install matplotlib\n"
     assert not (tmp_path / "o").exists()
+
+
+def test_track_without_evo_stops_before_work(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "evo", None)
+    assert cli.main(["track", str(tmp_path / "seq"), "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert err == "gvnn-warp track: error: this command needs evo (trajectory metrics), which is not installed: " \
+                  "pip install evo\n"
+    assert not (tmp_path / "o").exists()
+
+
+def test_render_and_track_never_import_torch(tmp_path):
+    """So they work without the torch extra: render and track end to end, and torch is never imported.
+    (Not by blocking the import: scipy, which evo uses, looks torch up in sys.modules.)"""
+    code = f"""
+import sys
+from gvnn_warp.cli import main
+assert main(["render", "--out", {str(tmp_path / "seq")!r}, "--frames", "3", "--size", "32x24", "--no-progress"]) == 0
+assert main(["track", {str(tmp_path / "seq")!r}, "--out", {str(tmp_path / "o")!r}, "--no-progress"]) == 0
+assert "torch" not in sys.modules, "torch imported"
+print("ok")
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.strip().endswith("ok") and "ATE RMSE" in res.stdout
+    assert (tmp_path / "o" / "metrics.json").exists()
+
+
+def test_render_refuses_a_folder_holding_a_sequence(tmp_path, capsys):
+    out = tmp_path / "seq"
+    argv = ["render", "--out", str(out), "--frames", "2", "--size", "16x16", "--no-progress"]
+    assert cli.main(argv) == 0
+    before = (out / "rgb.txt").read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv[:4] + ["3"] + argv[5:])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0].startswith("usage: gvnn-warp render ")
+    assert lines[-1] == f"gvnn-warp render: error: --out {out} already holds a sequence (rgb.txt); pass " \
+                        "--overwrite or choose another folder"
+    assert (out / "rgb.txt").read_text() == before
+    assert cli.main(argv[:4] + ["3"] + argv[5:] + ["--overwrite"]) == 0
+    assert len(list((out / "rgb").glob("*.png"))) == 3

@@ -89,8 +89,8 @@ def _commands(code: str) -> list[list[str]]:
 
 def test_readme_shell_commands_are_valid():
     """The shell blocks are checked, not run (the set-up reinstalls, the demos take minutes; CI runs
-    the set-up and test lines, which must be .ci/run's): each command's arguments are parsed by its
-    own parser, pip's requirements must match pyproject.toml."""
+    the quick start's set-up and test lines, which must be .ci/run's commands): each command's
+    arguments are parsed by its own parser, pip's requirements must match pyproject.toml."""
     import tomllib
     from packaging.requirements import Requirement
 
@@ -98,6 +98,13 @@ def test_readme_shell_commands_are_valid():
     from gvnn_warp.demos import vo
 
     ci = (DOCS.parent / ".ci" / "run").read_text()
+    # the quick start's two lines (set-up and main job; tests) are exactly CI's two commands
+    ci_commands = [line for line in ci.splitlines()
+                   if line.strip() and not line.startswith(("#", "set ", "cd "))]
+    quick_start = [code for lang, code, _ in readme_blocks() if lang == "bash"][0].strip().splitlines()
+    assert quick_start == ci_commands, (quick_start, ci_commands)
+    assert quick_start[1] == ".venv/bin/python -m pytest -q"
+    assert "gvnn-warp render" in quick_start[0] and "gvnn-warp track" in quick_start[0]
     project = tomllib.loads((DOCS.parent / "pyproject.toml").read_text())["project"]
     torch_req = Requirement(project["optional-dependencies"]["torch"][0])
     seen = set()
@@ -105,7 +112,7 @@ def test_readme_shell_commands_are_valid():
         if lang != "bash":
             continue
         for line in code.splitlines():
-            if "pytest" in line or "gvnn-warp align" in line:
+            if "pytest" in line or ("pip install" in line and "gvnn-warp" in line):
                 assert line.strip() in ci, f"README line not run by CI: {line}"
         for cmd in _commands(code):
             prog = cmd[0].removeprefix(".venv/bin/")

@@ -93,6 +93,10 @@ def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: st
     u = f" {unit}" if unit else ""
     if math.isinf(minimum) and math.isinf(maximum):
         expected = "a finite number"
+    elif math.isinf(maximum):
+        expected = f"a finite number >= {minimum:g}{u}"
+    elif math.isinf(minimum):
+        expected = f"a finite number <= {maximum:g}{u}"
     else:
         expected = f"a number from {minimum:g} to {maximum:g}{u}"
 

@@ -8,6 +8,7 @@ Writes ``DIR/rgb/*.png`` (8-bit colour), ``DIR/depth/*.png`` (16-bit, metres * 5
 depth), ``DIR/rgb.txt``, ``DIR/depth.txt``, ``DIR/groundtruth.txt`` (``T_world_cam`` as
 ``timestamp tx ty tz qx qy qz qw``) and ``DIR/intrinsics.txt`` (``fx fy cx cy``): exactly the
 format ``gvnn-warp track`` and other TUM tools read (see docs/datasets.md). Frames are 1/30 s apart.
+Refuses a folder that already holds a sequence unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -17,14 +18,18 @@ import sys
 import time
 from pathlib import Path
 
-from ._args import image_size, nonnegative_int, positive_int
+from ._args import UsageError, bounded_int, description, image_size, output_dir, seed
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "check", "render_sequence", "run"]
 
-_SIZE = image_size(16)
+REQUIRES = ("tqdm",)  # checked by gvnn_warp.cli before run(); rendering and writing need no torch
+
+MAX_SIDE = 2048  # largest image side: a 2048x2048 RGB-D frame is 64 MiB in float32
+MAX_FRAMES = 100_000  # about an hour at 30 fps
 FPS = 30.0
 T0 = 1_700_000_000.0  # first timestamp (s), in the range of real sensor clocks
-CHUNK = 16  # frames rendered per Warp launch
+CHUNK = 16  # at most this many frames rendered per Warp launch
+CHUNK_BYTES = 256 * 2**20  # ... and at most this much float32 colour + depth per launch
 TUM_FILES = ("rgb.txt", "depth.txt", "groundtruth.txt", "intrinsics.txt")
 
 MOTIONS = {
@@ -34,13 +39,13 @@ MOTIONS = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder to write the sequence into (created)")
+    p.add_argument("--out", type=output_dir, required=True, metavar="DIR",
+                   help="folder to write the sequence into (made if missing)")
     p.add_argument("--motion", choices=tuple(MOTIONS), default="se3",
-                   help="; ".join(f"{k}: {v}" for k, v in MOTIONS.items()) + " (default se3)")
-    p.add_argument("--frames", type=positive_int, default=200, metavar="N", help="number of frames (default 200)")
-    p.add_argument("--size", type=_SIZE, default=(320, 240), metavar="WxH", help="image size WxH (default 320x240)")
-    p.add_argument("--seed", type=nonnegative_int, default=0, metavar="S",
-                   help="seed of the room and the trajectory (default 0)")
+                   help="; ".join(f"{k}: {v}" for k, v in MOTIONS.items()))
+    p.add_argument("--frames", type=bounded_int(1, MAX_FRAMES), default=200, metavar="N", help="number of frames")
+    p.add_argument("--size", type=image_size(16, MAX_SIDE), default="320x240", metavar="WxH", help="image size WxH")
+    p.add_argument("--seed", type=seed, default=0, metavar="S", help="seed of the room and the trajectory")
     p.add_argument("--overwrite", action="store_true", help="replace a TUM sequence already in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -49,15 +54,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "render",
         help="render a synthetic RGB-D sequence into a TUM RGB-D folder (with ground truth)",
-        description=__doc__.split("\n\n")[0],
+        description=description(__doc__),
     )
     add_arguments(p)
     p.set_defaults(func=run)
     return p
-
-
-def _error(message: str) -> SystemExit:
-    return SystemExit(f"gvnn-warp render: error: {message}")
 
 
 def trajectory(motion: str, frames: int, seed: int):
@@ -69,13 +70,13 @@ def trajectory(motion: str, frames: int, seed: int):
     return rotation_trajectory(frames, seed)
 
 
-def check_out(out: Path, overwrite: bool) -> None:
-    """Refuse an --out that is a file, or that already holds a TUM sequence (unless ``overwrite``)."""
-    if out.exists() and not out.is_dir():
-        raise _error(f"--out {out} exists and is not a directory")
-    existing = [name for name in TUM_FILES if (out / name).exists()]
-    if existing and not overwrite:
-        raise _error(f"--out {out} already holds a sequence ({existing[0]}); pass --overwrite or choose another folder")
+def check(args: argparse.Namespace) -> None:
+    """Checks that need what is on disk (raises UsageError before any work): --out must not hold a
+    TUM sequence already, unless --overwrite."""
+    existing = [name for name in TUM_FILES if (args.out / name).exists()]
+    if existing and not args.overwrite:
+        raise UsageError(f"--out {args.out} already holds a sequence ({existing[0]}); pass --overwrite or choose "
+                         "another folder")
 
 
 def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], seed: int,
@@ -92,6 +93,7 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
     poses = trajectory(motion, frames, seed)
     scene = make_room_scene(seed)
     stamps = T0 + np.arange(frames) / FPS
+    chunk = max(1, min(CHUNK, CHUNK_BYTES // (16 * width * height)))  # 4 float32 channels per pixel
     if out.is_dir():  # --overwrite: drop the old images so no stale frame is left beside the new lists
         for kind in ("rgb", "depth"):
             for f in (out / kind).glob("*.png"):
@@ -101,8 +103,8 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
     with TUMWriter(out, K, comment=comment) as writer, tqdm(
         total=frames, unit="frame", disable=not progress, desc="render"
     ) as bar:
-        for start in range(0, frames, CHUNK):
-            stop = min(start + CHUNK, frames)
+        for start in range(0, frames, chunk):
+            stop = min(start + chunk, frames)
             t = time.perf_counter()
             image, depth = render_rgbd(scene, poses[start:stop], K, width, height)
             render_s += time.perf_counter() - t
@@ -113,18 +115,11 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
 
 
 def run(args: argparse.Namespace) -> int:
-    check_out(args.out, args.overwrite)
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise _error(f"cannot create --out {args.out}: {e.strerror or e}") from None
+    check(args)
+    args.out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    try:
-        render_s = render_sequence(args.out, args.motion, args.frames, args.size, args.seed,
-                                   progress=not args.no_progress)
-    except KeyboardInterrupt:
-        print("gvnn-warp render: interrupted; the folder is incomplete", file=sys.stderr)
-        return 130
+    render_s = render_sequence(args.out, args.motion, args.frames, args.size, args.seed,
+                               progress=not args.no_progress)
     total = time.perf_counter() - t
     width, height = args.size
     print(f"render {args.motion}: {args.frames} frames {width}x{height} in {total:.1f} s "
@@ -133,9 +128,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="gvnn-warp render", description=__doc__.split("\n\n")[0])
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+    """``python -m gvnn_warp.demos.render ...``: the same as ``gvnn-warp render ...``."""
+    from ..cli import main as cli_main
+
+    return cli_main(["render", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -31,16 +31,22 @@ import math
 import sys
 from pathlib import Path
 
-from ._args import positive_float, positive_int
+from ._args import UsageError, bounded_int, description, finite_float, output_dir, positive_float
 
-__all__ = ["add_parser", "make_aligner", "run"]
+__all__ = ["add_parser", "check", "make_aligner", "run"]
+
+# checked by gvnn_warp.cli before run(): evo computes the metrics, matplotlib draws the figures; the
+# aligner, the reader and the tracking loop are numpy and Warp (no torch)
+REQUIRES = ("evo", "matplotlib", "tqdm")
 
 ROBUST = ("huber", "l2", "cauchy", "geman_mcclure", "tukey")  # DirectAligner's
 PRESETS = ("fr1", "fr2", "fr3", "icl")
+MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
+MAX_ITERATIONS = 1000
 
 
 def intrinsics_arg(text: str):
-    """``type=`` for ``--intrinsics``: a preset name, or ``fx,fy,cx,cy`` (fx, fy > 0)."""
+    """``type=`` for ``--intrinsics``: a preset name, or ``fx,fy,cx,cy`` (finite, fx, fy > 0)."""
     if text in PRESETS:
         return text
     try:
@@ -48,29 +54,9 @@ def intrinsics_arg(text: str):
     except ValueError:
         values = []
     if len(values) != 4 or not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[1] <= 0:
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(PRESETS)} or fx,fy,cx,cy with fx, fy > 0, "
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(PRESETS)} or fx,fy,cx,cy (finite, fx, fy > 0), "
                                          f"got {text!r}")
     return tuple(values)
-
-
-def nonnegative_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not 0 <= v < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return v
-
-
-def fraction(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0 <= v <= 1:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return v
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -78,32 +64,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     kf = KeyframePolicy()
     p.add_argument("data", type=Path, metavar="DIR", help="TUM RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])")
-    p.add_argument("--out", type=Path, required=True, help="output folder (trajectory.txt, metrics.json, figures)")
+    p.add_argument("--out", type=output_dir, required=True, metavar="OUT",
+                   help="output folder for trajectory.txt, metrics.json and the figures (made if missing)")
     p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY",
                    help="fr1, fr2, fr3, icl (published 640x480 values) or fx,fy,cx,cy (default: DIR/intrinsics.txt, "
                         "else the Freiburg preset named by the folder)")
     p.add_argument("--depth-scale", type=positive_float, default=5000.0, metavar="S",
-                   help="raw depth units per metre (default 5000, as TUM and ICL-NUIM)")
-    p.add_argument("--max-frames", type=positive_int, default=None, metavar="N", help="track only the first N frames")
-    p.add_argument("--max-difference", type=positive_float, default=0.02, metavar="SEC",
-                   help="seconds: colour/depth association and ground-truth matching (default 0.02)")
+                   help="raw depth units per metre (5000 in TUM RGB-D and ICL-NUIM)")
+    p.add_argument("--max-frames", type=bounded_int(2), default=None, metavar="N",
+                   help="track only the first N frames (default: all)")
+    p.add_argument("--max-difference", type=finite_float(0, 1, "s"), default=0.02, metavar="SEC",
+                   help="seconds: colour/depth association and ground-truth matching")
     p.add_argument("--keyframes", action="store_true",
                    help="align to a keyframe, replaced when the thresholds below are passed (default: previous frame)")
     p.add_argument("--keyframe-trans", type=positive_float, default=kf.max_trans_m, metavar="M",
-                   help=f"new keyframe beyond this translation (default {kf.max_trans_m} m)")
-    p.add_argument("--keyframe-rot", type=positive_float, default=kf.max_rot_deg, metavar="DEG",
-                   help=f"new keyframe beyond this rotation (default {kf.max_rot_deg} deg)")
-    p.add_argument("--keyframe-valid", type=fraction, default=kf.min_valid, metavar="F",
-                   help=f"new keyframe below this valid fraction (default {kf.min_valid})")
+                   help="new keyframe beyond this translation, metres")
+    p.add_argument("--keyframe-rot", type=finite_float(0, 180, "deg"), default=kf.max_rot_deg, metavar="DEG",
+                   help="new keyframe beyond this rotation, degrees")
+    p.add_argument("--keyframe-valid", type=finite_float(0, 1), default=kf.min_valid, metavar="F",
+                   help="new keyframe below this fraction of usable pixels")
     p.add_argument("--init", choices=("identity", "velocity"), default="identity",
-                   help="initial guess: identity (the default) or constant velocity")
-    p.add_argument("--levels", type=positive_int, default=None, metavar="L",
-                   help="pyramid levels (default: the aligner's, as many as keep the coarsest level >= 6 px)")
-    p.add_argument("--iterations", type=positive_int, default=None, metavar="N",
-                   help="iterations per level (default: the aligner's)")
-    p.add_argument("--robust", choices=ROBUST, default="huber", help="photometric penalty (default huber)")
-    p.add_argument("--depth-weight", type=nonnegative_float, default=0.0, metavar="W",
-                   help="weight of the depth term (default 0: photometric only)")
+                   help="initial guess: identity or constant velocity")
+    p.add_argument("--levels", type=bounded_int(1, MAX_LEVELS), default=None, metavar="L",
+                   help="pyramid levels (default: the aligner's, as many as keep the coarsest level >= 6 px; "
+                        "fewer where the image is too small)")
+    p.add_argument("--iterations", type=bounded_int(1, MAX_ITERATIONS), default=None, metavar="N",
+                   help="iterations per level (default: the aligner's, 4 at the finest level to 30 at the coarsest)")
+    p.add_argument("--robust", choices=ROBUST, default="huber", help="photometric penalty")
+    p.add_argument("--depth-weight", type=finite_float(0, 1e6), default=0.0, metavar="W",
+                   help="weight of the depth term (0: photometric only)")
     p.add_argument("--color", action="store_true", help="photometric term on RGB instead of grey")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -112,15 +101,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "track",
         help="direct RGB-D odometry over a TUM RGB-D folder; trajectory, evo metrics and figures",
-        description=__doc__.split("\n\n")[0],
+        description=description(__doc__),
     )
     add_arguments(p)
     p.set_defaults(func=run)
     return p
-
-
-def _error(message: str) -> SystemExit:
-    return SystemExit(f"gvnn-warp track: error: {message}")
 
 
 def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
@@ -141,38 +126,35 @@ def _summary(rows: list[tuple[str, str]]) -> str:
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
 
 
-def run(args: argparse.Namespace) -> int:
+def check(args: argparse.Namespace):
+    """Checks that need what is on disk (raises UsageError before any work): the sequence's lists
+    are read and associated (images are read while tracking) and there are at least 2 frames.
+    Returns (sequence, number of frames to track)."""
     from ..datasets.tum import DatasetError, read_tum
 
-    if args.out.exists() and not args.out.is_dir():
-        raise _error(f"--out {args.out} exists and is not a directory")
     try:
         seq = read_tum(args.data, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
                        max_difference=args.max_difference)
     except DatasetError as e:
-        raise _error(str(e)) from None
+        raise UsageError(str(e)) from None
     n = len(seq) if args.max_frames is None else min(args.max_frames, len(seq))
     if n < 2:
-        raise _error(f"{args.data}: need at least 2 frames to track, found {n}")
-    try:
-        aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
-                               depth_weight=args.depth_weight, color=args.color)
-    except ImportError as e:
-        raise _error(f"the direct aligner (gvnn_warp.odometry) is not available: {e}") from None
-    except ValueError as e:  # e.g. more pyramid levels than the image size allows
-        raise _error(str(e)) from None
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise _error(f"cannot create --out {args.out}: {e.strerror or e}") from None
+        raise UsageError(f"{args.data}: need at least 2 frames to track, found {n}")
+    return seq, n
 
+
+def run(args: argparse.Namespace) -> int:
+    from ..datasets.tum import DatasetError
+
+    seq, n = check(args)
+    aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
+                           depth_weight=args.depth_weight, color=args.color)
+    args.out.mkdir(parents=True, exist_ok=True)
     try:
         return _track_and_report(args, seq, n, aligner)
-    except DatasetError as e:  # an unreadable image met while tracking
-        raise _error(str(e)) from None
-    except KeyboardInterrupt:
-        print("gvnn-warp track: interrupted", file=sys.stderr)
-        return 130
+    except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
+        print(f"gvnn-warp track: error: {e}", file=sys.stderr)
+        return 1
 
 
 def _track_and_report(args, seq, n: int, aligner) -> int:
@@ -255,9 +237,10 @@ def _frames_text(frames: list[int], limit: int = 12) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="gvnn-warp track", description=__doc__.split("\n\n")[0])
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+    """``python -m gvnn_warp.demos.track ...``: the same as ``gvnn-warp track ...``."""
+    from ..cli import main as cli_main
+
+    return cli_main(["track", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":
