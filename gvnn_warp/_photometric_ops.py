@@ -10,7 +10,7 @@ import torch
 
 from ._bridge import _FLOAT_TYPES, Output, Param, _descriptor, _skip_lazy_dynamo_import, warp_op
 from .kernels import photometric_kernels as pk
-from .kernels.photometric_pipeline import _record
+from .kernels.launch import RecordedLaunch
 
 wp_float64 = _FLOAT_TYPES[torch.float64]
 
@@ -82,16 +82,14 @@ def photometric_normal_equations(
     rows_d = _descriptor(rows, "scalar", wp_float64)
     # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
     if H * W > 0:
-        for run in _record(
-            pk.normal_equations_lanes[int(depth_term)][ft], B * H, W,
-            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, rows_d],
-        ):
-            run()
+        RecordedLaunch(
+            pk.normal_equations_lanes[int(depth_term)][ft], B * H,
+            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, rows_d], work=W, grain=pk._GRAIN_PIXELS,
+        )()
     else:
         rows.zero_()
     out_d = [_descriptor(o, "scalar", ft) for o in outs]
-    for run in _record(pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1, [rows_d, H, *out_d]):
-        run()
+    RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d], grain=pk._GRAIN_PIXELS)()
     return tuple(outs)
 
 

@@ -175,20 +175,19 @@ class _Pyramid:
         depths = self.depths or [empty] * len(self.shapes)
         f32 = wp.float32
         self.weights = aligner._channel_weights(C)
-        threads = _launch.get_num_threads()
-        self.level0 = _Recorded(
-            _pyramid.level0_kernel(C, Co)[f32], B * H, W,
+        self.level0 = _launch.RecordedLaunch(
+            _pyramid.level0_kernel(C, Co)[f32], B * H,
             [empty, self.weights.flatten(), empty, H, W, int(with_depth)],
-            [self.images[0].flatten(), depths[0].flatten() if with_depth else empty], threads,
+            [self.images[0].flatten(), depths[0].flatten() if with_depth else empty], work=W, grain=_GRAIN,
         )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
-            self.down.append(_Recorded(
-                _pyramid.downsample_kernel(Co)[f32], B * ho, wo,
+            self.down.append(_launch.RecordedLaunch(
+                _pyramid.downsample_kernel(Co)[f32], B * ho,
                 [self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
                  h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
-                [self.images[k].flatten(), depths[k].flatten() if with_depth else empty], threads,
+                [self.images[k].flatten(), depths[k].flatten() if with_depth else empty], work=wo, grain=_GRAIN,
             ))
 
     def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
@@ -198,35 +197,6 @@ class _Pyramid:
         self.level0()
         for run in self.down:
             run()
-
-
-class _Recorded:
-    """A kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n) of ``pixels`` pixels
-    each, as recorded launches: one, or above ``2 * _GRAIN`` pixels one per thread over equal
-    ranges, run on the thread pool of :mod:`gvnn_warp.kernels.launch` (each element writes only
-    its own outputs: any split gives the same bits). Replaying a recorded launch costs a few
-    microseconds."""
-
-    def __init__(self, kernel, n: int, pixels: int, inputs: list, outputs: list, threads: int):
-        pieces = max(1, min(threads, n, n * pixels // _GRAIN))
-        if getattr(_launch, "_pool", None) is None:
-            pieces = 1
-        bounds = [n * k // pieces for k in range(pieces + 1)]
-        self.cmds = [wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs], outputs=outputs,
-                               device="cpu", record_cmd=True) for k in range(pieces)]
-        self._runs = [c.launch for c in self.cmds]
-
-    def set_arg(self, index: int, value) -> None:
-        """Replace input ``index`` (0 = the first after ``offset``) in every piece."""
-        for c in self.cmds:
-            c.set_param_at_index(index + 1, value)
-
-    def __call__(self) -> None:
-        runs = self._runs
-        if len(runs) == 1:
-            runs[0]()
-        else:
-            _launch._pool.run(lambda k: runs[k](), len(runs), len(runs))
 
 
 class DirectAligner:

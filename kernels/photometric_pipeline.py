@@ -20,7 +20,6 @@ import warp as wp
 
 from . import launch as _launch
 from . import photometric_kernels as pk
-from . import threads as _threads
 from .camera import MIN_DEPTH
 from .photometric import KINDS
 from .pipeline import _expect, _expect_float, _expect_matrices, _type_name
@@ -218,9 +217,11 @@ def photometric_normal_equations(
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
     rows_kernel = pk.normal_equations_lanes[variant][ft]
-    out._cmds = _record(rows_kernel, B * H, W, inputs) + _record(
-        pk.normal_equations_reduce[ft], B * pk.N_SUMS, 1, [out._rows, H, *outputs]
-    )
+    out._cmds = [
+        _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=pk._GRAIN_PIXELS),
+        _launch.RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [out._rows, H, *outputs],
+                               grain=pk._GRAIN_PIXELS),
+    ]
     if key is None:
         key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
                           (robust, scale, depth_weight, min_depth, occlusion, _launch.get_num_threads()))
@@ -240,29 +241,6 @@ def _launch_key(*arrays_and_args) -> tuple:
     (None stays None), and the scalar arguments (the last item)."""
     *arrays, args = arrays_and_args
     return (*((a.ptr, a.shape, a.strides, a.dtype) if a is not None else None for a in arrays), args)
-
-
-def _record(kernel: wp.Kernel, n: int, row_pixels: int, args: list) -> list:
-    """Callables that run ``kernel`` (first argument ``offset``) over [0, n) with ``args``: recorded
-    launches (~2 us each to re-launch, against ~15 us for ``wp.launch``); above
-    ``2 * _GRAIN_PIXELS`` pixels of work, one per thread over equal runs of elements, run on the
-    Python thread pool (:func:`.threads.python_pool`; the kernels write disjoint slots per element:
-    any split gives the same bits)."""
-    threads = _launch.get_num_threads()
-    pieces = min(threads, n, (n * row_pixels) // pk._GRAIN_PIXELS)
-    bounds = [n * k // max(1, pieces) for k in range(max(1, pieces) + 1)]
-    cmds = [
-        wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *args], device="cpu", record_cmd=True)
-        for k in range(max(1, pieces))
-    ]
-    runs = [c.launch for c in cmds]
-    if len(runs) == 1:
-        return runs
-    # The launch layer's pool of Python threads, also when torch's OpenMP team is installed: on a
-    # loaded 2-core host the OpenMP team's spin-waiting made a 320x240 call 3x slower in CPU time
-    # and 7x in wall time (2.2 vs 16 ms), the Python threads cost nothing extra.
-    pool = _threads.python_pool()
-    return [lambda: pool.run(lambda k: runs[k](), len(runs), threads)]
 
 
 #: penalties of :func:`photometric_error`
