@@ -143,7 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("gvnn-warp: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS
-    return run_command(args._parser, args, args._requires)
+    try:
+        return run_command(args._parser, args, args._requires)
+    except KeyboardInterrupt:
+        # raised again while run_command cleaned up after reporting one: still the one line and 130,
+        # not Python's exit for an unhandled KeyboardInterrupt (killed by SIGINT, status -2)
+        return INTERRUPTED_STATUS
 
 
 if __name__ == "__main__":

@@ -260,6 +260,21 @@ def test_keyboard_interrupt_anywhere_in_a_command(command, tmp_path, capsys, mon
     assert capsys.readouterr().err == f"gvnn-warp {command}: interrupted\n"
 
 
+def test_keyboard_interrupt_during_the_clean_up_still_exits_130(tmp_path, capsys, monkeypatch):
+    """A second interrupt while run_command cleans up (after it reported the first) must not end the
+    process as killed by SIGINT: one line, status 130."""
+    import gvnn_warp._warp_setup as warp_setup
+    from gvnn_warp.demos import align
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(align, "run", interrupted)
+    monkeypatch.setattr(warp_setup, "cancel_first_compile", interrupted)
+    assert cli.main(["align", *(a.format(out=tmp_path / "o") for a in _VALID["align"])]) == 130
+    assert capsys.readouterr().err == "gvnn-warp align: interrupted\n"
+
+
 def _env():
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
