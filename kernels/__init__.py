@@ -1,9 +1,11 @@
 """Pure-Warp building blocks of gvnn_warp, installed as ``gvnn_warp.kernels``; never imports torch.
 
 - ``@wp.func`` libraries to call from your own kernels: :mod:`.lie` (so3/SE3/Sim3 exp and log,
-  quaternions, Euler angles, poses), :mod:`.camera` (unproject, project), :mod:`.sampler`
-  (bilinear sampling with zeros/border padding).
+  quaternions, Euler angles, poses), :mod:`.camera` (unproject, project), :mod:`.lens` (camera
+  models: pinhole, radial-tangential, fisheye; project, unproject, distort, undistort),
+  :mod:`.sampler` (bilinear sampling with zeros/border padding).
 - Thin kernels with float32/float64 overloads: :mod:`.lie_kernels`, :mod:`.camera_kernels`,
+  :mod:`.lens_kernels`,
   :mod:`.sampling_kernels` (including the fused 3D spatial transformer).
 - Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`; the fused
   photometric objective (its Gauss-Newton normal equations): :mod:`.photometric_pipeline`.
@@ -19,6 +21,8 @@ from . import (
     camera_kernels,
     kinds,
     launch,
+    lens,
+    lens_kernels,
     lie,
     lie_kernels,
     photometric,
@@ -56,6 +60,8 @@ __all__ = [
     "hat",
     "kinds",
     "launch",
+    "lens",
+    "lens_kernels",
     "lie",
     "lie_kernels",
     "masked_squared_error",
