@@ -295,7 +295,14 @@ def _undistort_grad64(model: int, d: vec8d, x: wp.float64, y: wp.float64, gx: wp
 
 @wp.func
 def _in_domain64(model: int, d: vec8d, x: wp.float64, y: wp.float64):
-    return wp.isfinite(x) and wp.isfinite(y) and (model == PINHOLE or x * x + y * y < d[LIMIT])
+    inf = wp.float64(wp.inf)
+    return wp.abs(x) < inf and wp.abs(y) < inf and (model == PINHOLE or x * x + y * y < d[LIMIT])
+
+
+@wp.func
+def _finite(v: Any):
+    """wp.isfinite(v) as one comparison (false for NaN and +-inf); isfinite costs ~14 ns."""
+    return wp.abs(v) < type(v)(wp.inf)
 
 
 @wp.func
@@ -317,7 +324,23 @@ def _from64(g: vec8d, ref: Any):
 
 @wp.func
 def _finite_or_zero(v: Any):
-    return wp.where(wp.isfinite(v), v, type(v)(0.0))
+    return wp.where(_finite(v), v, type(v)(0.0))
+
+
+@wp.func
+def _project_distorted64(model: int, K: Any, d: vec8d, p: Any):
+    """(u, v, in domain) of a point with Z > 0 through a distorting model, in float64."""
+    z = wp.float64(p[2])
+    x = wp.float64(p[0]) / z
+    y = wp.float64(p[1]) / z
+    u = wp.float64(0.0)
+    v = wp.float64(0.0)
+    ok = x * x + y * y < d[LIMIT]
+    if ok:
+        xd, yd, J = _distort64(model, d, x, y)
+        u = wp.float64(K[0, 0]) * xd + wp.float64(K[0, 1]) * yd + wp.float64(K[0, 2])
+        v = wp.float64(K[1, 1]) * yd + wp.float64(K[1, 2])
+    return u, v, ok
 
 
 # ----------------------------------------------------------------------------- typed front
@@ -359,7 +382,7 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None):
     @wp.func
     def undistort(model: int, dist: vec8, xd: vec2):
         out = vec2(_finite_or_zero(xd[0]), _finite_or_zero(xd[1]))
-        ok = wp.isfinite(xd[0]) and wp.isfinite(xd[1])
+        ok = _finite(xd[0]) and _finite(xd[1])
         if model != PINHOLE and ok:
             x, y, ok = _undistort64(model, _to64(dist), f64(xd[0]), f64(xd[1]))
             if ok:
@@ -368,7 +391,7 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None):
 
     @wp.func_grad(undistort)
     def adj_undistort(model: int, dist: vec8, xd: vec2, adj_ret0: vec2, adj_ret1: bool):
-        if wp.isfinite(xd[0]) and wp.isfinite(xd[1]):
+        if _finite(xd[0]) and _finite(xd[1]):
             if model == PINHOLE:
                 wp.adjoint[xd] += adj_ret0
             else:
@@ -381,30 +404,22 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None):
 
     @wp.func
     def project(model: int, K: mat33, dist: vec8, p: vec3, min_depth: T):
-        ok = wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2]) and p[2] > min_depth
-        out = vec2()
-        if ok:
-            if model == PINHOLE:
-                out = camera.project(K, p)
-            else:
-                z = f64(p[2])
-                x = f64(p[0]) / z
-                y = f64(p[1]) / z
-                d = _to64(dist)
-                ok = x * x + y * y < d[LIMIT]
-                if ok:
-                    xd, yd, J = _distort64(model, d, x, y)
-                    out = vec2(
-                        T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2])), T(f64(K[1, 1]) * yd + f64(K[1, 2]))
-                    )
+        # finite X, Y, Z (a sum of finite coordinates above ~1e38 counts as not: irrelevant) and Z > min_depth
+        ok = p[2] > min_depth and _finite(p[0] + p[1] + p[2])
+        q = p
         if not ok:
             q = vec3(_finite_or_zero(p[0]), _finite_or_zero(p[1]), wp.max(_finite_or_zero(p[2]), min_depth))
-            out = camera.project(K, q)
+        out = camera.project(K, q)  # the pinhole projection, or the stand-in
+        if model != PINHOLE and ok:  # out of line, so that the pinhole path stays small
+            u, v, ok = _project_distorted64(model, K, _to64(dist), p)
+            if ok:
+                out = vec2(T(u), T(v))
         return out, ok
 
     @wp.func_grad(project)
     def adj_project(model: int, K: mat33, dist: vec8, p: vec3, min_depth: T, adj_ret0: vec2, adj_ret1: bool):
-        ok = wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2]) and p[2] > min_depth
+        # finite X, Y, Z (a sum of finite coordinates above ~1e38 counts as not: irrelevant) and Z > min_depth
+        ok = p[2] > min_depth and _finite(p[0] + p[1] + p[2])
         if ok:
             if model == PINHOLE:
                 g_K, g_p = camera.project_grad(K, p, adj_ret0)
@@ -469,7 +484,7 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None):
             ry = (f64(y) - f64(K[1, 2])) / fyd
             rx = (f64(x) - f64(K[0, 2]) - sk * ry) / fxd
             d = _to64(dist)
-            ok = wp.isfinite(rx) and wp.isfinite(ry)
+            ok = _finite(rx) and _finite(ry)
             xn = f64(0.0)
             yn = f64(0.0)
             if ok:
