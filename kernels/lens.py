@@ -207,6 +207,29 @@ def _distort64(model: int, d: vec8d, x: wp.float64, y: wp.float64):
 
 
 @wp.func
+def _distort_value64(model: int, d: vec8d, x: wp.float64, y: wp.float64):
+    """(xd, yd) of :func:`_distort64` without the Jacobian (forward passes)."""
+    one = wp.float64(1.0)
+    two = wp.float64(2.0)
+    r2 = x * x + y * y
+    xd = x
+    yd = y
+    if model == RADTAN:
+        R = one + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
+        xd = x * R + two * d[2] * x * y + d[3] * (r2 + two * x * x)
+        yd = y * R + d[2] * (r2 + two * y * y) + two * d[3] * x * y
+    elif model == FISHEYE:
+        small = r2 < _SMALL_R2
+        r = wp.sqrt(wp.where(small, one, r2))
+        theta = wp.atan(r)
+        c = wp.where(small, one - r2 / wp.float64(3.0), theta / r)
+        s = c * _fisheye_poly(d, wp.where(small, r2 * c * c, theta * theta))
+        xd = s * x
+        yd = s * y
+    return xd, yd
+
+
+@wp.func
 def _distort_vjp_dist64(model: int, d: vec8d, x: wp.float64, y: wp.float64, gx: wp.float64, gy: wp.float64):
     """(d(xd, yd)/d dist)^T (gx, gy): the gradient to the coefficients (entries 5..7 zero)."""
     two = wp.float64(2.0)
@@ -276,7 +299,7 @@ def _undistort64(model: int, d: vec8d, xd: wp.float64, yd: wp.float64):
             scale = wp.tan(theta) / rd
         x = xd * scale
         y = yd * scale
-    fx, fy, J = _distort64(model, d, x, y)
+    fx, fy = _distort_value64(model, d, x, y)
     res = wp.max(wp.abs(fx - xd), wp.abs(fy - yd))
     valid = res <= UNDISTORT_TOL and (x * x + y * y) < d[LIMIT]
     return x, y, valid
@@ -337,7 +360,7 @@ def _project_distorted64(model: int, K: Any, d: vec8d, p: Any):
     v = wp.float64(0.0)
     ok = x * x + y * y < d[LIMIT]
     if ok:
-        xd, yd, J = _distort64(model, d, x, y)
+        xd, yd = _distort_value64(model, d, x, y)
         u = wp.float64(K[0, 0]) * xd + wp.float64(K[0, 1]) * yd + wp.float64(K[0, 2])
         v = wp.float64(K[1, 1]) * yd + wp.float64(K[1, 2])
     return u, v, ok
@@ -363,7 +386,7 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None):
         ok = _in_domain64(model, d, x, y)
         out = vec2(_finite_or_zero(xn[0]), _finite_or_zero(xn[1]))
         if ok:
-            xd, yd, J = _distort64(model, d, x, y)
+            xd, yd = _distort_value64(model, d, x, y)
             out = vec2(T(xd), T(yd))
         return out, ok
 
