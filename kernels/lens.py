@@ -64,6 +64,14 @@ results, so float32 values and gradients are float64's rounded):
 Every function has a hand-written adjoint (``@wp.func_grad``) for all its floating arguments
 (K, dist, p / x, y, depth), so callers get gradients for intrinsics and every coefficient
 through Warp's adjoint launches or ``wp.Tape``. Adjoint of dist[LIMIT:] is always 0.
+
+Float64 building blocks for kernels with their own hand-written adjoints (kernels.lens_rays uses
+them; their signatures are kept stable): ``_to64(dist) -> vec8d``, ``_from64(g: vec8d, ref)``
+(rounded to ``ref``'s float type), ``_distort64(model, d, x, y) -> (xd, yd, J: mat22d)``,
+``_distort_value64(model, d, x, y) -> (xd, yd)``, ``_distort_vjp_dist64(model, d, x, y, gx, gy)
+-> vec8d`` (the gradient to dist of gx xd + gy yd), ``_undistort64(model, d, xd, yd) -> (x, y,
+valid)`` and ``_undistort_grad64(model, d, x, y, gx, gy) -> (lx, ly, g_dist)`` (the
+implicit-function adjoint at the solution (x, y)).
 """
 
 import math
