@@ -203,8 +203,8 @@ def test_pinhole_camera_is_bitwise_k(dtype):
     good = pts[..., 2] > 1e-3
     pix, valid = cam.project(pts)
     assert torch.equal(valid, good) and torch.equal(pix[good], G.project_points(pts, K)[good])
-    und, ok = G.undistort_points(px, cam)  # K (K^-1 x): rounding only
-    assert ok.all() and torch.allclose(und, px, rtol=0, atol=1e-5 if dtype == torch.float32 else 1e-13)
+    und, ok = G.undistort_points(px, cam)
+    assert ok.all() and torch.equal(und, px) and torch.equal(G.distort_points(px, cam)[0], px)
     # gradients: the same as K's
     Kc = K.double().clone().requires_grad_()
     Kd = K.double().clone().requires_grad_()
@@ -257,6 +257,14 @@ def test_out_of_domain_is_finite_invalid_and_has_zero_gradient():
     assert ok.tolist() == [[True, False]] and torch.isfinite(und).all()
     und[0, 1].sum().backward()
     assert (px.grad == 0).all() and (fe.grad == 0).all()
+    # distort_points of an ideal pixel whose ray is beyond the domain: itself, no gradient to anything
+    Kg = K.clone().requires_grad_()
+    fe.grad = None
+    ideal = torch.tensor([[[100.0 + 200 * math.tan(theta_max + 0.05), 80.0]]], dtype=f64, requires_grad=True)
+    out, ok = G.distort_points(ideal, G.FisheyeCamera(Kg, fe))
+    assert not ok.any() and torch.equal(out, ideal.detach())
+    out.sum().backward()
+    assert (ideal.grad == 0).all() and (Kg.grad == 0).all() and (fe.grad == 0).all()
     pts = cam.unproject(px.detach(), torch.ones(1, 2, dtype=f64))
     assert torch.isfinite(pts).all()
     # the largest radius inside is reached: the valid projection of the first pixel's point goes back
