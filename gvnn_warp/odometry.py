@@ -83,6 +83,7 @@ _MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
 _AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
 _MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
 _LAMBDA_MAX = 1e8
+_OCCLUSION_LEVELS = 2  # the occlusion test runs at the finest this many levels (see DirectAligner's 'occlusion')
 _POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
 _GRAIN = 32768  # pyramid launches split over threads in pieces of at least this many pixels
 _SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per batch size and frame size
@@ -160,6 +161,16 @@ def _recycle(pool: list, pyramid: _Pyramid) -> None:
         pool.append(pyramid)
 
 
+def _out_view(a: wp.array, lanes: bool) -> wp.array:
+    """A flat view of an output buffer: float32 scalars, or vec8 (8 consecutive pixels) for the
+    8-lane kernels (an empty one for a missing or empty buffer)."""
+    if lanes and a.size > 0:
+        return wp.array(ptr=a.ptr, dtype=_launch.vec8f, shape=(a.size // 8,), device="cpu")
+    if lanes:
+        return wp.empty(0, dtype=_launch.vec8f, device="cpu")
+    return a.flatten()
+
+
 class _Pyramid:
     """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
     once (a recorded launch replays in a few microseconds); reused through the aligner's pool."""
@@ -175,19 +186,23 @@ class _Pyramid:
         depths = self.depths or [empty] * len(self.shapes)
         f32 = wp.float32
         self.weights = aligner._channel_weights(C)
+        # the 8-lane kernels where the rows are whole vectors (one output channel for the base level)
+        lanes0 = Co == 1 and W % 8 == 0
         self.level0 = _launch.RecordedLaunch(
-            _pyramid.level0_kernel(C, Co)[f32], B * H,
-            [empty, self.weights.flatten(), empty, H, W, int(with_depth)],
-            [self.images[0].flatten(), depths[0].flatten() if with_depth else empty], work=W, grain=_GRAIN,
+            _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
+            [empty, self.weights.flatten(), empty, H, W, int(with_depth), aligner.depth_tolerance],
+            [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
         )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
+            lanes = wo % 8 == 0
             self.down.append(_launch.RecordedLaunch(
-                _pyramid.downsample_kernel(Co)[f32], B * ho,
+                (_pyramid.downsample_lanes_kernel(Co) if lanes else _pyramid.downsample_kernel(Co))[f32], B * ho,
                 [self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
                  h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
-                [self.images[k].flatten(), depths[k].flatten() if with_depth else empty], work=wo, grain=_GRAIN,
+                [_out_view(self.images[k], lanes), _out_view(depths[k], lanes)], work=wo,
+                grain=_GRAIN,
             ))
 
     def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
@@ -234,8 +249,11 @@ class DirectAligner:
             (the diagonal taps) differs from its moved point's z by more than ``occlusion * z`` (occluded in the live
             view, or a sample across a depth edge). Without it, such pixels bias the optimum
             (issue 15: +0.05 cm in y and +0.0075 deg about x per pair on the rendered sequence).
-            Applied at the finest level only: at the coarse levels, far from the optimum, it
-            would drop the very pixels that pull the pose in (a much narrower basin).
+            Applied at the two finest levels: at the coarser ones, far from the optimum, it
+            would drop the very pixels that pull the pose in (a much narrower basin); without it
+            at the second finest level, the estimate the finest level starts from kept that bias
+            (+0.049 cm in y at 640x480), and the finest level's last, unevaluated step (see
+            ``take_step``) removed only ~90% of it.
         min_depth: depths at or below it count as missing (metres).
         color: keep every colour channel in the residual (C per pixel) instead of one intensity.
         tolerance: a level stops when a step moves the image by less than this many pixels.
@@ -247,7 +265,9 @@ class DirectAligner:
             ``lm_down``: its growth after a rejected / shrink after an accepted step.
         min_valid_fraction: fewest valid pixels (fraction of the level's) to trust a level.
         depth_tolerance: the relative depth spread that counts as one surface when depths are
-            downsampled (see :mod:`gvnn_warp.kernels.pyramid`).
+            downsampled, and between neighbouring pixels of the finest level: a depth that far
+            from a neighbour's (a depth edge, where colours mix two surfaces) is not used (see
+            :mod:`gvnn_warp.kernels.pyramid`).
     """
 
     def __init__(
@@ -543,9 +563,10 @@ class _State:
     def runner(self, ref: Frame, live: Frame, level: int):
         """(normal-equation launches, first LM step, next LM step) for this pair at ``level``."""
         al = self.aligner
-        # the live depth serves the depth term and the occlusion test (finest level only; skipped
-        # without live depths)
-        use_depth = live.depths is not None and (al.depth_weight > 0 or (al.occlusion > 0 and level == 0))
+        # the live depth serves the depth term and the occlusion test (the finest _OCCLUSION_LEVELS
+        # levels; skipped without live depths)
+        occlusion = al.occlusion > 0 and level < _OCCLUSION_LEVELS
+        use_depth = live.depths is not None and (al.depth_weight > 0 or occlusion)
         key = (level, id(ref.images[level]), id(ref.depths[level]), id(live.images[level]),
                id(live.depths[level]) if use_depth else None)
         run = self._runners.get(key)
@@ -561,7 +582,8 @@ class _State:
         al = self.aligner
         args = (ref.images[level], ref.depths[level], live.images[level], self.pose, self.K[level])
         kw = {"robust": al.robust, "scale": al.scale, "depth_weight": al.depth_weight, "min_depth": al.min_depth,
-              "occlusion": al.occlusion if level == 0 else 0.0, "live_depth": live.depths[level] if use_depth else None}
+              "occlusion": al.occlusion if level < _OCCLUSION_LEVELS else 0.0,
+              "live_depth": live.depths[level] if use_depth else None}
         ne = photometric_normal_equations(*args, **kw)
         cmds = getattr(ne, "_cmds", None)
         if not cmds:  # no recorded launches to replay: the public call with out= each time
