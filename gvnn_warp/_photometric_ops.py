@@ -154,8 +154,10 @@ def photometric_error(
     if H * W > 0:
         arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
             _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
-        launch(pek.error_lanes[grad][ft], B * H, [*arrays, C, H, W, kind, scale, min_depth],
-               [rows_d, _descriptor(outs[2], "scalar", ft), _descriptor(outs[3], "scalar", ft)])
+        acc = torch.empty(B * H * pek.ACC_SLOTS * 8, dtype=ref_image.dtype)  # the rows' running sums
+        launch(pek.error_lanes(grad, kind, C)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth],
+               [rows_d, _descriptor(acc, "vec8", ft), _descriptor(outs[2], "scalar", ft),
+                _descriptor(outs[3], "scalar", ft)])
     else:
         rows.zero_()
     launch(pek.error_reduce[ft], B, [rows_d, _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft), H, C, grad],

@@ -29,6 +29,7 @@ so results are bitwise identical for any split over threads. The projection (pin
 function, :func:`project8`, with its gradient :func:`project8_grad` next to it.
 """
 
+import threading
 from typing import Any
 
 import warp as wp
@@ -156,9 +157,44 @@ def gather8(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
     )
 
 
-def _make_error_lanes(static_grad: int):
+@wp.func
+def channel8(
+    live_image: wp.array(dtype=Any), base: int, ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
+    i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any, m11: Any, wx1: Any, wy1: Any, ok: Any,
+    kind: int, c: Any,
+):
+    """One channel of an 8-lane step: the residuals r = live(taps of plane ``base``) -
+    ref[ref_i + x0 ...] where ``ok`` (and finite), and returns (rho(r), rho'(r), rho'(r) d live/du,
+    rho'(r) d live/dv), 0 in masked lanes."""
+    one = type(c)(1.0)
+    zeros = ph.splat8(type(c)(0.0))
+    big = type(c)(1.0e30)
+    val, gx, gy = ph.interpolate8(
+        gather8(live_image, base, i00, m00), gather8(live_image, base, i10, m10),
+        gather8(live_image, base, i01, m01), gather8(live_image, base, i11, m11),
+        wx1, wy1,
+    )
+    res = val - load8(ref_image, ref_i, x0, last)
+    # finite residual and derivatives (NaN and inf fail the compare)
+    m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gx, -gx) + wp.max(gy, -gy), -one, big))
+    rr = ph.select8(m, res, zeros)
+    e = wp.cw_mul(wp.max(rr, -rr), m)
+    if kind != ph.L1:
+        e = wp.cw_mul(ph.penalty8(rr, kind, c), m)
+    g = wp.cw_mul(psi8(rr, kind, c), m)
+    return e, g, wp.cw_mul(g, ph.select8(m, gx, zeros)), wp.cw_mul(g, ph.select8(m, gy, zeros))
+
+
+# vec8 running sums per row (memory, not registers: carried through the row loop as vectors, LLVM
+# kept them as scalars and rebuilt them lane by lane every step): the ROW_SLOTS sums, then d/du and
+# d/dv of the pixel over a run-time channel loop
+ACC_SLOTS = wp.constant(18)
+
+
+def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0):
     """The row kernel of photometric_error, 8 pixels at a time; with (static_grad 1) or without
-    the gradient."""
+    the gradient; the penalty ``static_kind`` (>= 0) and channel count ``static_c`` (> 0) compiled
+    in, or read at run time."""
 
     @wp.kernel(module="unique", enable_backward=False)
     def _error_lanes(
@@ -175,13 +211,15 @@ def _make_error_lanes(static_grad: int):
         scale: wp.float64,
         min_depth: wp.float64,
         rows: wp.array(dtype=wp.float64),
+        acc: wp.array(dtype=Any),
         g_ref: wp.array(dtype=Any),
         g_depth: wp.array(dtype=Any),
     ):
         # Element r = one reference row (flat (b, y)); images flat (B, C, H, W), depth (B, H, W);
-        # rows: ROW_SLOTS float64 per row; g_ref (B, C, H, W) and g_depth (B, H, W): dS/d ref_image,
-        # dS/d ref_depth, or null arrays (not wanted). Masks are 0/1 lanes; every value a masked
-        # lane computes is finite (its inputs are replaced first), so products with masks are exact.
+        # rows: ROW_SLOTS float64 per row; acc: ACC_SLOTS 8-lane vectors per row (scratch);
+        # g_ref (B, C, H, W) and g_depth (B, H, W): dS/d ref_image, dS/d ref_depth, or null arrays
+        # (not wanted). Masks are 0/1 lanes; every value a masked lane computes is finite (its
+        # inputs are replaced first), so products with masks are exact.
         r = wp.tid() + offset
         b = r // H
         py = r - b * H
@@ -196,6 +234,9 @@ def _make_error_lanes(static_grad: int):
         tol = type(one)(INSIDE_TOLERANCE)
         fW = type(one)(W)
         fH = type(one)(H)
+        kindc = kind
+        if wp.static(static_kind >= 0):  # compiled in: the penalty's branches fold away
+            kindc = wp.static(static_kind)
         a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(one)(py))
         t = lie.pose_translation(Tb)
         row = r * W
@@ -206,23 +247,9 @@ def _make_error_lanes(static_grad: int):
         want_depth = g_depth.shape[0] > 0
         ones = ph.splat8(one)
         zeros = ph.splat8(zero)
-        # running sums per lane (each its own variable: `a = b` would alias)
-        cost = ph.splat8(zero)
-        count = ph.splat8(zero)
-        sa0 = ph.splat8(zero)
-        sa1 = ph.splat8(zero)
-        sa2 = ph.splat8(zero)
-        sx0 = ph.splat8(zero)
-        sx1 = ph.splat8(zero)
-        sx2 = ph.splat8(zero)
-        st0 = ph.splat8(zero)
-        st1 = ph.splat8(zero)
-        st2 = ph.splat8(zero)
-        sfx = ph.splat8(zero)
-        ss = ph.splat8(zero)
-        scx = ph.splat8(zero)
-        sfy = ph.splat8(zero)
-        scy = ph.splat8(zero)
+        a = r * ACC_SLOTS
+        for k in range(ACC_SLOTS):
+            acc[a + k] = zeros
         for k8 in range((W + 7) // 8):
             x0 = k8 * 8
             x = ph.iota8(x0, one)
@@ -258,30 +285,33 @@ def _make_error_lanes(static_grad: int):
             m10 = wp.cw_mul(my0, mx1)
             m01 = wp.cw_mul(my1, mx0)
             m11 = wp.cw_mul(my1, mx1)
-            count = count + ok
+            acc[a + 1] = acc[a + 1] + ok
             gu = ph.splat8(zero)
             gv = ph.splat8(zero)
-            for ch in range(C):
-                base = live0 + ch * hw
-                val, gx, gy = ph.interpolate8(
-                    gather8(live_image, base, i00, m00), gather8(live_image, base, i10, m10),
-                    gather8(live_image, base, i01, m01), gather8(live_image, base, i11, m11),
-                    wx1, wy1,
-                )
-                res = val - load8(ref_image, ref0 + ch * hw, x0, last)
-                # finite residual and derivatives (NaN and inf fail the compare)
-                m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gx, -gx) + wp.max(gy, -gy), -one, big))
-                rr = ph.select8(m, res, zeros)
-                if kind == ph.L1:
-                    cost = cost + wp.cw_mul(wp.max(rr, -rr), m)
-                else:
-                    cost = cost + wp.cw_mul(ph.penalty8(rr, kind, c), m)
-                if wp.static(static_grad != 0):
-                    g = wp.cw_mul(psi8(rr, kind, c), m)
-                    gu = gu + wp.cw_mul(g, ph.select8(m, gx, zeros))
-                    gv = gv + wp.cw_mul(g, ph.select8(m, gy, zeros))
-                    if want_ref:
-                        store8(g_ref, ref0 + ch * hw, x0, W, -g)
+            if wp.static(static_c > 0):  # channels unrolled: gu, gv stay in registers
+                for ch in range(wp.static(static_c)):
+                    e, g, cu, cv = channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last,
+                                            i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
+                    acc[a] = acc[a] + e
+                    if wp.static(static_grad != 0):
+                        gu = gu + cu
+                        gv = gv + cv
+                        if want_ref:
+                            store8(g_ref, ref0 + ch * hw, x0, W, -g)
+            else:
+                acc[a + 16] = zeros
+                acc[a + 17] = zeros
+                for ch in range(C):
+                    e, g, cu, cv = channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last,
+                                            i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
+                    acc[a] = acc[a] + e
+                    if wp.static(static_grad != 0):
+                        acc[a + 16] = acc[a + 16] + cu
+                        acc[a + 17] = acc[a + 17] + cv
+                        if want_ref:
+                            store8(g_ref, ref0 + ch * hw, x0, W, -g)
+                gu = acc[a + 16]
+                gv = acc[a + 17]
             if wp.static(static_grad != 0):
                 dq0, dq1, dq2, dfx, ds, dcx, dfy, dcy = project8_grad(gu, gv, Kb, inv_z, xn, yn)
                 if want_depth:
@@ -294,42 +324,30 @@ def _make_error_lanes(static_grad: int):
                 w0 = wp.cw_mul(dq0, dd)
                 w1 = wp.cw_mul(dq1, dd)
                 w2 = wp.cw_mul(dq2, dd)
-                sa0 = sa0 + w0
-                sa1 = sa1 + w1
-                sa2 = sa2 + w2
-                sx0 = sx0 + wp.cw_mul(w0, x)
-                sx1 = sx1 + wp.cw_mul(w1, x)
-                sx2 = sx2 + wp.cw_mul(w2, x)
-                st0 = st0 + dq0
-                st1 = st1 + dq1
-                st2 = st2 + dq2
-                sfx = sfx + dfx
-                ss = ss + ds
-                scx = scx + dcx
-                sfy = sfy + dfy
-                scy = scy + dcy
+                acc[a + 2] = acc[a + 2] + w0
+                acc[a + 3] = acc[a + 3] + w1
+                acc[a + 4] = acc[a + 4] + w2
+                acc[a + 5] = acc[a + 5] + wp.cw_mul(w0, x)
+                acc[a + 6] = acc[a + 6] + wp.cw_mul(w1, x)
+                acc[a + 7] = acc[a + 7] + wp.cw_mul(w2, x)
+                acc[a + 8] = acc[a + 8] + dq0
+                acc[a + 9] = acc[a + 9] + dq1
+                acc[a + 10] = acc[a + 10] + dq2
+                acc[a + 11] = acc[a + 11] + dfx
+                acc[a + 12] = acc[a + 12] + ds
+                acc[a + 13] = acc[a + 13] + dcx
+                acc[a + 14] = acc[a + 14] + dfy
+                acc[a + 15] = acc[a + 15] + dcy
         o = r * ROW_SLOTS
-        rows[o + 0] = ph.hsum8(cost)
-        rows[o + 1] = ph.hsum8(count)
+        n_slots = 2
         if wp.static(static_grad != 0):
-            rows[o + 2] = ph.hsum8(sa0)
-            rows[o + 3] = ph.hsum8(sa1)
-            rows[o + 4] = ph.hsum8(sa2)
-            rows[o + 5] = ph.hsum8(sx0)
-            rows[o + 6] = ph.hsum8(sx1)
-            rows[o + 7] = ph.hsum8(sx2)
-            rows[o + 8] = ph.hsum8(st0)
-            rows[o + 9] = ph.hsum8(st1)
-            rows[o + 10] = ph.hsum8(st2)
-            rows[o + 11] = ph.hsum8(sfx)
-            rows[o + 12] = ph.hsum8(ss)
-            rows[o + 13] = ph.hsum8(scx)
-            rows[o + 14] = ph.hsum8(sfy)
-            rows[o + 15] = ph.hsum8(scy)
+            n_slots = ROW_SLOTS
+        for k in range(n_slots):
+            rows[o + k] = ph.hsum8(acc[a + k])
 
     return FloatKernel(
         _error_lanes, ref_image="scalar", ref_depth="scalar", live_image="scalar", pose="mat34", K="mat33",
-        g_ref="scalar", g_depth="scalar",
+        acc="vec8", g_ref="scalar", g_depth="scalar",
     ).set_parallel(
         segment=lambda a: a["H"],  # rows of one batch item
         # forward only (no adjoint): every row writes its own slots and its own pixels' gradients
@@ -339,8 +357,21 @@ def _make_error_lanes(static_grad: int):
     )
 
 
-#: the row kernels: value only (0), value and gradient (1)
-error_lanes = tuple(_make_error_lanes(g) for g in range(2))
+# channel counts and penalties compiled in (others run the generic kernel of their variant)
+STATIC_CHANNELS = (1, 3)
+_ERROR_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
+_ERROR_LOCK = threading.Lock()
+
+
+def error_lanes(grad: int, kind: int, C: int) -> FloatKernel:
+    """The row kernel for value only (``grad`` 0) or value and gradient (1), compiled for the
+    penalty ``kind`` and, if in :data:`STATIC_CHANNELS`, the channel count ``C`` (constants fold
+    the branches away, which the vectorised code needs to be fast); made on first use."""
+    key = (int(grad), int(kind), C if C in STATIC_CHANNELS else 0)
+    with _ERROR_LOCK:  # one kernel per key, also when threads ask at once
+        if key not in _ERROR_KERNELS:
+            _ERROR_KERNELS[key] = _make_error_lanes(*key)
+        return _ERROR_KERNELS[key]
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -439,6 +470,15 @@ error_reduce = FloatKernel(
 ).set_parallel(scopes={"rows": "any", "pose": "any", "K": "any"}, forward=True, grain=1 << 30)
 
 
+@wp.func
+def segment_factor(grad_error: wp.array(dtype=Any), count: wp.array(dtype=Any), b: int, C: int):
+    """grad_error[b] / (C count[b]), 0 where count[b] = 0: d error_b / d S_b times the incoming
+    gradient."""
+    nb = count[b]
+    zero = type(nb)(0.0)
+    return wp.where(nb > zero, grad_error[b] / (type(nb)(C) * wp.where(nb > zero, nb, type(nb)(1.0))), zero)
+
+
 @wp.kernel(module="unique", enable_backward=False)
 def _scale_segments(
     offset: int,
@@ -450,17 +490,26 @@ def _scale_segments(
     C: int,
     out: wp.array(dtype=Any),
 ):
-    # Element k: out[i] = src[i] grad_error[b] / (C count[b]) (0 where count[b] = 0) for the 8
-    # elements i in [8k, 8k + 8) ∩ [0, n), b = i // seg (segment = batch item).
-    i0 = (wp.tid() + offset) * 8
-    for j in range(8):
-        i = i0 + j
-        if i < n:
-            b = i // seg
-            nb = count[b]
-            zero = type(nb)(0.0)
-            f = wp.where(nb > zero, grad_error[b] / (type(nb)(C) * wp.where(nb > zero, nb, type(nb)(1.0))), zero)
-            out[i] = src[i] * f
+    # Element k: out[i] = src[i] segment_factor(b) for the 8 elements i in [8k, 8k + 8) ∩ [0, n),
+    # b = i // seg (segment = batch item). Where the 8 share a segment (nearly always), one factor
+    # and straight-line loads and stores at indices the compiler knows are not negative (it merges
+    # them into vector instructions).
+    i0 = wp.max((wp.tid() + offset) * 8, 0)
+    b = i0 // seg
+    if i0 + 8 <= n and (i0 + 7) // seg == b:
+        f = segment_factor(grad_error, count, b, C)
+        out[i0] = src[i0] * f
+        out[i0 + 1] = src[i0 + 1] * f
+        out[i0 + 2] = src[i0 + 2] * f
+        out[i0 + 3] = src[i0 + 3] * f
+        out[i0 + 4] = src[i0 + 4] * f
+        out[i0 + 5] = src[i0 + 5] * f
+        out[i0 + 6] = src[i0 + 6] * f
+        out[i0 + 7] = src[i0 + 7] * f
+    else:
+        for j in range(wp.min(8, n - i0)):
+            i = i0 + j
+            out[i] = src[i] * segment_factor(grad_error, count, i // seg, C)
 
 
 scale_segments = FloatKernel(
