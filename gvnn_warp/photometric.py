@@ -2,8 +2,9 @@
 
 One pass warps the reference frame into the live image, compares, weights and reduces: nothing
 per pixel is allocated. :func:`photometric_error` is differentiable (to both images, the
-reference depth, the pose and K; the gradient is computed in the same pass); :func:`photometric_normal_equations` gives the
-Gauss-Newton system of the same residuals for a pose update. Conventions (pixel centres, K,
+reference depth, the pose and K; the gradient is computed in the same pass);
+:func:`photometric_normal_equations` gives the Gauss-Newton system of the same residuals for a
+pose update. Conventions (pixel centres, K,
 minimum depth, the ``valid`` rule of ``warp_frame_depth``): ``docs/conventions.md``. The same
 functions on ``wp.array`` s, without torch: ``gvnn_warp.kernels.photometric_pipeline``.
 """
