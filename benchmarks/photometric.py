@@ -170,7 +170,7 @@ def one_thread_table(n: int) -> dict:
             scalar = wp.zeros(H * pk.ROW_STRIDE, dtype=wp.float64)
             cmd = wp.launch(pk.normal_equations_rows[0][wp.float32], dim=H, record_cmd=True, inputs=[
                 0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), wp.zeros(0, dtype=wp.float32),
-                arrays[3], arrays[4], 1, H, W, 0, 0.1, 1e-3, 0.0, scalar])
+                arrays[3], arrays[4], 1, H, W, 0, 0.1, 1e-3, 0.0, 0.0, scalar])
             rows[f"normal_equations {W}x{H} (plain kernel, launch alone)"] = 1e6 * cpu_ms(cmd.launch, n) / (H * W)
         return rows
     finally:
