@@ -20,6 +20,7 @@ from .functional import _intrinsics, _pose34
 from .kernels.camera import MIN_DEPTH
 from .kernels.photometric import KINDS as _CODES
 from .kernels.photometric_pipeline import ERROR_KINDS, NORMAL_EQUATIONS_KINDS
+from .kernels.sampler import MAX_LANES_PLANE as _MAX_LANES_PLANE
 
 __all__ = [
     "ERROR_KINDS",
@@ -93,6 +94,11 @@ def photometric_error(
     scale = chk.positive("scale", scale, ref_image.dtype)
     min_depth = chk.positive("min_depth", min_depth)
     inputs = (ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, Kb)
+    _, C, H, W = ref_image.shape
+    if H * W > _MAX_LANES_PLANE:  # the 8-lane kernel's float tap addresses would not be exact
+        row_sum, row_count = _ops.photometric_rows(*inputs, C, H, W, _CODES[robust], scale, min_depth)
+        error, count = _ops.photometric_mean(row_sum, row_count, H, C)
+        return error, count.detach()
     # the gradients autograd may ask for are computed in the forward pass (bit k: input k)
     needs = sum(1 << k for k, t in enumerate(inputs) if t.requires_grad) if torch.is_grad_enabled() else 0
     error, count, *_ = _ops.photometric_error(*inputs, _CODES[robust], scale, min_depth, needs)

@@ -540,6 +540,24 @@ def test_error_fast_path_float32_and_second_order():
         g.sum().backward()
 
 
+def test_error_large_planes_take_the_reference_path(monkeypatch):
+    # planes beyond 2^24 pixels (float tap addresses of the 8-lane kernel no longer exact) run the
+    # reference kernel and its Warp adjoint: same values and gradients to rounding
+    from gvnn_warp import photometric as P
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=2, H=6, W=9, seed=31)
+    outs = []
+    for limit in (P._MAX_LANES_PLANE, 6 * 9 - 1):
+        monkeypatch.setattr(P, "_MAX_LANES_PLANE", limit)
+        args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K)]
+        err, n = P.photometric_error(*args, robust="cauchy", scale=0.2)
+        err.sum().backward()
+        outs.append([err.detach(), n] + [a.grad for a in args])
+    assert outs[1][1].grad_fn is None and not outs[1][1].requires_grad
+    for a, b in zip(*outs):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)
+
+
 def test_error_pure_warp_tape_matches_torch():
     from gvnn_warp.photometric import photometric_error
 
