@@ -6,6 +6,7 @@ every launch into many pieces).
 """
 
 import torch
+from gvnn_warp.kernels import lens
 from gvnn_warp.kernels.photometric import KINDS as PHOTOMETRIC_CODES
 from gvnn_warp.kernels.robust import KINDS as ROBUST_CODES
 from refs import intrinsics
@@ -30,6 +31,11 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
     pose = G.se3_to_matrix(r(B, 6) * 0.1).contiguous()
     img = r(B, C, H, W)
     hw = H * W
+    # distorted cameras (TUM freiburg1's radtan coefficients; a fisheye), packed as the kernels take them
+    radtan = torch.from_numpy(lens.pack_dist(lens.RADTAN, [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]))
+    fisheye = torch.from_numpy(lens.pack_dist(lens.FISHEYE, [0.08, -0.02, 0.004, -0.001]))
+    radtan, fisheye = (d.expand(B, 8).contiguous() for d in (radtan, fisheye))
+    rays = G._ops.pixel_rays(K[:1].contiguous(), radtan[:1].contiguous(), H, W, lens.RADTAN)  # shared by the batch
     return {
         # gvnn_warp._ops
         "so3_exp": (r(n, 3),),
@@ -46,6 +52,8 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "bilinear_sample": (img, r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
         "bilinear_sample_lanes": (img, r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
         "warp_frame_depth": (img, r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
+        "pixel_rays": (K, fisheye, H, W, lens.FISHEYE),
+        "warp_frame_depth_lens": (img, r(B, 1, H, W) + 1, pose, K, radtan, rays, C, H, W, 1e-3, 0, lens.RADTAN, 0),
         # gvnn_warp._perpixel_ops
         "flow_warp": (img, u(B, 2, H, W, scale=2), C, H, W, 0),
         "disparity_warp": (img, u(B, 1, H, W, scale=2), C, H, W, 1),

@@ -1,0 +1,100 @@
+"""Pixel rays through a lens model, for the fused kernels (``@wp.func``, no launches here).
+
+A lens model (``model``, ``K``, ``dist``: the contract of :mod:`.lens`) cannot use the pinhole's
+row linearity (:func:`.camera.row_rays`): the ray of pixel (x, y) is ``undistort(K^-1 [x, y, 1])``,
+found by Newton's method. The fused kernels therefore read precomputed rays (:func:`pixel_ray`,
+launched once per camera and image size, its gradient by the implicit function theorem through
+:func:`.lens.undistort`) and move and project them with :func:`project_ray`, whose hand-written
+adjoint computes the projection's Jacobian once per pixel (Warp's automatic adjoint would
+re-derive it term by term).
+
+A ray is stored as ``(xn, yn, w)``: the ideal normalized coordinates of the pixel (its point at
+depth d is ``d (xn, yn, 1)``) and ``w = 1`` where the undistortion converged inside the model's
+domain, 0 where it did not (the pixel has no ray: treated as an invalid depth).
+"""
+
+from typing import Any
+
+import warp as wp
+
+from . import camera, lens
+from .kinds import vec8d, vec8f
+
+
+@wp.func
+def pixel_ray(model: int, K: Any, dist: Any, x: Any, y: Any):
+    """The stored ray ``(xn, yn, w)`` of pixel (x, y) (see the module docstring). Gradients (to
+    K and dist) through :func:`.lens.undistort`'s implicit-function adjoint; none where w = 0."""
+    r = camera.pixel_ray(K, x, y)
+    xn, ok = lens.undistort(model, dist, wp.vector(r[0], r[1]))
+    return wp.vector(xn[0], xn[1], wp.where(ok, type(x)(1.0), type(x)(0.0)))
+
+
+def _make_project_ray(T, project_ray=None):
+    """float type ``T`` overload of project_ray (Warp custom adjoints need concrete types); the
+    parameter named like the function is the overload made before (see sampler.py)."""
+    f64 = wp.float64
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+    vec8 = vec8f if T == wp.float32 else vec8d
+
+    @wp.func
+    def project_ray(model: int, R: mat33, t: vec3, K: mat33, dist: vec8, ray: vec3, depth: T, min_depth: T):
+        """Move the point ``depth (ray_x, ray_y, 1)`` by [R | t] and project it through the lens:
+        returns ((u, v, q_z), ok) with q the moved point; ``ok``: q_z > min_depth and q inside the
+        model's domain (r^2 < dist[LIMIT]). Where not ok, (u, v) is a finite stand-in (the
+        principal point) for the caller to reject, and no gradient flows from it. The lens is
+        evaluated as :func:`.lens.project` does (in float64, rounded), so (u, v) equals
+        ``lens.project(model, K, dist, q)``. Gradients (hand-written adjoint): to R, t, K, dist,
+        the ray's (x, y) and depth; q_z passes its own gradient."""
+        q = R * vec3(ray[0] * depth, ray[1] * depth, depth) + t
+        front = q[2] > min_depth
+        z = f64(wp.where(front, q[2], T(1.0)))
+        x = f64(q[0]) / z
+        y = f64(q[1]) / z
+        d = lens._to64(dist)
+        ok = front and x * x + y * y < d[lens.LIMIT]
+        xd, yd, J = lens._distort64(model, d, wp.where(ok, x, f64(0.0)), wp.where(ok, y, f64(0.0)))
+        u = T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2]))
+        v = T(f64(K[1, 1]) * yd + f64(K[1, 2]))
+        return vec3(u, v, q[2]), ok
+
+    @wp.func_grad(project_ray)
+    def adj_project_ray(
+        model: int, R: mat33, t: vec3, K: mat33, dist: vec8, ray: vec3, depth: T, min_depth: T,
+        adj_ret0: vec3, adj_ret1: bool,
+    ):
+        P = vec3(ray[0] * depth, ray[1] * depth, depth)
+        q = R * P + t
+        front = q[2] > min_depth
+        z = f64(wp.where(front, q[2], T(1.0)))
+        x = f64(q[0]) / z
+        y = f64(q[1]) / z
+        d = lens._to64(dist)
+        gq = vec3(T(0.0), T(0.0), adj_ret0[2])
+        if front and x * x + y * y < d[lens.LIMIT]:
+            xd, yd, J = lens._distort64(model, d, x, y)
+            gu = f64(adj_ret0[0])
+            gv = f64(adj_ret0[1])
+            # u = fx xd + s yd + cx, v = fy yd + cy; (xd, yd) = D(x, y); x = q0 / q2, y = q1 / q2
+            gxd = f64(K[0, 0]) * gu
+            gyd = f64(K[0, 1]) * gu + f64(K[1, 1]) * gv
+            gx = J[0, 0] * gxd + J[1, 0] * gyd
+            gy = J[0, 1] * gxd + J[1, 1] * gyd
+            gq = vec3(T(gx / z), T(gy / z), T(f64(adj_ret0[2]) - (x * gx + y * gy) / z))
+            wp.adjoint[K] += mat33(
+                T(gu * xd), T(gu * yd), T(gu), T(0.0), T(gv * yd), T(gv), T(0.0), T(0.0), T(0.0)
+            )
+            wp.adjoint[dist] += lens._from64(lens._distort_vjp_dist64(model, d, x, y, gxd, gyd), depth)
+        wp.adjoint[t] += gq
+        wp.adjoint[R] += wp.outer(gq, P)
+        gP = wp.transpose(R) * gq
+        wp.adjoint[ray] += vec3(gP[0] * depth, gP[1] * depth, T(0.0))
+        wp.adjoint[depth] += gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
+
+    return project_ray
+
+
+project_ray = _make_project_ray(wp.float64, _make_project_ray(wp.float32))
+
+__all__ = ["pixel_ray", "project_ray"]
