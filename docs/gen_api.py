@@ -12,6 +12,7 @@ from pathlib import Path
 
 SECTIONS = [
     ("Global transformations and the 3D spatial transformer", "gvnn_warp.functional"),
+    ("Camera models: pinhole, radial-tangential, fisheye", "gvnn_warp.cameras"),
     ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.perpixel"),
     ("Layers (nn.Module)", "gvnn_warp.layers"),
     ("Per-pixel layers (nn.Module)", "gvnn_warp.perpixel_layers"),

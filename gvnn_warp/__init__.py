@@ -81,17 +81,27 @@ _PERPIXEL_LAYERS = (
     "SmoothnessLoss",
 )
 _PHOTOMETRIC = ("PhotometricLoss", "photometric_error", "photometric_normal_equations")
+_CAMERAS = (
+    "FisheyeCamera",
+    "PinholeCamera",
+    "RadTanCamera",
+    "distort_points",
+    "undistort_image",
+    "undistort_points",
+    "unproject_points",
+)
 _LAZY = {
     **{n: "functional" for n in _FUNCTIONAL},
     **{n: "layers" for n in _LAYERS},
     **{n: "perpixel" for n in _PERPIXEL},
     **{n: "perpixel_layers" for n in _PERPIXEL_LAYERS},
     **{n: "photometric" for n in _PHOTOMETRIC},
+    **{n: "cameras" for n in _CAMERAS},
 }
-_SUBMODULES = ("functional", "layers", "perpixel", "perpixel_layers", "photometric")
+_SUBMODULES = ("cameras", "functional", "layers", "perpixel", "perpixel_layers", "photometric")
 
 __all__ = [
-    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_PHOTOMETRIC, *_SUBMODULES,
+    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_PHOTOMETRIC, *_CAMERAS, *_SUBMODULES,
     "kernels", "get_num_threads", "info", "set_num_threads",
 ]
 

@@ -15,7 +15,8 @@ from torch import Tensor
 
 from . import _ops
 from ._checks import ArgCheck
-from .kernels import sampling_kernels
+from .cameras import Camera, camera_args
+from .kernels import lens, sampling_kernels
 from .kernels.camera import MIN_DEPTH
 from .kernels.sampler import PADDING_MODES as _PADDING
 
@@ -65,8 +66,6 @@ class _Lens:
     Bc = 1 when one camera serves the whole batch (its rays are then computed once)."""
 
     def __init__(self, chk: ArgCheck, camera):
-        from .cameras import Camera, camera_args
-
         self.model, self.K, self.dist = camera_args(chk, camera)
         shared = not isinstance(camera, Camera) or camera.batch_size is None
         self.K_cam = self.K[:1] if shared else self.K
@@ -236,12 +235,15 @@ def se3_log(T: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------- camera layers
 
 
-def depth_to_points(depth: Tensor, K: Tensor) -> Tensor:
+def depth_to_points(depth: Tensor, K: Tensor | Camera) -> Tensor:
     """The 3D grid generator: back-project a depth map, X = depth[y, x] * K^-1 [x, y, 1].
 
     Args:
         depth: (B, 1, H, W) depth (z, metres). Values pass through: a NaN depth gives a NaN point.
-        K: (B, 3, 3) or (3, 3) intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]].
+        K: (B, 3, 3) or (3, 3) intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]], or a camera
+            from ``gvnn_warp.cameras``: then X = depth * (undistort(K^-1 [x, y, 1]), 1) (as
+            ``unproject_points``; a pixel outside the model's domain gives depth * K^-1 [x, y, 1]
+            with zero gradient). A ``PinholeCamera(K)`` gives exactly what ``K`` gives.
 
     Returns:
         (B, H, W, 3) points in the camera frame; x is the column, y the row, pixel centres at
@@ -249,9 +251,12 @@ def depth_to_points(depth: Tensor, K: Tensor) -> Tensor:
     """
     chk = ArgCheck("depth_to_points")
     chk.tensor("depth", depth, "B 1 H W")
-    Kb = _intrinsics(chk, K)
+    model, Kb, dist = camera_args(chk, K)
     B, _, H, W = depth.shape
-    return _ops.depth_to_points(depth.reshape(-1).contiguous(), Kb, H, W).reshape(B, H, W, 3)
+    flat = depth.reshape(-1).contiguous()
+    if model == lens.PINHOLE:
+        return _ops.depth_to_points(flat, Kb, H, W).reshape(B, H, W, 3)
+    return _ops.depth_to_points_camera(flat, Kb, dist, H, W, model)[0].reshape(B, H, W, 3)
 
 
 def transform_points(T: Tensor, points: Tensor) -> Tensor:
@@ -272,13 +277,16 @@ def transform_points(T: Tensor, points: Tensor) -> Tensor:
     return out.reshape(points.shape)
 
 
-def project_points(points: Tensor, K: Tensor, *, min_depth: float = MIN_DEPTH) -> Tensor:
+def project_points(points: Tensor, K: Tensor | Camera, *, min_depth: float = MIN_DEPTH) -> Tensor:
     """The pinhole projection layer: (fx X/Z + s Y/Z + cx, fy Y/Z + cy).
 
     Args:
         points: (B, ..., 3) points in the camera frame (metres).
         K: (B, 3, 3) or (3, 3) intrinsics; gradients flow to fx, fy, cx, cy and s (learnable
-            intrinsics).
+            intrinsics). Or a camera from ``gvnn_warp.cameras``: its model's projection, with
+            gradients to K and every distortion coefficient; a point outside the model's domain
+            gets a finite stand-in with no gradient (its ``project`` returns the valid mask). A
+            ``PinholeCamera(K)`` gives exactly what ``K`` gives.
         min_depth: the smallest Z (metres) a point may have to count (see docs/conventions.md).
 
     Returns:
@@ -286,14 +294,18 @@ def project_points(points: Tensor, K: Tensor, *, min_depth: float = MIN_DEPTH) -
         and its gradient. A point with Z <= min_depth (behind or too close to the camera): the
         projection as if Z = min_depth, finite for finite X, Y, and no gradient (zero to the
         point and to K). A point whose Z is NaN or infinite (e.g. from a NaN depth): NaN (x, y),
-        and no gradient. ``points[..., 2] > min_depth`` (False for NaN) marks the valid ones.
+        and no gradient (with a distorting camera: a finite stand-in). ``points[..., 2] >
+        min_depth`` (False for NaN) marks the valid ones.
     """
     chk = ArgCheck("project_points")
     chk.tensor("points", points, "B ... 3")
-    Kb = _intrinsics(chk, K)
+    model, Kb, dist = camera_args(chk, K)
     min_depth = chk.positive("min_depth", min_depth)
     P = math.prod(points.shape[1:-1])
-    out = _ops.project_points(_flat(points, 1), Kb, P, min_depth)
+    if model == lens.PINHOLE:
+        out = _ops.project_points(_flat(points, 1), Kb, P, min_depth)
+    else:
+        out = _ops.project_points_camera(_flat(points, 1), Kb, dist, P, min_depth, model)[0]
     return out.reshape(*points.shape[:-1], 2)
 
 
@@ -339,7 +351,7 @@ def warp_frame_depth(
     image: Tensor,
     depth: Tensor,
     pose: Tensor,
-    K: Tensor,
+    K: Tensor | Camera,
     *,
     padding_mode: str = "zeros",
     min_depth: float = MIN_DEPTH,
@@ -355,7 +367,14 @@ def warp_frame_depth(
         image: (B, C, H, W) source image.
         depth: (B, 1, H, W) depth (z, metres) of the target frame.
         pose: (B, 3, 4) or (B, 4, 4) target-to-source transform (a 4x4's last row ignored).
-        K: (B, 3, 3) or (3, 3) intrinsics, shared by both views.
+        K: (B, 3, 3) or (3, 3) intrinsics, shared by both views; or a camera from
+            ``gvnn_warp.cameras`` (both views taken by it): then u = (x, y) is a pixel of the
+            distorted image, its ray is undistort(K^-1 [x, y, 1]) and the moved point is
+            projected through the model (``camera.project``); gradients reach K and every
+            distortion coefficient too. A pixel without a ray (outside the model's domain) counts
+            as an invalid depth, a moved point outside the domain as one behind the camera. The
+            rays are computed once per call, or once per camera value and image size when the
+            camera needs no gradient (a small cache). ``PinholeCamera(K)`` is exactly ``K``.
         padding_mode: "zeros" or "border", how samples outside the image read.
         min_depth: depths and moved points must have z > min_depth (metres) to be used.
 

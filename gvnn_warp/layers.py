@@ -10,6 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from . import functional as F
+from .cameras import Camera
 
 __all__ = ["SO3", "SE3", "Sim3", "GridGenerator3D", "PinholeProjection", "BilinearSampler", "SpatialTransformer3D"]
 
@@ -46,8 +47,6 @@ class _Intrinsics(nn.Module):
 
     def __init__(self, K, learnable: bool = False):
         super().__init__()
-        from .cameras import Camera
-
         self._camera_type = None
         if isinstance(K, Camera):
             self._camera_type = type(K)

@@ -31,6 +31,12 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
     pose = G.se3_to_matrix(r(B, 6) * 0.1).contiguous()
     img = r(B, C, H, W)
     hw = H * W
+    # radial-tangential (TUM freiburg1's coefficients) for batch item 0, fisheye-sized for item 1
+    tum = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]
+    dist = torch.stack([torch.as_tensor(lens.pack_dist(lens.RADTAN, [c / (1 + b) for c in tum])) for b in range(B)])
+    fish = [0.02, -0.005, 0.001, -0.0002]
+    fdist = torch.stack([torch.as_tensor(lens.pack_dist(lens.FISHEYE, [c * (1 + b) for c in fish])) for b in range(B)])
+    cam_px = torch.stack([r(B * P) * (W - 1), r(B * P) * (H - 1)], dim=-1)
     # distorted cameras (TUM freiburg1's radtan coefficients; a fisheye), packed as the kernels take them
     radtan = torch.from_numpy(lens.pack_dist(lens.RADTAN, [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]))
     fisheye = torch.from_numpy(lens.pack_dist(lens.FISHEYE, [0.08, -0.02, 0.004, -0.001]))
@@ -49,6 +55,12 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "depth_to_points": (r(B * hw) + 1, K, H, W),
         "transform_points": (pose, r(B * P, 3), P),
         "project_points": (r(B * P, 3) + 1, K, P, 1e-3),
+        "project_points_camera": (u(B * P, 3, scale=0.3) + torch.tensor([0, 0, 1.5], dtype=f64), K, dist, P,
+                                  1e-3, lens.RADTAN),
+        "depth_to_points_camera": (r(B * hw) + 1, K, fdist, H, W, lens.FISHEYE),
+        "unproject_points": (cam_px, r(B * P) + 1, K, dist, P, lens.RADTAN),
+        "distort_points": (cam_px, K, fdist, P, lens.FISHEYE),
+        "undistort_points": (cam_px, K, dist, P, lens.RADTAN),
         "bilinear_sample": (img, r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
         "bilinear_sample_lanes": (img, r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
         "warp_frame_depth": (img, r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
