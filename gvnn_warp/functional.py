@@ -71,6 +71,13 @@ class _Lens:
         self.K_cam = self.K[:1] if shared else self.K
         self.dist_cam = self.dist[:1] if shared else self.dist
 
+    def detached(self) -> _Lens:
+        """The same camera with its tensors detached (for ops that are not differentiable)."""
+        out = object.__new__(_Lens)
+        out.model = self.model
+        out.K, out.dist, out.K_cam, out.dist_cam = (t.detach() for t in (self.K, self.dist, self.K_cam, self.dist_cam))
+        return out
+
 
 _RAYS_CACHE: dict = {}  # (model, dtype, H, W, K bytes, dist bytes) -> rays, for cameras without gradients
 _RAYS_CACHE_SIZE = 8

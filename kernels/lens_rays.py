@@ -97,4 +97,38 @@ def _make_project_ray(T, project_ray=None):
 
 project_ray = _make_project_ray(wp.float64, _make_project_ray(wp.float32))
 
-__all__ = ["pixel_ray", "project_ray"]
+
+@wp.func
+def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any, depth: Any, min_depth: Any):
+    """:func:`project_ray`'s values with the projection's Jacobian, for Gauss-Newton (no adjoint):
+    returns (u, v, q, ok, du/dq, dv/dq), q the moved point, du/dq and dv/dq (vec3) the rows of
+    d(u, v)/dq = [[fx, s], [0, fy]] J_D (1 / q_z) [[1, 0, -x], [0, 1, -y]] (J_D the distortion's
+    Jacobian at (x, y) = (q_x, q_y) / q_z). Where not ok the Jacobian is that of the stand-in."""
+    T = type(depth)
+    f64 = wp.float64
+    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
+    front = q[2] > min_depth
+    z = f64(wp.where(front, q[2], T(1.0)))
+    x = f64(q[0]) / z
+    y = f64(q[1]) / z
+    d = lens._to64(dist)
+    ok = front and x * x + y * y < d[lens.LIMIT]
+    xs = wp.where(ok, x, f64(0.0))
+    ys = wp.where(ok, y, f64(0.0))
+    xd, yd, J = lens._distort64(model, d, xs, ys)
+    fx = f64(K[0, 0])
+    s = f64(K[0, 1])
+    fy = f64(K[1, 1])
+    a00 = fx * J[0, 0] + s * J[1, 0]
+    a01 = fx * J[0, 1] + s * J[1, 1]
+    a10 = fy * J[1, 0]
+    a11 = fy * J[1, 1]
+    iz = f64(1.0) / z
+    du = wp.vector(T(a00 * iz), T(a01 * iz), T(-(a00 * xs + a01 * ys) * iz))
+    dv = wp.vector(T(a10 * iz), T(a11 * iz), T(-(a10 * xs + a11 * ys) * iz))
+    u = T(fx * xd + s * yd + f64(K[0, 2]))
+    v = T(fy * yd + f64(K[1, 2]))
+    return u, v, q, ok, du, dv
+
+
+__all__ = ["pixel_ray", "project_ray", "project_ray_jacobian"]

@@ -84,5 +84,7 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         # gvnn_warp._photometric_ops (reference and live images, depth, pose, K; penalty cauchy)
         "photometric_rows": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, C, H, W,
                              PHOTOMETRIC_CODES["cauchy"], 0.5, 1e-3),
+        "photometric_rows_lens": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, radtan, rays, C, H, W,
+                                  PHOTOMETRIC_CODES["huber"], 0.5, 1e-3, lens.RADTAN, 0),
         "photometric_mean": (r(B * H), torch.randint(0, W + 1, (B * H,), generator=g).to(f64), H, C),
     }
