@@ -104,30 +104,28 @@ def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any
     returns (u, v, q, ok, du/dq, dv/dq), q the moved point, du/dq and dv/dq (vec3) the rows of
     d(u, v)/dq = [[fx, s], [0, fy]] J_D (1 / q_z) [[1, 0, -x], [0, 1, -y]] (J_D the distortion's
     Jacobian at (x, y) = (q_x, q_y) / q_z). Where not ok the Jacobian is that of the stand-in."""
-    T = type(depth)
-    f64 = wp.float64
     q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
     front = q[2] > min_depth
-    z = f64(wp.where(front, q[2], T(1.0)))
-    x = f64(q[0]) / z
-    y = f64(q[1]) / z
+    z = wp.float64(wp.where(front, q[2], type(depth)(1.0)))
+    x = wp.float64(q[0]) / z
+    y = wp.float64(q[1]) / z
     d = lens._to64(dist)
     ok = front and x * x + y * y < d[lens.LIMIT]
-    xs = wp.where(ok, x, f64(0.0))
-    ys = wp.where(ok, y, f64(0.0))
+    xs = wp.where(ok, x, wp.float64(0.0))
+    ys = wp.where(ok, y, wp.float64(0.0))
     xd, yd, J = lens._distort64(model, d, xs, ys)
-    fx = f64(K[0, 0])
-    s = f64(K[0, 1])
-    fy = f64(K[1, 1])
+    fx = wp.float64(K[0, 0])
+    s = wp.float64(K[0, 1])
+    fy = wp.float64(K[1, 1])
     a00 = fx * J[0, 0] + s * J[1, 0]
     a01 = fx * J[0, 1] + s * J[1, 1]
     a10 = fy * J[1, 0]
     a11 = fy * J[1, 1]
-    iz = f64(1.0) / z
-    du = wp.vector(T(a00 * iz), T(a01 * iz), T(-(a00 * xs + a01 * ys) * iz))
-    dv = wp.vector(T(a10 * iz), T(a11 * iz), T(-(a10 * xs + a11 * ys) * iz))
-    u = T(fx * xd + s * yd + f64(K[0, 2]))
-    v = T(fy * yd + f64(K[1, 2]))
+    iz = wp.float64(1.0) / z
+    du = wp.vector(type(depth)(a00 * iz), type(depth)(a01 * iz), type(depth)(-(a00 * xs + a01 * ys) * iz))
+    dv = wp.vector(type(depth)(a10 * iz), type(depth)(a11 * iz), type(depth)(-(a10 * xs + a11 * ys) * iz))
+    u = type(depth)(fx * xd + s * yd + wp.float64(K[0, 2]))
+    v = type(depth)(fy * yd + wp.float64(K[1, 2]))
     return u, v, q, ok, du, dv
 
 

@@ -250,3 +250,91 @@ def test_pure_warp_pipeline_refuses_bad_camera_arguments():
         P.warp_frame_depth(*arrs, model="radtan")
     with pytest.raises(TypeError, match="argument 'dist'"):
         P.warp_frame_depth(*arrs, model="radtan", dist=wp.zeros(1, dtype=wp.types.vector(8, wp.float64)))
+
+
+# ----------------------------------------------------------------------------- photometric objective
+
+
+def photometric_scene(B=2, C=2, H=8, W=10, seed=6):
+    image, depth, pose, K = scene(B=B, C=C, H=H, W=W, seed=seed)
+    g = torch.Generator().manual_seed(seed + 1)
+    # a smooth live image (bilinear derivatives that vary), the reference = live + noise
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=f64), torch.arange(W, dtype=f64), indexing="ij")
+    live = torch.stack([torch.sin(0.7 * xs + 0.3 * c) * torch.cos(0.5 * ys) for c in range(C)])[None].expand(B, C, H, W)
+    ref = live + 0.05 * torch.randn(B, C, H, W, generator=g, dtype=f64)
+    return ref.contiguous(), depth, live.contiguous(), pose, K
+
+
+@pytest.mark.parametrize("model", ["radtan", "fisheye"])
+def test_photometric_error_gradcheck_with_a_distorted_camera(model):
+    ref, depth, live, pose, K = photometric_scene(B=2, C=1, H=5, W=6)
+    c = torch.tensor(FR1 if model == "radtan" else FISH, dtype=f64)
+
+    def f(ref, depth, live, pose, K, c):
+        return G.photometric_error(ref, depth, live, pose, camera(model, K, c), robust="huber", scale=0.3)[0]
+
+    args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K, c)]
+    assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("model", ["radtan", "fisheye"])
+def test_photometric_error_is_the_masked_mean_of_the_distorted_warp(model):
+    ref, depth, live, pose, K = photometric_scene()
+    cam = camera(model, K)
+    err, count = G.photometric_error(ref, depth, live, pose, cam, robust="l2")
+    warped, valid = G.warp_frame_depth(live, depth, pose, cam)
+    r = (warped - ref) * valid
+    assert torch.equal(count, valid.sum((1, 2, 3)).to(f64))
+    assert torch.allclose(err, 0.5 * (r * r).sum((1, 2, 3)) / (ref.shape[1] * count), atol=1e-14, rtol=0)
+
+
+@pytest.mark.parametrize("model", ["radtan", "fisheye"])
+@pytest.mark.parametrize("robust", ["l2", "huber"])
+def test_normal_equations_with_a_distorted_camera_match_autograd(model, robust):
+    """JtWJ, JtWr against torch.autograd's Jacobian of the same residuals (the distorted warp as a
+    function of the left-multiplied twist delta), float64."""
+    ref, depth, live, pose, K = photometric_scene(B=2, C=2, H=8, W=10)
+    cam = camera(model, K)
+    scale = 0.1
+    JtWJ, JtWr, cost, count = G.photometric_normal_equations(ref, depth, live, pose, cam, robust=robust, scale=scale)
+    _, valid = G.warp_frame_depth(live, depth, pose, cam)
+    for b in range(2):
+        def residuals(delta, b=b):
+            T = G.se3_exp(delta[None])[0]
+            Tb = torch.cat([T[:, :3] @ pose[b, :, :3], T[:, :3] @ pose[b, :, 3:] + T[:, 3:]], dim=1)
+            w, _ = G.warp_frame_depth(live[b:b + 1], depth[b:b + 1], Tb[None], cam)
+            return (w - ref[b:b + 1])[valid[b:b + 1].expand_as(w)]
+
+        zero = torch.zeros(6, dtype=f64)
+        r = residuals(zero)
+        J = torch.autograd.functional.jacobian(residuals, zero)
+        if robust == "l2":
+            w = torch.ones_like(r)
+            rho = 0.5 * r * r
+        else:
+            a = r.abs()
+            w = torch.where(a <= scale, torch.ones_like(r), scale / a)
+            rho = torch.where(a <= scale, 0.5 * r * r, scale * (a - 0.5 * scale))
+        assert count[b] == valid[b].sum()
+        assert torch.allclose(JtWJ[b], J.T @ (w[:, None] * J), atol=1e-9, rtol=0)
+        assert torch.allclose(JtWr[b], J.T @ (w * r), atol=1e-9, rtol=0)
+        assert torch.allclose(cost[b], rho.sum(), atol=1e-12, rtol=0)
+
+
+def test_pure_warp_normal_equations_with_a_distorted_camera_match_the_torch_op():
+    from gvnn_warp.kernels import photometric_pipeline as PP
+
+    ref, depth, live, pose, K = photometric_scene(B=2, C=1, H=8, W=10)
+    JtWJ, JtWr, cost, count = G.photometric_normal_equations(ref, depth, live, pose, camera("radtan", K),
+                                                             live_depth=depth, depth_weight=0.5)
+    dist8 = np.broadcast_to(lens.pack_dist(lens.RADTAN, FR1), (2, 8)).copy()
+    arr = [wp.array(t.numpy(), dtype=wp.float64) for t in (ref, depth, live)]
+    ne = PP.photometric_normal_equations(
+        *arr, wp.array(pose.numpy(), dtype=mat34d), wp.array(K.expand(2, 3, 3).numpy().copy(), dtype=wp.mat33d),
+        live_depth=arr[1], depth_weight=0.5, dist=wp.array(dist8, dtype=vec8d), model="radtan",
+    )
+    for a, t in zip(ne.numpy(), (JtWJ, JtWr, cost, count)):
+        assert np.allclose(a, t.numpy(), atol=1e-12, rtol=1e-12)
+    again = PP.photometric_normal_equations(*arr, ne._args[3], ne._args[4], live_depth=arr[1], depth_weight=0.5,
+                                            dist=ne._args[6], model="radtan", out=ne)  # replays the recorded launches
+    assert again is ne and np.allclose(ne.numpy()[0], JtWJ.numpy(), atol=1e-12, rtol=1e-12)
