@@ -114,6 +114,7 @@ def photometric_normal_equations(
     out: NormalEquations | None = None,
     dist: wp.array | None = None,
     model="pinhole",
+    rays: wp.array | None = None,
 ) -> NormalEquations:
     """The Gauss-Newton system of the photometric residuals, for a left-multiplied pose update.
 
@@ -159,6 +160,8 @@ def photometric_normal_equations(
             length-8 vectors, :func:`.lens.pack_dist`): the reference pixels' rays are undistorted
             (computed on the call that records the launches, and reused with ``out=`` while the
             same ``K`` and ``dist`` arrays are passed) and J includes the distortion's Jacobian.
+        rays: with a distorted ``model``, the rays ``pipeline.pixel_rays(K, dist, H, W, model)``
+            computed once by the caller (e.g. per pyramid level of a fixed camera), else None.
 
     Returns:
         :class:`NormalEquations` ``(JtWJ, JtWr, cost, count)``. Not differentiable.
@@ -166,7 +169,7 @@ def photometric_normal_equations(
     fn = "photometric_normal_equations"
     if model != "pinhole" and model != 0:
         return _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, scale, live_depth,
-                                      depth_weight, min_depth, occlusion, out, dist, _lens_model(fn, model))
+                                      depth_weight, min_depth, occlusion, out, dist, _lens_model(fn, model), rays)
     key = None
     if out is not None and isinstance(out, NormalEquations) and out._cmds:
         a = out._args
@@ -320,11 +323,11 @@ def photometric_error(
 
 
 def _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, scale, live_depth, depth_weight,
-                           min_depth, occlusion, out, dist, m):
+                           min_depth, occlusion, out, dist, m, rays):
     """:func:`photometric_normal_equations` through a distorted lens ``m`` (see there)."""
     fn = "photometric_normal_equations"
-    args = (ref_image, ref_depth, live_image, pose, K, live_depth, dist, robust, scale, depth_weight, min_depth,
-            occlusion, m, _launch.get_num_threads())
+    args = (ref_image, ref_depth, live_image, pose, K, live_depth, dist, rays, robust, scale, depth_weight,
+            min_depth, occlusion, m, _launch.get_num_threads())
     if isinstance(out, NormalEquations) and out._cmds and len(out._args) == len(args) and all(
         a is b if isinstance(b, wp.array) or b is None else a == b for a, b in zip(out._args, args)
     ):
@@ -353,7 +356,13 @@ def _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, sc
         )
     if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
         out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
-    rays = pixel_rays(K, dist, H, W, m)  # computed once per recording (Newton's method per pixel)
+    if rays is None:
+        rays = pixel_rays(K, dist, H, W, m)  # computed once per recording (Newton's method per pixel)
+    else:
+        vec3 = wp.types.vector(3, ft)
+        _expect(fn, "rays", isinstance(rays, wp.array) and rays.dtype == vec3 and rays.size == B * H * W
+                and rays.is_contiguous, f"a contiguous wp.array of {B * H * W} {ft.__name__} vec3 (pixel_rays)",
+                getattr(rays, "shape", type(rays).__name__), TypeError)
     n_pix = B * C * H * W
     no_depth = wp.zeros(0, dtype=ft, device="cpu")
     inputs = [
