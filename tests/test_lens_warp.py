@@ -361,7 +361,8 @@ def render_room(T_cam_world, K, model, c, H, W):
     s = torch.stack(hits).min(0).values
     X = origin + s[..., None] * d
     x, y, z = X.unbind(-1)  # a texture of the 3D position: continuous across the creases
-    img = 0.45 + 0.2 * torch.sin(2.5 * x + 1.0) * torch.cos(2.0 * y + 1.5 * z) + 0.1 * torch.sin(3.0 * z - 2.0 * x + 0.5)
+    img = 0.45 + 0.2 * torch.sin(2.5 * x + 1.0) * torch.cos(2.0 * y + 1.5 * z)
+    img = img + 0.1 * torch.sin(3.0 * z - 2.0 * x + 0.5)
     return img[None].float(), (s * d_cam[..., 2])[None].float()
 
 
