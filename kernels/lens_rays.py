@@ -54,7 +54,7 @@ def _make_project_ray(T, project_ray=None):
         y = f64(q[1]) / z
         d = lens._to64(dist)
         ok = front and x * x + y * y < d[lens.LIMIT]
-        xd, yd, J = lens._distort64(model, d, wp.where(ok, x, f64(0.0)), wp.where(ok, y, f64(0.0)))
+        xd, yd = lens._distort_value64(model, d, wp.where(ok, x, f64(0.0)), wp.where(ok, y, f64(0.0)))
         u = T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2]))
         v = T(f64(K[1, 1]) * yd + f64(K[1, 2]))
         return vec3(u, v, q[2]), ok
