@@ -96,11 +96,13 @@ def photometric_normal_equations(
         _descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image, live_depth)
     ] + [_descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
     rows_d = _descriptor(rows, "scalar", wp_float64)
+    acc = torch.empty(B * H * pk.ROW_STRIDE * 8, dtype=ref_image.dtype)  # the row kernel's 8-lane running sums
     # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
     if H * W > 0:
         RecordedLaunch(
-            pk.normal_equations_lanes[int(depth_term)][ft], B * H,
-            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, rows_d], work=W, grain=pk._GRAIN_PIXELS,
+            pk.normal_equations_lanes_for(int(depth_term), C, kind)[ft], B * H,
+            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, rows_d,
+             _descriptor(acc, "vec8", ft)], work=W, grain=pk._GRAIN_PIXELS,
         )()
     else:
         rows.zero_()

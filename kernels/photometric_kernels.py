@@ -13,7 +13,12 @@ r_c = live_c(project(P)) - ref_c(u) (bilinear sample, zeros padding). Nothing pe
   J^T W r, the cost sum rho(r) and the pixel count, written once per row (:data:`ROW_STRIDE`
   float64 slots); :data:`normal_equations_reduce` adds the rows of each batch item in row order.
   The 8-lane kernel handles 8 pixels per step as length-8 vectors, which LLVM vectorises (about
-  2x faster than the plain kernel here, most of it in the 27 running sums).
+  2x faster than the plain kernel here, most of it in the 27 running sums). Its running sums live
+  in the row's own slots of a scratch array (``acc``, :data:`ROW_STRIDE` 8-lane vectors per row):
+  carried through the loop in registers, LLVM split them into 232 scalars and rebuilt the vectors
+  lane by lane every step. :func:`normal_equations_lanes_for` compiles it for one penalty (its
+  branches fold away) and, for C = 1, with the channel loop unrolled: bitwise the same sums,
+  14 instead of 22 ns per pixel (one thread, 320x240, Huber, measured side by side).
 - :data:`photometric_rows` (forward and Warp adjoint): per row, the sum of rho(r_c) over its valid
   pixels and channels and their count; :data:`photometric_mean` divides by C * count per batch
   item.
@@ -24,6 +29,7 @@ Row partial sums are written to disjoint slots and added in a fixed order, so re
 bitwise identical for any split of the rows over threads.
 """
 
+import threading
 from typing import Any
 
 import warp as wp
@@ -205,7 +211,82 @@ def _make_normal_equations_rows(static_depth: int, static_occlusion: int = 0):
     )
 
 
-def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
+@wp.func
+def accumulate8(
+    acc: wp.array(dtype=Any), a: int, wj0: Any, wj1: Any, wj2: Any, wj3: Any, wj4: Any, wj5: Any,
+    j0: Any, j1: Any, j2: Any, j3: Any, j4: Any, j5: Any, r: Any,
+):
+    """Adds one 8-lane step's w J^T J (upper triangle, row-major) and w J^T r to the running sums
+    acc[a:a + 27] (wj = w J, J = (j0, ..., j5), r the residuals), in the order of the slots."""
+    acc[a + 0] = acc[a + 0] + wp.cw_mul(wj0, j0)
+    acc[a + 1] = acc[a + 1] + wp.cw_mul(wj0, j1)
+    acc[a + 2] = acc[a + 2] + wp.cw_mul(wj0, j2)
+    acc[a + 3] = acc[a + 3] + wp.cw_mul(wj0, j3)
+    acc[a + 4] = acc[a + 4] + wp.cw_mul(wj0, j4)
+    acc[a + 5] = acc[a + 5] + wp.cw_mul(wj0, j5)
+    acc[a + 6] = acc[a + 6] + wp.cw_mul(wj1, j1)
+    acc[a + 7] = acc[a + 7] + wp.cw_mul(wj1, j2)
+    acc[a + 8] = acc[a + 8] + wp.cw_mul(wj1, j3)
+    acc[a + 9] = acc[a + 9] + wp.cw_mul(wj1, j4)
+    acc[a + 10] = acc[a + 10] + wp.cw_mul(wj1, j5)
+    acc[a + 11] = acc[a + 11] + wp.cw_mul(wj2, j2)
+    acc[a + 12] = acc[a + 12] + wp.cw_mul(wj2, j3)
+    acc[a + 13] = acc[a + 13] + wp.cw_mul(wj2, j4)
+    acc[a + 14] = acc[a + 14] + wp.cw_mul(wj2, j5)
+    acc[a + 15] = acc[a + 15] + wp.cw_mul(wj3, j3)
+    acc[a + 16] = acc[a + 16] + wp.cw_mul(wj3, j4)
+    acc[a + 17] = acc[a + 17] + wp.cw_mul(wj3, j5)
+    acc[a + 18] = acc[a + 18] + wp.cw_mul(wj4, j4)
+    acc[a + 19] = acc[a + 19] + wp.cw_mul(wj4, j5)
+    acc[a + 20] = acc[a + 20] + wp.cw_mul(wj5, j5)
+    acc[a + 21] = acc[a + 21] + wp.cw_mul(wj0, r)
+    acc[a + 22] = acc[a + 22] + wp.cw_mul(wj1, r)
+    acc[a + 23] = acc[a + 23] + wp.cw_mul(wj2, r)
+    acc[a + 24] = acc[a + 24] + wp.cw_mul(wj3, r)
+    acc[a + 25] = acc[a + 25] + wp.cw_mul(wj4, r)
+    acc[a + 26] = acc[a + 26] + wp.cw_mul(wj5, r)
+
+
+@wp.func
+def channel8(
+    live_image: wp.array(dtype=Any), base: int, ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
+    acc: wp.array(dtype=Any), a_row: int, i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any,
+    m11: Any, wx1: Any, wy1: Any, ok: Any, q0: Any, q1: Any, q2: Any, inv_z: Any, xn: Any, yn: Any, fx: Any, fy: Any,
+    s: Any, kind: int, c: Any,
+):
+    """One channel of an 8-lane step of the normal equations' row kernel: the residuals
+    live(taps of plane ``base``) - ref[ref_i + x0 ...], their Jacobians (exact for the bilinear
+    interpolant as sampled) and IRLS weights, added to the running sums acc[a_row:a_row + 28]."""
+    one = type(c)(1.0)
+    zeros = ph.splat8(type(c)(0.0))
+    big = type(c)(1.0e30)
+    val, gu, gv = ph.interpolate8(
+        sampler.gather_lanes(live_image, base, i00, m00), sampler.gather_lanes(live_image, base, i10, m10),
+        sampler.gather_lanes(live_image, base, i01, m01), sampler.gather_lanes(live_image, base, i11, m11),
+        wx1, wy1,
+    )
+    res = val - ph.load8(ref_image, ref_i, x0, last)
+    # finite residual and derivatives (NaN and inf fail the compare)
+    m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gu, -gu) + wp.max(gv, -gv), -one, big))
+    rr = ph.select8(m, res, zeros)
+    gus = ph.select8(m, gu, zeros)
+    gvs = ph.select8(m, gv, zeros)
+    # d r / dP = (gu, gv) d(u, v)/dP; J = [P x dr/dP, dr/dP]
+    p0 = wp.cw_mul(gus, inv_z) * fx
+    p1 = wp.cw_mul(gus * s + gvs * fy, inv_z)
+    p2 = -wp.cw_mul(wp.cw_mul(gus, xn * fx + yn * s) + wp.cw_mul(gvs, yn) * fy, inv_z)
+    j0 = wp.cw_mul(q1, p2) - wp.cw_mul(q2, p1)
+    j1 = wp.cw_mul(q2, p0) - wp.cw_mul(q0, p2)
+    j2 = wp.cw_mul(q0, p1) - wp.cw_mul(q1, p0)
+    w = wp.cw_mul(ph.weight8(rr, kind, c), m)
+    accumulate8(acc, a_row, wp.cw_mul(w, j0), wp.cw_mul(w, j1), wp.cw_mul(w, j2), wp.cw_mul(w, p0),
+                wp.cw_mul(w, p1), wp.cw_mul(w, p2), j0, j1, j2, p0, p1, p2, rr)
+    acc[a_row + 27] = acc[a_row + 27] + wp.cw_mul(ph.penalty8(rr, kind, c), m)
+
+
+def _make_normal_equations_lanes(
+    static_depth: int, static_occlusion: int = 0, static_channels: int = 0, static_kind: int = -1
+):
     """The row kernel of the normal equations, 8 pixels of the row at a time (SIMD lanes, see
     :mod:`.photometric`); same arguments, values and row slots as
     :func:`_make_normal_equations_rows`'s kernel (up to rounding: its running sums are per lane,
@@ -229,6 +310,7 @@ def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
         depth_weight: wp.float64,
         occlusion: wp.float64,
         rows: wp.array(dtype=wp.float64),
+        acc: wp.array(dtype=Any),
     ):
         r = wp.tid() + offset  # one reference row, flat (b, y)
         b = r // H
@@ -259,36 +341,15 @@ def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
         last = W - 1
         ones = ph.splat8(one)
         zeros = ph.splat8(zero)
-        # running sums per lane (each its own variable: `a = b` would alias)
-        h00 = ph.splat8(zero)
-        h01 = ph.splat8(zero)
-        h02 = ph.splat8(zero)
-        h03 = ph.splat8(zero)
-        h04 = ph.splat8(zero)
-        h05 = ph.splat8(zero)
-        h11 = ph.splat8(zero)
-        h12 = ph.splat8(zero)
-        h13 = ph.splat8(zero)
-        h14 = ph.splat8(zero)
-        h15 = ph.splat8(zero)
-        h22 = ph.splat8(zero)
-        h23 = ph.splat8(zero)
-        h24 = ph.splat8(zero)
-        h25 = ph.splat8(zero)
-        h33 = ph.splat8(zero)
-        h34 = ph.splat8(zero)
-        h35 = ph.splat8(zero)
-        h44 = ph.splat8(zero)
-        h45 = ph.splat8(zero)
-        h55 = ph.splat8(zero)
-        g0 = ph.splat8(zero)
-        g1 = ph.splat8(zero)
-        g2 = ph.splat8(zero)
-        g3 = ph.splat8(zero)
-        g4 = ph.splat8(zero)
-        g5 = ph.splat8(zero)
-        cost = ph.splat8(zero)
-        count = ph.splat8(zero)
+        # running sums per lane in this row's own slots of `acc` (memory, not registers: carried
+        # through the loop as 29 vectors, LLVM kept them as 232 scalars and rebuilt the vectors
+        # lane by lane every step, which made the sums half of the kernel's time)
+        kindc = kind
+        if wp.static(static_kind >= 0):  # the penalty compiled in: its branches fold away (~30% faster)
+            kindc = wp.static(static_kind)
+        a_row = r * ROW_STRIDE
+        for k in range(N_SUMS):
+            acc[a_row + k] = zeros
         for k8 in range((W + 7) // 8):
             x0 = k8 * 8
             x = ph.iota8(x0, one)
@@ -343,62 +404,14 @@ def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
                 o11 = sampler.gather_lanes(live_depth, dep0, i11, m11) + wp.cw_mul(ones - m11, q2)
                 dev = wp.max(wp.max(q2 - o00, o00 - q2), wp.max(q2 - o11, o11 - q2))
                 ok = wp.cw_mul(ok, ph.closed_mask8(q2 * type(one)(occlusion) - dev, zero, big))
-            count = count + ok
-            for ch in range(C):
-                base = live0 + ch * hw
-                val, gu, gv = ph.interpolate8(
-                    sampler.gather_lanes(live_image, base, i00, m00), sampler.gather_lanes(live_image, base, i10, m10),
-                    sampler.gather_lanes(live_image, base, i01, m01), sampler.gather_lanes(live_image, base, i11, m11),
-                    wx1, wy1,
-                )
-                res = val - ph.load8(ref_image, ref0 + ch * hw, x0, last)
-                # finite residual and derivatives (NaN and inf fail the compare)
-                m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gu, -gu) + wp.max(gv, -gv), -one, big))
-                rr = ph.select8(m, res, zeros)
-                gus = ph.select8(m, gu, zeros)
-                gvs = ph.select8(m, gv, zeros)
-                # d r / dP = (gu, gv) d(u, v)/dP; J = [P x dr/dP, dr/dP]
-                p0 = wp.cw_mul(gus, inv_z) * fx
-                p1 = wp.cw_mul(gus * s + gvs * fy, inv_z)
-                p2 = -wp.cw_mul(wp.cw_mul(gus, xn * fx + yn * s) + wp.cw_mul(gvs, yn) * fy, inv_z)
-                j0 = wp.cw_mul(q1, p2) - wp.cw_mul(q2, p1)
-                j1 = wp.cw_mul(q2, p0) - wp.cw_mul(q0, p2)
-                j2 = wp.cw_mul(q0, p1) - wp.cw_mul(q1, p0)
-                w = wp.cw_mul(ph.weight8(rr, kind, c), m)
-                wj0 = wp.cw_mul(w, j0)
-                wj1 = wp.cw_mul(w, j1)
-                wj2 = wp.cw_mul(w, j2)
-                wj3 = wp.cw_mul(w, p0)
-                wj4 = wp.cw_mul(w, p1)
-                wj5 = wp.cw_mul(w, p2)
-                h00 = h00 + wp.cw_mul(wj0, j0)
-                h01 = h01 + wp.cw_mul(wj0, j1)
-                h02 = h02 + wp.cw_mul(wj0, j2)
-                h03 = h03 + wp.cw_mul(wj0, p0)
-                h04 = h04 + wp.cw_mul(wj0, p1)
-                h05 = h05 + wp.cw_mul(wj0, p2)
-                h11 = h11 + wp.cw_mul(wj1, j1)
-                h12 = h12 + wp.cw_mul(wj1, j2)
-                h13 = h13 + wp.cw_mul(wj1, p0)
-                h14 = h14 + wp.cw_mul(wj1, p1)
-                h15 = h15 + wp.cw_mul(wj1, p2)
-                h22 = h22 + wp.cw_mul(wj2, j2)
-                h23 = h23 + wp.cw_mul(wj2, p0)
-                h24 = h24 + wp.cw_mul(wj2, p1)
-                h25 = h25 + wp.cw_mul(wj2, p2)
-                h33 = h33 + wp.cw_mul(wj3, p0)
-                h34 = h34 + wp.cw_mul(wj3, p1)
-                h35 = h35 + wp.cw_mul(wj3, p2)
-                h44 = h44 + wp.cw_mul(wj4, p1)
-                h45 = h45 + wp.cw_mul(wj4, p2)
-                h55 = h55 + wp.cw_mul(wj5, p2)
-                g0 = g0 + wp.cw_mul(wj0, rr)
-                g1 = g1 + wp.cw_mul(wj1, rr)
-                g2 = g2 + wp.cw_mul(wj2, rr)
-                g3 = g3 + wp.cw_mul(wj3, rr)
-                g4 = g4 + wp.cw_mul(wj4, rr)
-                g5 = g5 + wp.cw_mul(wj5, rr)
-                cost = cost + wp.cw_mul(ph.penalty8(rr, kind, c), m)
+            acc[a_row + 28] = acc[a_row + 28] + ok
+            if wp.static(static_channels == 1):
+                channel8(live_image, live0, ref_image, ref0, x0, last, acc, a_row, i00, i10, i01, i11, m00, m10, m01,
+                         m11, wx1, wy1, ok, q0, q1, q2, inv_z, xn, yn, fx, fy, s, kindc, c)
+            else:
+                for ch in range(C):
+                    channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last, acc, a_row, i00, i10,
+                             i01, i11, m00, m10, m01, m11, wx1, wy1, ok, q0, q1, q2, inv_z, xn, yn, fx, fy, s, kindc, c)
             if wp.static(static_depth != 0):
                 # taps outside the image read 0, which is not a valid depth
                 e00 = sampler.gather_lanes(live_depth, dep0, i00, m00)
@@ -423,75 +436,22 @@ def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
                 j0 = wp.cw_mul(q1, p2) - wp.cw_mul(q2, p1)
                 j1 = wp.cw_mul(q2, p0) - wp.cw_mul(q0, p2)
                 j2 = wp.cw_mul(q0, p1) - wp.cw_mul(q1, p0)
-                w = wp.cw_mul(ph.weight8(rd, kind, c), md)
+                w = wp.cw_mul(ph.weight8(rd, kindc, c), md)
                 wj0 = wp.cw_mul(w, j0)
                 wj1 = wp.cw_mul(w, j1)
                 wj2 = wp.cw_mul(w, j2)
                 wj3 = wp.cw_mul(w, p0)
                 wj4 = wp.cw_mul(w, p1)
                 wj5 = wp.cw_mul(w, p2)
-                h00 = h00 + wp.cw_mul(wj0, j0)
-                h01 = h01 + wp.cw_mul(wj0, j1)
-                h02 = h02 + wp.cw_mul(wj0, j2)
-                h03 = h03 + wp.cw_mul(wj0, p0)
-                h04 = h04 + wp.cw_mul(wj0, p1)
-                h05 = h05 + wp.cw_mul(wj0, p2)
-                h11 = h11 + wp.cw_mul(wj1, j1)
-                h12 = h12 + wp.cw_mul(wj1, j2)
-                h13 = h13 + wp.cw_mul(wj1, p0)
-                h14 = h14 + wp.cw_mul(wj1, p1)
-                h15 = h15 + wp.cw_mul(wj1, p2)
-                h22 = h22 + wp.cw_mul(wj2, j2)
-                h23 = h23 + wp.cw_mul(wj2, p0)
-                h24 = h24 + wp.cw_mul(wj2, p1)
-                h25 = h25 + wp.cw_mul(wj2, p2)
-                h33 = h33 + wp.cw_mul(wj3, p0)
-                h34 = h34 + wp.cw_mul(wj3, p1)
-                h35 = h35 + wp.cw_mul(wj3, p2)
-                h44 = h44 + wp.cw_mul(wj4, p1)
-                h45 = h45 + wp.cw_mul(wj4, p2)
-                h55 = h55 + wp.cw_mul(wj5, p2)
-                g0 = g0 + wp.cw_mul(wj0, rd)
-                g1 = g1 + wp.cw_mul(wj1, rd)
-                g2 = g2 + wp.cw_mul(wj2, rd)
-                g3 = g3 + wp.cw_mul(wj3, rd)
-                g4 = g4 + wp.cw_mul(wj4, rd)
-                g5 = g5 + wp.cw_mul(wj5, rd)
-                cost = cost + wp.cw_mul(ph.penalty8(rd, kind, c), md)
+                accumulate8(acc, a_row, wj0, wj1, wj2, wj3, wj4, wj5, j0, j1, j2, p0, p1, p2, rd)
+                acc[a_row + 27] = acc[a_row + 27] + wp.cw_mul(ph.penalty8(rd, kindc, c), md)
         o = r * ROW_STRIDE
-        rows[o + 0] = ph.hsum8(h00)
-        rows[o + 1] = ph.hsum8(h01)
-        rows[o + 2] = ph.hsum8(h02)
-        rows[o + 3] = ph.hsum8(h03)
-        rows[o + 4] = ph.hsum8(h04)
-        rows[o + 5] = ph.hsum8(h05)
-        rows[o + 6] = ph.hsum8(h11)
-        rows[o + 7] = ph.hsum8(h12)
-        rows[o + 8] = ph.hsum8(h13)
-        rows[o + 9] = ph.hsum8(h14)
-        rows[o + 10] = ph.hsum8(h15)
-        rows[o + 11] = ph.hsum8(h22)
-        rows[o + 12] = ph.hsum8(h23)
-        rows[o + 13] = ph.hsum8(h24)
-        rows[o + 14] = ph.hsum8(h25)
-        rows[o + 15] = ph.hsum8(h33)
-        rows[o + 16] = ph.hsum8(h34)
-        rows[o + 17] = ph.hsum8(h35)
-        rows[o + 18] = ph.hsum8(h44)
-        rows[o + 19] = ph.hsum8(h45)
-        rows[o + 20] = ph.hsum8(h55)
-        rows[o + 21] = ph.hsum8(g0)
-        rows[o + 22] = ph.hsum8(g1)
-        rows[o + 23] = ph.hsum8(g2)
-        rows[o + 24] = ph.hsum8(g3)
-        rows[o + 25] = ph.hsum8(g4)
-        rows[o + 26] = ph.hsum8(g5)
-        rows[o + 27] = ph.hsum8(cost)
-        rows[o + 28] = ph.hsum8(count)
+        for k in range(N_SUMS):
+            rows[o + k] = ph.hsum8(acc[a_row + k])
 
     return FloatKernel(
         _normal_equations_lanes, ref_image="scalar", ref_depth="scalar", live_image="scalar", live_depth="scalar",
-        pose="mat34", K="mat33",
+        pose="mat34", K="mat33", acc="vec8",
     ).set_parallel(
         segment=lambda a: a["H"],  # rows of one batch item
         # forward only (no adjoint): every row writes its own ROW_STRIDE slots, so any split is exact
@@ -504,6 +464,21 @@ def _make_normal_equations_lanes(static_depth: int, static_occlusion: int = 0):
 
 #: the 8-lane row kernels of the normal equations, indexed by depth term (1) + 2 * occlusion test (1)
 normal_equations_lanes = tuple(_make_normal_equations_lanes(k & 1, k >> 1) for k in range(4))
+_LANES_SPECIALISED: dict[tuple, FloatKernel] = {}
+_LANES_LOCK = threading.Lock()
+
+
+def normal_equations_lanes_for(variant: int, C: int, kind: int) -> FloatKernel:
+    """The 8-lane row kernel of :data:`normal_equations_lanes` [``variant``] compiled for one
+    penalty ``kind`` (and for C = 1 with the channel loop unrolled, when ``C`` is 1): the same
+    arguments and bitwise the same results, ~30% faster (built on first use, one Warp module
+    each)."""
+    key = (int(variant), 1 if C == 1 else 0, int(kind))
+    with _LANES_LOCK:
+        k = _LANES_SPECIALISED.get(key)
+        if k is None:
+            k = _LANES_SPECIALISED[key] = _make_normal_equations_lanes(key[0] & 1, key[0] >> 1, key[1], key[2])
+        return k
 
 
 @wp.kernel(module="unique", enable_backward=False)

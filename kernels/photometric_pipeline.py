@@ -44,6 +44,7 @@ class NormalEquations:
         self.JtWJ, self.JtWr, self.cost, self.count = JtWJ, JtWr, cost, count
         B = JtWJ.shape[0]
         self._rows: wp.array | None = None  # (B * H * ROW_STRIDE,) float64 row partial sums
+        self._acc: wp.array | None = None  # (B * H * ROW_STRIDE,) 8-lane running sums of the row kernel
         self._key: tuple | None = None  # what the recorded launches depend on
         self._cmds: list = []  # the recorded launches
         self._args: tuple = ()  # the arguments of the call that recorded them
@@ -219,17 +220,20 @@ def photometric_normal_equations(
         )
     if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
         out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
+    acc_type = _launch.element_type("vec8", ft)
+    if out._acc is None or out._acc.shape[0] != B * H * pk.ROW_STRIDE or out._acc.dtype != acc_type:
+        out._acc = wp.empty(B * H * pk.ROW_STRIDE, dtype=acc_type, device="cpu")
     n_pix = B * C * H * W
     no_depth = wp.zeros(0, dtype=ft, device="cpu")
     inputs = [
         _flat(ref_image, n_pix), _flat(ref_depth, B * H * W), _flat(live_image, n_pix),
         _flat(live_depth, B * H * W) if live_depth is not None else no_depth,
         pose, K, C, H, W, NORMAL_EQUATIONS_KINDS_CODES[robust], float(scale), float(min_depth), float(depth_weight),
-        float(occlusion), out._rows,
+        float(occlusion), out._rows, out._acc,
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
-    rows_kernel = pk.normal_equations_lanes[variant][ft]
+    rows_kernel = pk.normal_equations_lanes_for(variant, C, NORMAL_EQUATIONS_KINDS_CODES[robust])[ft]
     out._cmds = [
         _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=pk._GRAIN_PIXELS),
         _launch.RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [out._rows, H, *outputs],

@@ -563,16 +563,39 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
     counts = []
     for variant in range(4):  # depth term (1) + 2 * occlusion test
         rows = []
-        for kernels in (pk.normal_equations_rows, pk.normal_equations_lanes):
+        # the generic lane kernel and the one compiled for the penalty (huber, code 0)
+        for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes[variant],
+                       pk.normal_equations_lanes_for(variant, C, 0)):
             out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
-            wp.launch(kernels[variant][wp.float64], dim=B * H,
+            # the lane kernels' running sums (memory slots per row; filled with garbage first: the
+            # kernel must clear its own)
+            acc = [] if kernel is pk.normal_equations_rows[variant] else \
+                [wp.full(B * H * pk.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
+            wp.launch(kernel[wp.float64], dim=B * H,
                       inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
-                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out])
+                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out, *acc])
             rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
+        np.testing.assert_array_equal(rows[2], rows[1])  # specialised: bitwise the generic kernel's sums
         assert rows[0][:, 28].sum() > 0
         counts.append(rows[0][:, 28].sum())
     assert counts[2] < counts[0] and counts[3] < counts[1]  # the occlusion test dropped pixels
+    # one channel (the aligner's case): the kernels compiled for C = 1 (channel loop unrolled)
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=6, W=19, seed=17)
+    arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+    B, C, H, W = ref.shape
+    for variant in range(4):
+        rows = []
+        for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes_for(variant, 1, 0)):  # huber
+            out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
+            acc = [] if kernel is pk.normal_equations_rows[variant] else \
+                [wp.full(B * H * pk.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
+            wp.launch(kernel[wp.float64], dim=B * H,
+                      inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
+                              arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out, *acc])
+            rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
+        np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
+        assert rows[0][:, 28].sum() > 0
 
 
 def test_opcheck_photometric_ops():
