@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import torch
 
-from ._bridge import _FLOAT_TYPES, Output, Param, _descriptor, _skip_lazy_dynamo_import, warp_op
+from ._bridge import _FLOAT_TYPES, Output, Param, _descriptor, _null, _skip_lazy_dynamo_import, warp_op
+from .kernels import photometric_error_kernels as pek
 from .kernels import photometric_kernels as pk
 from .kernels import photometric_lens_kernels as plk
-from .kernels.launch import RecordedLaunch
+from .kernels.launch import RecordedLaunch, launch
 
 wp_float64 = _FLOAT_TYPES[torch.float64]
 
@@ -170,3 +171,167 @@ def _(ref_image, ref_depth, live_image, live_depth, pose, K, dist, rays, kind, s
 
 
 _skip_lazy_dynamo_import(photometric_normal_equations_lens)
+
+
+# ----------------------------------------------------------------------------- photometric_error, fast path
+#
+# One forward op computes the error, the count and, for the inputs autograd will want (``needs``,
+# bit k for input k of (ref_image, ref_depth, live_image, pose, K)), the gradients of the
+# per-batch sums S_b = C n_b error_b, all in one pass (kernels/photometric_error_kernels.py); the
+# backward op only scales them by grad_error_b / (C n_b). The live image's gradient (a scatter) is
+# the Warp adjoint of photometric_rows, run by the backward op when asked for. photometric_rows
+# and photometric_mean above stay as the reference the tests compare this path with.
+
+_NEED_REF, _NEED_DEPTH, _NEED_LIVE, _NEED_POSE, _NEED_K = (1 << k for k in range(5))
+_NEED_FUSED = _NEED_REF | _NEED_DEPTH | _NEED_POSE | _NEED_K  # the gradients the forward pass computes
+
+
+def _error_shapes(ref_image, needs):
+    B, C, H, W = ref_image.shape
+    return [
+        (B,), (B,),
+        (B, C, H, W) if needs & _NEED_REF else (0,),
+        (B, 1, H, W) if needs & _NEED_DEPTH else (0,),
+        (B, 3, 4) if needs & _NEED_FUSED else (0,),
+        (B, 3, 3) if needs & _NEED_FUSED else (0,),
+    ]
+
+
+@torch.library.custom_op("gvnn_warp::photometric_error", mutates_args=())
+def photometric_error(
+    ref_image: torch.Tensor,
+    ref_depth: torch.Tensor,
+    live_image: torch.Tensor,
+    pose: torch.Tensor,
+    K: torch.Tensor,
+    kind: int,
+    scale: float,
+    min_depth: float,
+    needs: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """images (B, C, H, W), depth (B, 1, H, W), pose (B, 3, 4), K (B, 3, 3) -> error (B,), count (B,),
+    and the gradients of S = C count error wanted by ``needs`` (else empty): dS/d ref_image
+    (B, C, H, W), dS/d ref_depth (B, 1, H, W), dS/d pose (B, 3, 4) and dS/d K (B, 3, 3) (the last two
+    whenever any of the four is wanted)."""
+    B, C, H, W = ref_image.shape
+    ft = _FLOAT_TYPES[ref_image.dtype]
+    # every entry of the gradient buffers is written by the kernels: no zero-fill
+    outs = [torch.empty(s, dtype=ref_image.dtype) for s in _error_shapes(ref_image, needs)]
+    if B == 0:
+        return tuple(outs)
+    grad = int(needs & _NEED_FUSED != 0)
+    rows = torch.empty(B * H * pek.ROW_SLOTS, dtype=torch.float64)
+    rows_d = _descriptor(rows, "scalar", wp_float64)
+    if H * W > 0:
+        arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
+            _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
+        acc = torch.empty(B * H * pek.ACC_SLOTS * 8, dtype=ref_image.dtype)  # the rows' running sums
+        launch(pek.error_lanes(grad, kind, C)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth],
+               [rows_d, _descriptor(acc, "vec8", ft), _descriptor(outs[2], "scalar", ft),
+                _descriptor(outs[3], "scalar", ft)])
+    else:
+        rows.zero_()
+    launch(pek.error_reduce[ft], B, [rows_d, _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft), H, C, grad],
+           [_descriptor(o, "scalar", ft) for o in (outs[0], outs[1], outs[4], outs[5])])
+    return tuple(outs)
+
+
+@photometric_error.register_fake
+def _(ref_image, ref_depth, live_image, pose, K, kind, scale, min_depth, needs):
+    return tuple(torch.empty(s, dtype=ref_image.dtype) for s in _error_shapes(ref_image, needs))
+
+
+_skip_lazy_dynamo_import(photometric_error)
+
+
+@torch.library.custom_op("gvnn_warp::photometric_error_backward", mutates_args=())
+def photometric_error_backward(
+    grad_error: torch.Tensor,
+    count: torch.Tensor,
+    g_ref: torch.Tensor,
+    g_depth: torch.Tensor,
+    g_pose: torch.Tensor,
+    g_K: torch.Tensor,
+    ref_image: torch.Tensor,
+    ref_depth: torch.Tensor,
+    live_image: torch.Tensor,
+    pose: torch.Tensor,
+    K: torch.Tensor,
+    kind: int,
+    scale: float,
+    min_depth: float,
+    needs: int,
+) -> list[torch.Tensor]:
+    """The gradients of (ref_image, ref_depth, live_image, pose, K) wanted by ``needs`` (others
+    empty): the forward's dS/d x scaled by grad_error_b / (C count_b); the live image's by the
+    Warp adjoint of photometric_rows."""
+    B, C, H, W = ref_image.shape
+    ft = _FLOAT_TYPES[ref_image.dtype]
+    grad_error = grad_error.contiguous()
+    ge = _descriptor(grad_error, "scalar", ft)
+    n_d = _descriptor(count, "scalar", ft)
+    out = []
+    for k, (src, like) in enumerate(zip((g_ref, g_depth, None, g_pose, g_K), (ref_image, ref_depth, live_image, pose,
+                                                                             K))):
+        if not needs >> k & 1:
+            out.append(like.new_empty(0))
+        elif src is None:  # the live image: below
+            out.append(torch.zeros(like.shape, dtype=like.dtype))
+        else:
+            g = torch.empty(like.shape, dtype=like.dtype)
+            n = g.numel()
+            if n:
+                launch(pek.scale_segments[ft], (n + 7) // 8,
+                       [_descriptor(src, "scalar", ft), ge, n_d, n // max(B, 1), n, C], [_descriptor(g, "scalar", ft)])
+            out.append(g)
+    if needs & _NEED_LIVE and B * H * W > 0:
+        # d error_b / d row_sum = grad_error_b / (C n_b) for the rows of b, then the rows' adjoint
+        adj_rows = torch.empty(B * H, dtype=ref_image.dtype)
+        ones = torch.ones(B * H, dtype=ref_image.dtype)  # alive while its descriptor is used
+        launch(pek.scale_segments[ft], (B * H + 7) // 8, [_descriptor(ones, "scalar", ft), ge, n_d, H, B * H, C],
+               [_descriptor(adj_rows, "scalar", ft)])
+        scratch = [torch.empty(B * H, dtype=ref_image.dtype) for _ in range(2)]
+        arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
+            _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
+        params = [C, H, W, kind, scale, min_depth]
+        null_s, null_34, null_33 = _null("scalar", ft), _null("mat34", ft), _null("mat33", ft)
+        launch(pk.photometric_rows[ft], B * H, [*arrays, *params], [_descriptor(s, "scalar", ft) for s in scratch],
+               adjoint=True, adj_inputs=[null_s, null_s, _descriptor(out[2], "scalar", ft), null_34, null_33, *params],
+               adj_outputs=[_descriptor(adj_rows, "scalar", ft), null_s])
+    return out
+
+
+@photometric_error_backward.register_fake
+def _(grad_error, count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live_image, pose, K, kind, scale,
+      min_depth, needs):
+    return [t.new_empty(t.shape if needs >> k & 1 else (0,)) for k, t in
+            enumerate((ref_image, ref_depth, live_image, pose, K))]
+
+
+_skip_lazy_dynamo_import(photometric_error_backward)
+
+
+def _error_setup_context(ctx, inputs, output):
+    ref_image, ref_depth, live_image, pose, K, kind, scale, min_depth, needs = inputs
+    _, count, g_ref, g_depth, g_pose, g_K = output
+    ctx.mark_non_differentiable(count, g_ref, g_depth, g_pose, g_K)
+    ctx.save_for_backward(count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live_image, pose, K)
+    ctx.params = (kind, scale, min_depth, needs)
+
+
+def _error_backward(ctx, grad_error, *unused):
+    kind, scale, min_depth, needs = ctx.params
+    saved = ctx.saved_tensors
+    wanted = sum(1 << k for k in range(5) if ctx.needs_input_grad[k])
+    if wanted & ~needs:
+        raise RuntimeError(
+            "gvnn_warp.photometric_error: a gradient was asked for an input that did not require grad when the "
+            "forward pass ran (its gradient was not computed then)"
+        )
+    if grad_error is None:
+        grad_error = saved[0].new_zeros(saved[0].shape)
+    grads = photometric_error_backward(grad_error, *saved, kind, scale, min_depth, wanted)
+    return (*(g if ctx.needs_input_grad[k] else None for k, g in enumerate(grads)), None, None, None, None)
+
+
+photometric_error.register_autograd(_error_backward, setup_context=_error_setup_context)

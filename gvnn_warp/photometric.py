@@ -10,6 +10,7 @@ functions on ``wp.array`` s, without torch: ``gvnn_warp.kernels.photometric_pipe
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor, nn
 
 from . import _photometric_ops as _ops
@@ -88,17 +89,20 @@ def photometric_error(
     chk.option("robust", robust, ERROR_KINDS)
     scale = chk.positive("scale", scale, ref_image.dtype)
     min_depth = chk.positive("min_depth", min_depth)
-    _, C, H, W = ref_image.shape
-    frames = (ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K)
-    if cam.model == 0:
-        row_sum, row_count = _ops.photometric_rows(*frames, C, H, W, _CODES[robust], scale, min_depth)
-    else:  # a distorted lens (see warp_frame_depth)
+    if cam.model != 0:  # a distorted lens (see warp_frame_depth): its row kernel and Warp adjoint
+        _, C, H, W = ref_image.shape
         rays, stride = _rays(cam, H, W)
         row_sum, row_count = _ops.photometric_rows_lens(
-            *frames, cam.dist, rays, C, H, W, _CODES[robust], scale, min_depth, cam.model, stride
+            ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K, cam.dist, rays,
+            C, H, W, _CODES[robust], scale, min_depth, cam.model, stride,
         )
-    error, count = _ops.photometric_mean(row_sum, row_count, H, C)
-    return error, count.detach()
+        error, count = _ops.photometric_mean(row_sum, row_count, H, C)
+        return error, count.detach()
+    inputs = (ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K)
+    # the gradients autograd may ask for are computed in the forward pass (bit k: input k)
+    needs = sum(1 << k for k, t in enumerate(inputs) if t.requires_grad) if torch.is_grad_enabled() else 0
+    error, count, *_ = _ops.photometric_error(*inputs, _CODES[robust], scale, min_depth, needs)
+    return error, count
 
 
 def photometric_normal_equations(
