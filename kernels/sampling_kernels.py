@@ -230,8 +230,6 @@ def _warp_frame_depth_lens(
     one = type(zmin)(1.0)
     zero = type(zmin)(0.0)
     tol = type(zmin)(INSIDE_TOLERANCE)
-    umax = type(zmin)(W - 1) + tol
-    vmax = type(zmin)(H - 1) + tol
     R = lie.pose_rotation(Tb)
     t = lie.pose_translation(Tb)
     src = b * C * hw
@@ -245,13 +243,10 @@ def _warp_frame_depth_lens(
         # invalid depth (<= min, NaN, inf) or a pixel without a ray: depth 1 stands in before any
         # arithmetic, so neither the values nor the adjoint see it
         depth_ok = d > zmin and d < type(d)(1.0e30) and ray[2] > zero
-        uvz, in_domain = lens_rays.project_ray(model, R, t, Kb, db, ray, wp.where(depth_ok, d, one), zmin)
-        ok = depth_ok and in_domain
-        u = uvz[0]
-        v = uvz[1]
-        valid[i] = ok and u >= -tol and u <= umax and v >= -tol and v <= vmax
-        xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
-        sampler.sample_channels(image, out, src, dst + px, C, hw, hw, H, W, xs, ys, ok and reachable)
+        lens_rays.warp_pixel(
+            image, out, valid, K, dist, i, b, src, dst + px, C, H, W, padding, model, R, t, Kb, db, ray,
+            wp.where(depth_ok, d, one), depth_ok, zmin, tol,
+        )
 
 
 bilinear_sample = FloatKernel(_bilinear_sample, image="scalar", grid="vec2", out="scalar").set_parallel(
