@@ -66,6 +66,9 @@ class _Lens:
     Bc = 1 when one camera serves the whole batch (its rays are then computed once)."""
 
     def __init__(self, chk: ArgCheck, camera):
+        if isinstance(camera, Tensor):  # the pinhole K: nothing else to make (the calls stay as cheap)
+            self.model, self.K, self.dist, self.K_cam, self.dist_cam = 0, _intrinsics(chk, camera), None, None, None
+            return
         self.model, self.K, self.dist = camera_args(chk, camera)
         shared = not isinstance(camera, Camera) or camera.batch_size is None
         self.K_cam = self.K[:1] if shared else self.K
