@@ -237,8 +237,8 @@ def distort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
 
     Returns:
         pixels (B, ..., 2) in the distorted image, and valid (B, ...) bool: the ray lies inside
-        the model's domain. Where not valid the input pixel is returned (non-finite entries as
-        0) with zero gradient. Gradients flow to pixels, K and every coefficient.
+        the model's domain. Where not valid the input pixel is returned (a non-finite one as a
+        finite stand-in) with zero gradient. Gradients flow to pixels, K and every coefficient.
     """
     return _pixels_op("distort_points", _ops.distort_points, pixels, camera)
 
@@ -255,7 +255,8 @@ def undistort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
     Returns:
         pixels (B, ..., 2) in the ideal image, and valid (B, ...) bool: Newton's method converged
         (residual below 1e-10 in normalized units) to a point inside the model's domain. Where
-        not valid the input pixel is returned (non-finite entries as 0) with zero gradient.
+        not valid the input pixel is returned (a non-finite one as a finite stand-in) with zero
+        gradient.
         Gradients are the implicit-function ones through the solution (not through the
         iterations), for pixels, K and every coefficient.
     """

@@ -39,6 +39,10 @@ results, so float32 values and gradients are float64's rounded):
 
 - ``distort(model, dist, xn: vec2) -> (xd: vec2, valid: bool)``: normalized ideal -> distorted.
   Invalid (r^2 >= LIMIT or non-finite): returns xn (non-finite entries as 0).
+- ``distort_pixel(model, K, dist, uv: vec2) -> (uv': vec2, valid: bool)``: the pixel of the
+  ideal pinhole image (intrinsics K) -> the distorted image's, K distort(K^-1 [u, v, 1]); and
+  ``undistort_pixel`` (the inverse, K undistort(K^-1 [u, v, 1])). Invalid (or PINHOLE): uv itself
+  (non-finite entries as 0); for PINHOLE valid with gradient 1 to uv, otherwise zero gradient.
 - ``undistort(model, dist, xd: vec2) -> (xn: vec2, valid: bool)``: the inverse, by Newton's
   method (RADTAN: 2-D Newton on the distortion map from xn = xd; FISHEYE: 1-D Newton on
   theta_d(theta) = |xd| from theta = |xd|, kept inside [0, theta_max]), at most NEWTON_ITERS = 20
@@ -64,6 +68,14 @@ results, so float32 values and gradients are float64's rounded):
 Every function has a hand-written adjoint (``@wp.func_grad``) for all its floating arguments
 (K, dist, p / x, y, depth), so callers get gradients for intrinsics and every coefficient
 through Warp's adjoint launches or ``wp.Tape``. Adjoint of dist[LIMIT:] is always 0.
+
+Float64 building blocks for kernels with their own hand-written adjoints (kernels.lens_rays uses
+them; their signatures are kept stable): ``_to64(dist) -> vec8d``, ``_from64(g: vec8d, ref)``
+(rounded to ``ref``'s float type), ``_distort64(model, d, x, y) -> (xd, yd, J: mat22d)``,
+``_distort_value64(model, d, x, y) -> (xd, yd)``, ``_distort_vjp_dist64(model, d, x, y, gx, gy)
+-> vec8d`` (the gradient to dist of gx xd + gy yd), ``_undistort64(model, d, xd, yd) -> (x, y,
+valid)`` and ``_undistort_grad64(model, d, x, y, gx, gy) -> (lx, ly, g_dist)`` (the
+implicit-function adjoint at the solution (x, y)).
 """
 
 import math
@@ -374,7 +386,7 @@ def _project_distorted64(model: int, K: Any, d: vec8d, p: Any):
 # ----------------------------------------------------------------------------- typed front
 
 
-def _make(T, distort=None, undistort=None, project=None, unproject=None):
+def _make(T, distort=None, undistort=None, project=None, unproject=None, distort_pixel=None, undistort_pixel=None):
     """float type ``T`` overloads of the public functions (Warp custom adjoints need concrete
     types); the parameters named like the functions are the overloads made before (see sampler.py)."""
     f64 = wp.float64
@@ -530,10 +542,97 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None):
                     T(-gxd * rx), T(-gxd * ry), T(-gxd), T(0.0), T(-gyd * ry), T(-gyd), T(0.0), T(0.0), T(0.0)
                 )
 
-    return distort, undistort, project, unproject
+    @wp.func
+    def _k_inv64(K: mat33, uv: vec2):
+        """K^-1 [u, v, 1] in float64: (rx, ry)."""
+        ry = (f64(uv[1]) - f64(K[1, 2])) / f64(K[1, 1])
+        rx = (f64(uv[0]) - f64(K[0, 2]) - f64(K[0, 1]) * ry) / f64(K[0, 0])
+        return rx, ry
+
+    @wp.func
+    def _pixel_grads(K: mat33, rx: f64, ry: f64, mx: f64, my: f64, gu: f64, gv: f64, lx: f64, ly: f64):
+        """Gradients of out = K (m(r)) with r = K^-1 uv, given d loss/d out = (gu, gv) and the
+        gradient lambda = (lx, ly) that reached r: returns (g_uv, g_K)."""
+        fx = f64(K[0, 0])
+        fy = f64(K[1, 1])
+        gx = lx / fx
+        gy = (ly - lx * f64(K[0, 1]) / fx) / fy
+        g_K = mat33(
+            T(gu * mx - gx * rx), T(gu * my - gx * ry), T(gu - gx),
+            T(0.0), T(gv * my - gy * ry), T(gv - gy),
+            T(0.0), T(0.0), T(0.0),
+        )
+        return vec2(T(gx), T(gy)), g_K
+
+    @wp.func
+    def distort_pixel(model: int, K: mat33, dist: vec8, uv: vec2):
+        ok = _finite(uv[0] + uv[1])
+        out = vec2(_finite_or_zero(uv[0]), _finite_or_zero(uv[1]))
+        if model != PINHOLE and ok:
+            rx, ry = _k_inv64(K, uv)
+            d = _to64(dist)
+            ok = _in_domain64(model, d, rx, ry)
+            if ok:
+                xd, yd = _distort_value64(model, d, rx, ry)
+                out = vec2(T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2])), T(f64(K[1, 1]) * yd + f64(K[1, 2])))
+        return out, ok
+
+    @wp.func_grad(distort_pixel)
+    def adj_distort_pixel(model: int, K: mat33, dist: vec8, uv: vec2, adj_ret0: vec2, adj_ret1: bool):
+        if _finite(uv[0] + uv[1]):
+            if model == PINHOLE:
+                wp.adjoint[uv] += adj_ret0
+            else:
+                rx, ry = _k_inv64(K, uv)
+                d = _to64(dist)
+                if _in_domain64(model, d, rx, ry):
+                    gu = f64(adj_ret0[0])
+                    gv = f64(adj_ret0[1])
+                    xd, yd, J = _distort64(model, d, rx, ry)
+                    gxd = f64(K[0, 0]) * gu
+                    gyd = f64(K[0, 1]) * gu + f64(K[1, 1]) * gv
+                    lx = J[0, 0] * gxd + J[1, 0] * gyd
+                    ly = J[0, 1] * gxd + J[1, 1] * gyd
+                    g_uv, g_K = _pixel_grads(K, rx, ry, xd, yd, gu, gv, lx, ly)
+                    wp.adjoint[uv] += g_uv
+                    wp.adjoint[K] += g_K
+                    wp.adjoint[dist] += _from64(_distort_vjp_dist64(model, d, rx, ry, gxd, gyd), uv[0])
+
+    @wp.func
+    def undistort_pixel(model: int, K: mat33, dist: vec8, uv: vec2):
+        ok = _finite(uv[0] + uv[1])
+        out = vec2(_finite_or_zero(uv[0]), _finite_or_zero(uv[1]))
+        if model != PINHOLE and ok:
+            rx, ry = _k_inv64(K, uv)
+            x, y, ok = _undistort64(model, _to64(dist), rx, ry)
+            if ok:
+                out = vec2(T(f64(K[0, 0]) * x + f64(K[0, 1]) * y + f64(K[0, 2])), T(f64(K[1, 1]) * y + f64(K[1, 2])))
+        return out, ok
+
+    @wp.func_grad(undistort_pixel)
+    def adj_undistort_pixel(model: int, K: mat33, dist: vec8, uv: vec2, adj_ret0: vec2, adj_ret1: bool):
+        if _finite(uv[0] + uv[1]):
+            if model == PINHOLE:
+                wp.adjoint[uv] += adj_ret0
+            else:
+                rx, ry = _k_inv64(K, uv)
+                d = _to64(dist)
+                x, y, ok = _undistort64(model, d, rx, ry)
+                if ok:
+                    gu = f64(adj_ret0[0])
+                    gv = f64(adj_ret0[1])
+                    gx = f64(K[0, 0]) * gu
+                    gy = f64(K[0, 1]) * gu + f64(K[1, 1]) * gv
+                    lx, ly, gd = _undistort_grad64(model, d, x, y, gx, gy)
+                    g_uv, g_K = _pixel_grads(K, rx, ry, x, y, gu, gv, lx, ly)
+                    wp.adjoint[uv] += g_uv
+                    wp.adjoint[K] += g_K
+                    wp.adjoint[dist] += _from64(gd, uv[0])
+
+    return distort, undistort, project, unproject, distort_pixel, undistort_pixel
 
 
-distort, undistort, project, unproject = _make(wp.float64, *_make(wp.float32))
+distort, undistort, project, unproject, distort_pixel, undistort_pixel = _make(wp.float64, *_make(wp.float32))
 
 __all__ = [
     "DIST_SIZE",
@@ -547,9 +646,11 @@ __all__ = [
     "RADTAN",
     "UNDISTORT_TOL",
     "distort",
+    "distort_pixel",
     "domain_limit",
     "pack_dist",
     "project",
     "undistort",
+    "undistort_pixel",
     "unproject",
 ]

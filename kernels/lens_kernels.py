@@ -8,7 +8,7 @@ from typing import Any
 
 import warp as wp
 
-from . import camera, lens
+from . import lens
 from .kinds import FloatKernel
 
 
@@ -88,11 +88,8 @@ def _distort_pixels(
 ):
     i = wp.tid() + offset  # flat (b, point): ideal pixel -> distorted-image pixel
     b = i // P
-    uv = pixels[i]
-    Kb = K[b]
-    ray = camera.pixel_ray(Kb, uv[0], uv[1])
-    xd, ok = lens.distort(model, dist[b], wp.vector(ray[0], ray[1]))
-    out[i] = wp.vector(Kb[0, 0] * xd[0] + Kb[0, 1] * xd[1] + Kb[0, 2], Kb[1, 1] * xd[1] + Kb[1, 2])
+    uv, ok = lens.distort_pixel(model, K[b], dist[b], pixels[i])
+    out[i] = uv
     valid[i] = ok
 
 
@@ -109,11 +106,8 @@ def _undistort_pixels(
 ):
     i = wp.tid() + offset  # flat (b, point): distorted-image pixel -> ideal pixel
     b = i // P
-    uv = pixels[i]
-    Kb = K[b]
-    ray = camera.pixel_ray(Kb, uv[0], uv[1])
-    xn, ok = lens.undistort(model, dist[b], wp.vector(ray[0], ray[1]))
-    out[i] = wp.vector(Kb[0, 0] * xn[0] + Kb[0, 1] * xn[1] + Kb[0, 2], Kb[1, 1] * xn[1] + Kb[1, 2])
+    uv, ok = lens.undistort_pixel(model, K[b], dist[b], pixels[i])
+    out[i] = uv
     valid[i] = ok
 
 

@@ -203,8 +203,8 @@ def test_pinhole_camera_is_bitwise_k(dtype):
     good = pts[..., 2] > 1e-3
     pix, valid = cam.project(pts)
     assert torch.equal(valid, good) and torch.equal(pix[good], G.project_points(pts, K)[good])
-    und, ok = G.undistort_points(px, cam)  # K (K^-1 x): rounding only
-    assert ok.all() and torch.allclose(und, px, rtol=0, atol=1e-5 if dtype == torch.float32 else 1e-13)
+    und, ok = G.undistort_points(px, cam)
+    assert ok.all() and torch.equal(und, px) and torch.equal(G.distort_points(px, cam)[0], px)
     # gradients: the same as K's
     Kc = K.double().clone().requires_grad_()
     Kd = K.double().clone().requires_grad_()
@@ -257,6 +257,14 @@ def test_out_of_domain_is_finite_invalid_and_has_zero_gradient():
     assert ok.tolist() == [[True, False]] and torch.isfinite(und).all()
     und[0, 1].sum().backward()
     assert (px.grad == 0).all() and (fe.grad == 0).all()
+    # distort_points of an ideal pixel whose ray is beyond the domain: itself, no gradient to anything
+    Kg = K.clone().requires_grad_()
+    fe.grad = None
+    ideal = torch.tensor([[[100.0 + 200 * math.tan(theta_max + 0.05), 80.0]]], dtype=f64, requires_grad=True)
+    out, ok = G.distort_points(ideal, G.FisheyeCamera(Kg, fe))
+    assert not ok.any() and torch.equal(out, ideal.detach())
+    out.sum().backward()
+    assert (ideal.grad == 0).all() and (Kg.grad == 0).all() and (fe.grad == 0).all()
     pts = cam.unproject(px.detach(), torch.ones(1, 2, dtype=f64))
     assert torch.isfinite(pts).all()
     # the largest radius inside is reached: the valid projection of the first pixel's point goes back
@@ -329,3 +337,37 @@ def test_bad_inputs_raise_clear_errors():
         G.undistort_image(torch.ones(2, 2, dtype=f64), cam)
     with pytest.raises(ValueError, match=r"kernels.lens.pack_dist: model 1 takes 5 coefficients"):
         lens.pack_dist(lens.RADTAN, [0.1])
+
+
+def test_lens_funcs_in_a_users_own_kernel_under_tape():
+    """The pure-Warp contract: a user's kernel calling kernels.lens.project, differentiated by
+    wp.Tape, gives the torch op's values and gradients."""
+    import warp as wp
+    from gvnn_warp.kernels.kinds import vec8d
+
+    @wp.kernel
+    def user_project(points: wp.array(dtype=wp.vec3d), K: wp.array(dtype=wp.mat33d), dist: wp.array(dtype=vec8d),
+                     model: int, out: wp.array(dtype=wp.vec2d)):
+        i = wp.tid()
+        uv, ok = lens.project(model, K[0], dist[0], points[i], wp.float64(1e-3))
+        out[i] = wp.where(ok, uv, wp.vec2d())
+
+    K = torch.tensor(TUM_K, dtype=f64)
+    d = torch.tensor(TUM_D, dtype=f64)
+    pts = _points(7, 3)
+    P = wp.array(pts.numpy(), dtype=wp.vec3d, requires_grad=True)
+    Ka = wp.array(K.numpy()[None], dtype=wp.mat33d, requires_grad=True)
+    Da = wp.array(lens.pack_dist(lens.RADTAN, TUM_D)[None], dtype=vec8d, requires_grad=True)
+    out = wp.zeros(7, dtype=wp.vec2d, requires_grad=True)
+    tape = wp.Tape()
+    with tape:
+        wp.launch(user_project, 7, [P, Ka, Da, lens.RADTAN], [out])
+    tape.backward(grads={out: wp.array(np.ones((7, 2)), dtype=wp.vec2d)})
+    Kt, dt, pt = K.clone().requires_grad_(), d.clone().requires_grad_(), pts[None].clone().requires_grad_()
+    ref, ok = G.RadTanCamera(Kt, dt).project(pt)
+    assert ok.all()
+    (ref * ok[..., None]).sum().backward()
+    np.testing.assert_allclose(out.numpy(), ref[0].detach().numpy(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(P.grad.numpy(), pt.grad[0].numpy(), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(Ka.grad.numpy()[0], Kt.grad.numpy(), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(Da.grad.numpy()[0, :5], dt.grad.numpy(), rtol=1e-12, atol=1e-9)
