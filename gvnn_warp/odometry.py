@@ -192,6 +192,16 @@ def _recycle(pool: list, pyramid: _Pyramid) -> None:
         pool.append(pyramid)
 
 
+def _out_view(a: wp.array, lanes: bool) -> wp.array:
+    """A flat view of an output buffer: float32 scalars, or vec8 (8 consecutive pixels) for the
+    8-lane kernels (an empty one for a missing or empty buffer)."""
+    if lanes and a.size > 0:
+        return wp.array(ptr=a.ptr, dtype=_launch.vec8f, shape=(a.size // 8,), device="cpu")
+    if lanes:
+        return wp.empty(0, dtype=_launch.vec8f, device="cpu")
+    return a.flatten()
+
+
 class _Pyramid:
     """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
     once (a recorded launch replays in a few microseconds); reused through the aligner's pool."""
@@ -207,19 +217,23 @@ class _Pyramid:
         depths = self.depths or [empty] * len(self.shapes)
         f32 = wp.float32
         self.weights = aligner._channel_weights(C)
+        # the 8-lane kernels where the rows are whole vectors (one output channel for the base level)
+        lanes0 = Co == 1 and W % 8 == 0
         self.level0 = _launch.RecordedLaunch(
-            _pyramid.level0_kernel(C, Co)[f32], B * H,
+            _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
             [empty, self.weights.flatten(), empty, H, W, int(with_depth)],
-            [self.images[0].flatten(), depths[0].flatten() if with_depth else empty], work=W, grain=_GRAIN,
+            [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
         )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
+            lanes = wo % 8 == 0
             self.down.append(_launch.RecordedLaunch(
-                _pyramid.downsample_kernel(Co)[f32], B * ho,
+                (_pyramid.downsample_lanes_kernel(Co) if lanes else _pyramid.downsample_kernel(Co))[f32], B * ho,
                 [self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
                  h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
-                [self.images[k].flatten(), depths[k].flatten() if with_depth else empty], work=wo, grain=_GRAIN,
+                [_out_view(self.images[k], lanes), _out_view(depths[k], lanes)], work=wo,
+                grain=_GRAIN,
             ))
 
     def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:

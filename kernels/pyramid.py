@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from . import photometric as ph
 from .launch import FloatKernel, launch
 
 wp.set_module_options({"enable_backward": False})
@@ -38,7 +39,9 @@ __all__ = [
     "DEPTH_TOLERANCE",
     "downsample",
     "downsample_kernel",
+    "downsample_lanes_kernel",
     "level0_kernel",
+    "level0_lanes_kernel",
     "prepare_level0",
     "pyramid_shapes",
     "scale_intrinsics",
@@ -164,6 +167,162 @@ def _make_downsample(C: int):
     )
 
 
+# 8-lane twins of the kernels above for the common sizes (one output channel, widths a multiple of 8):
+# 8 pixels of a row per step as length-8 vectors (LLVM vectorises their arithmetic; see
+# photometric.py), results stored as whole vectors through a vec8 view of the output. The same
+# operations in the same order as the scalar kernels: bitwise the same pyramids (tested), ~3x faster.
+
+
+@wp.func
+def _finite8(v: Any):
+    """1 where the lane is finite, else 0."""
+    one = type(v[0])(1.0)
+    return type(v)(
+        ph.flag(wp.isfinite(v[0]), one), ph.flag(wp.isfinite(v[1]), one), ph.flag(wp.isfinite(v[2]), one),
+        ph.flag(wp.isfinite(v[3]), one), ph.flag(wp.isfinite(v[4]), one), ph.flag(wp.isfinite(v[5]), one),
+        ph.flag(wp.isfinite(v[6]), one), ph.flag(wp.isfinite(v[7]), one),
+    )
+
+
+@wp.func
+def _le8(a: Any, b: Any):
+    """1 where a <= b, else 0 (NaN: 0), per lane."""
+    one = type(a[0])(1.0)
+    return type(a)(
+        ph.flag(a[0] <= b[0], one), ph.flag(a[1] <= b[1], one), ph.flag(a[2] <= b[2], one),
+        ph.flag(a[3] <= b[3], one), ph.flag(a[4] <= b[4], one), ph.flag(a[5] <= b[5], one),
+        ph.flag(a[6] <= b[6], one), ph.flag(a[7] <= b[7], one),
+    )
+
+
+@wp.func
+def _valid8(d: Any):
+    """:func:`_valid_depth` per lane, as 1/0."""
+    return ph.open_mask8(d, type(d[0])(0.0), type(d[0])(3.0e38))
+
+
+@wp.func
+def _block_depth8(d0: Any, d1: Any, d2: Any, d3: Any, tolerance: Any):
+    """:func:`_block_depth` on 8 lanes (the same operations in the same order)."""
+    zero = type(tolerance)(0.0)
+    one = type(tolerance)(1.0)
+    zeros = ph.splat8(zero)
+    ones = ph.splat8(one)
+    bigs = ph.splat8(type(tolerance)(3.0e38))
+    v0 = _valid8(d0)
+    v1 = _valid8(d1)
+    v2 = _valid8(d2)
+    v3 = _valid8(d3)
+    e0 = ph.select8(v0, d0, bigs)
+    e1 = ph.select8(v1, d1, bigs)
+    e2 = ph.select8(v2, d2, bigs)
+    e3 = ph.select8(v3, d3, bigs)
+    limit = wp.min(wp.min(e0, e1), wp.min(e2, e3)) * (one + tolerance)
+    n0 = wp.cw_mul(v0, _le8(e0, limit))
+    n1 = wp.cw_mul(v1, _le8(e1, limit))
+    n2 = wp.cw_mul(v2, _le8(e2, limit))
+    n3 = wp.cw_mul(v3, _le8(e3, limit))
+    n = n0 + n1 + n2 + n3
+    s = wp.cw_mul(n0, ph.select8(v0, d0, zeros)) + wp.cw_mul(n1, ph.select8(v1, d1, zeros)) + wp.cw_mul(
+        n2, ph.select8(v2, d2, zeros))
+    s = s + wp.cw_mul(n3, ph.select8(v3, d3, zeros))
+    return ph.select8(ph.open_mask8(n, zero, type(tolerance)(3.0e38)), wp.cw_div(s, wp.max(n, ones)), zeros)
+
+
+@wp.func
+def _strided8(a: wp.array(dtype=Any), p: int):
+    """(a[p], a[p + 2], ..., a[p + 14])."""
+    return wp.vector(a[p], a[p + 2], a[p + 4], a[p + 6], a[p + 8], a[p + 10], a[p + 12], a[p + 14])
+
+
+def _make_level0_lanes(C: int):
+    """:func:`_make_level0`'s kernel for one output channel, 8 pixels per step (W % 8 == 0); the
+    outputs are vec8 views (element k = pixels [8k, 8k + 8) of the flat (B, 1, H, W) array)."""
+
+    def level0_lanes(
+        offset: int,
+        image: wp.array(dtype=Any),
+        weights: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        H: int,
+        W: int,
+        has_depth: int,
+        out_image: wp.array(dtype=Any),
+        out_depth: wp.array(dtype=Any),
+    ):
+        row = wp.tid() + offset  # flat (b, y)
+        b = row // H
+        HW = H * W
+        p0 = (row - b * H) * W
+        zero = weights.dtype(0.0)
+        zeros = ph.splat8(zero)
+        for k8 in range(W // 8):
+            p = p0 + k8 * 8
+            v = ph.splat8(zero)
+            for c in range(C):
+                v = v + ph.load8(image, (b * C + c) * HW + p, 0, 7) * weights[c]
+            finite = _finite8(v)
+            q = (b * HW + p) // 8
+            out_image[q] = ph.select8(finite, v, zeros)
+            if has_depth != 0:
+                d = ph.load8(depth, b * HW + p, 0, 7)
+                out_depth[q] = ph.select8(wp.cw_mul(finite, _valid8(d)), d, zeros)
+
+    kernel = wp.kernel(level0_lanes, module="unique", enable_backward=False)
+    return FloatKernel(
+        kernel, image="scalar", weights="scalar", depth="scalar", out_image="vec8", out_depth="vec8"
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any"}, grain=_row_grain)
+
+
+def _make_downsample_lanes(C: int):
+    """:func:`_make_downsample`'s kernel, 8 output pixels per step (Wo % 8 == 0); the outputs are
+    vec8 views as in :func:`_make_level0_lanes`."""
+
+    def downsample_lanes(
+        offset: int,
+        image: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        H: int,
+        W: int,
+        Ho: int,
+        Wo: int,
+        tolerance: float,
+        has_depth: int,
+        out_image: wp.array(dtype=Any),
+        out_depth: wp.array(dtype=Any),
+    ):
+        row = wp.tid() + offset  # flat (b, y') of the output
+        b = row // Ho
+        yo = row - b * Ho
+        HW = H * W
+        HWo = Ho * Wo
+        quarter = image.dtype(0.25)
+        for c in range(C):
+            src = (b * C + c) * HW + 2 * yo * W
+            dst = ((b * C + c) * HWo + yo * Wo) // 8
+            for k8 in range(Wo // 8):
+                p = src + 16 * k8
+                out_image[dst + k8] = (
+                    _strided8(image, p) + _strided8(image, p + 1) + _strided8(image, p + W)
+                    + _strided8(image, p + W + 1)
+                ) * quarter
+        if has_depth != 0:
+            src = b * HW + 2 * yo * W
+            dst = (b * HWo + yo * Wo) // 8
+            tol = image.dtype(tolerance)
+            for k8 in range(Wo // 8):
+                p = src + 16 * k8
+                out_depth[dst + k8] = _block_depth8(
+                    _strided8(depth, p), _strided8(depth, p + 1), _strided8(depth, p + W), _strided8(depth, p + W + 1),
+                    tol,
+                )
+
+    kernel = wp.kernel(downsample_lanes, module="unique", enable_backward=False)
+    return FloatKernel(kernel, image="scalar", depth="scalar", out_image="vec8", out_depth="vec8").set_parallel(
+        scopes={"image": "any", "depth": "any"}, grain=_row_grain
+    )
+
+
 def _row_grain(args: dict) -> int:
     """Fewest rows worth a chunk of a threaded launch: ~32k pixels."""
     return max(1, 32768 // max(1, int(args.get("Wo", args["W"]))))
@@ -192,6 +351,26 @@ def downsample_kernel(C: int) -> FloatKernel:
         k = _KERNELS.get(("down", C))
         if k is None:
             k = _KERNELS["down", C] = _make_downsample(C)
+        return k
+
+
+def level0_lanes_kernel(C: int) -> FloatKernel:
+    """The (cached) 8-lane base-level kernel for C input channels and one output channel (W % 8
+    == 0); arguments as :func:`level0_kernel`'s, the outputs as vec8 views."""
+    with _KERNELS_LOCK:
+        k = _KERNELS.get(("level0_lanes", C))
+        if k is None:
+            k = _KERNELS["level0_lanes", C] = _make_level0_lanes(C)
+        return k
+
+
+def downsample_lanes_kernel(C: int) -> FloatKernel:
+    """The (cached) 8-lane downsampling kernel for C channels (Wo % 8 == 0); arguments as
+    :func:`downsample_kernel`'s, the outputs as vec8 views."""
+    with _KERNELS_LOCK:
+        k = _KERNELS.get(("down_lanes", C))
+        if k is None:
+            k = _KERNELS["down_lanes", C] = _make_downsample_lanes(C)
         return k
 
 

@@ -103,6 +103,35 @@ def test_prepared_pyramid_matches_numpy():
         img, d = _numpy_downsample(img, d, pyramid.DEPTH_TOLERANCE)
 
 
+@pytest.mark.parametrize("C", [1, 3])
+def test_prepared_pyramid_lanes_kernels_equal_scalar_kernels(C):
+    # prepare() uses the 8-lane pyramid kernels where rows are whole vectors (320 -> ... -> 40
+    # pixels wide; 20 and 10 wide: the scalar kernels): bitwise the public scalar kernels' levels,
+    # non-finite intensities and depths included, with and without depth
+    rng = np.random.default_rng(4)
+    image = rng.random((C, 240, 320)).astype(np.float32)
+    image[0, 5, 7], image[-1, 9, 9], image[0, 100, 317] = np.nan, np.inf, -np.inf
+    depth = _depth_with_holes(rng, 1, 240, 320)[0].astype(np.float32)
+    aligner = DirectAligner(np.array([[240.0, 0, 159.5], [0, 240.0, 119.5], [0, 0, 1]]))
+    img = wp.empty((1, 1, 240, 320), dtype=wp.float32, device="cpu")
+    dep = wp.empty((1, 1, 240, 320), dtype=wp.float32, device="cpu")
+    pyramid.prepare_level0(wp.array(image[None], device="cpu"), aligner._channel_weights(C),
+                           wp.array(depth[None], device="cpu"), img, dep)
+    want = [(img.numpy(), dep.numpy())]
+    for _ in range(5):
+        h, w = img.shape[2] // 2, img.shape[3] // 2
+        out_i, out_d = (wp.empty((1, 1, h, w), dtype=wp.float32, device="cpu") for _ in range(2))
+        pyramid.downsample(img, dep, out_i, out_d, tolerance=aligner.depth_tolerance)
+        img, dep = out_i, out_d
+        want.append((img.numpy(), dep.numpy()))
+    frame, no_depth = aligner.prepare(image, depth), aligner.prepare(image)
+    assert len(frame.images) == len(want) == 6
+    for level, (want_i, want_d) in enumerate(want):
+        np.testing.assert_array_equal(frame.images[level].numpy(), want_i)
+        np.testing.assert_array_equal(frame.depths[level].numpy(), want_d)
+        np.testing.assert_array_equal(no_depth.images[level].numpy(), want_i)
+
+
 def test_pyramid_errors():
     img = wp.zeros((1, 1, 8, 8), dtype=wp.float32, device="cpu")
     with pytest.raises(ValueError, match="downsample: argument 'out_image'"):
