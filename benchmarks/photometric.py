@@ -141,6 +141,13 @@ def one_thread_table(n: int) -> dict:
             d.grad = p.grad = None
             G.photometric_error(ref, d, image, p, K)[0].sum().backward()
 
+        def fb_reference():  # the same through the reference row kernel and its Warp adjoint
+            from gvnn_warp import _photometric_ops as ops
+
+            d.grad = p.grad = None
+            rows = ops.photometric_rows(ref, d, image, p, K, C, H, W, 5, 1.0, 1e-3)
+            ops.photometric_mean(*rows, H, C)[0].sum().backward()
+
         def gs():
             grid.grad = None
             F.grid_sample(image, grid, align_corners=True).sum().backward()
@@ -150,6 +157,7 @@ def one_thread_table(n: int) -> dict:
             (kornia.geometry.depth.warp_frame_depth(image, d, p44, K) - ref).abs().mean().backward()
 
         for name, fn in (("photometric_error forward", fwd), ("photometric_error fwd+bwd (grads depth, pose)", fb),
+                         ("... the same via the Warp adjoint of the reference row kernel", fb_reference),
                          ("grid_sample fwd+bwd (grad grid)", gs), ("kornia warp_frame_depth + L1 + mean fwd+bwd", kor)):
             rows[name] = 1e6 * cpu_ms(fn, n) / px
         for H, W in ((240, 320), (480, 640)):
@@ -162,7 +170,7 @@ def one_thread_table(n: int) -> dict:
             scalar = wp.zeros(H * pk.ROW_STRIDE, dtype=wp.float64)
             cmd = wp.launch(pk.normal_equations_rows[0][wp.float32], dim=H, record_cmd=True, inputs=[
                 0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), wp.zeros(0, dtype=wp.float32),
-                arrays[3], arrays[4], 1, H, W, 0, 0.1, 1e-3, 0.0, scalar])
+                arrays[3], arrays[4], 1, H, W, 0, 0.1, 1e-3, 0.0, 0.0, scalar])
             rows[f"normal_equations {W}x{H} (plain kernel, launch alone)"] = 1e6 * cpu_ms(cmd.launch, n) / (H * W)
         return rows
     finally:

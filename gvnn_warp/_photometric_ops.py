@@ -308,6 +308,16 @@ def _(grad_error, count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live
             enumerate((ref_image, ref_depth, live_image, pose, K))]
 
 
+
+
+def _no_second_order(ctx, *grads):
+    raise NotImplementedError(
+        "gvnn_warp.photometric_error: second-order gradients are not supported (its gradient is computed in the "
+        "forward pass and only scaled by the backward, which has no gradient of its own); see docs/conventions.md"
+    )
+
+
+photometric_error_backward.register_autograd(_no_second_order, setup_context=lambda ctx, inputs, output: None)
 _skip_lazy_dynamo_import(photometric_error_backward)
 
 

@@ -1,9 +1,10 @@
 """The fused photometric objective of direct RGB-D alignment, as torch functions (Warp kernels).
 
 One pass warps the reference frame into the live image, compares, weights and reduces: nothing
-per pixel is allocated. :func:`photometric_error` is differentiable (Warp's adjoints, to both
-images, the reference depth, the pose and K); :func:`photometric_normal_equations` gives the
-Gauss-Newton system of the same residuals for a pose update. Conventions (pixel centres, K,
+per pixel is allocated. :func:`photometric_error` is differentiable (to both images, the
+reference depth, the pose and K; the gradient is computed in the same pass);
+:func:`photometric_normal_equations` gives the Gauss-Newton system of the same residuals for a
+pose update. Conventions (pixel centres, K,
 minimum depth, the ``valid`` rule of ``warp_frame_depth``): ``docs/conventions.md``. The same
 functions on ``wp.array`` s, without torch: ``gvnn_warp.kernels.photometric_pipeline``.
 """
@@ -20,6 +21,7 @@ from .functional import _Lens, _pose34, _rays
 from .kernels.camera import MIN_DEPTH
 from .kernels.photometric import KINDS as _CODES
 from .kernels.photometric_pipeline import ERROR_KINDS, NORMAL_EQUATIONS_KINDS
+from .kernels.sampler import MAX_LANES_PLANE as _MAX_LANES_PLANE
 
 __all__ = [
     "ERROR_KINDS",
@@ -59,9 +61,14 @@ def photometric_error(
         error = mean over those pixels and all channels of rho(r_c),   count = number of pixels,
 
     i.e. ``(robust_rho(warped - ref) * valid).sum() / (C * valid.sum())`` with ``warped, valid =
-    warp_frame_depth(live_image, ref_depth, pose, K)``, computed in one fused pass (and one
-    adjoint pass) without any per-pixel tensor. Residuals that are not finite (NaN or inf
-    intensities) count 0.
+    warp_frame_depth(live_image, ref_depth, pose, K)``, computed in one fused pass without any
+    per-pixel tensor. Residuals that are not finite (NaN or inf intensities) count 0.
+
+    Since the error is one scalar per batch item, the same pass also computes its exact gradient
+    for the inputs that require grad (rho'(r) times the bilinear interpolant's derivative at the
+    sample point, times the projection's and the moved point's Jacobians), and the backward pass
+    only scales it by the incoming gradient (no replay, no adjoint pass); the live image's
+    gradient (a scatter) is the Warp adjoint of the row kernel.
 
     Args:
         ref_image: (B, C, H, W) reference intensities (e.g. in [0, 1]).
@@ -79,9 +86,9 @@ def photometric_error(
         min_depth: metres.
 
     Returns:
-        error: (B,), 0 where count is 0. Gradients (Warp's adjoints) to ref_image, ref_depth,
-            live_image, pose and K; only those autograd asks for are computed. At r = 0, "l1"
-            has gradient 0.
+        error: (B,), 0 where count is 0. Gradients to ref_image, ref_depth, live_image, pose
+            and K; only those of the inputs that require grad are computed (not
+            differentiable twice). At r = 0, "l1" has gradient 0.
         count: (B,) number of pixels used, as a float tensor (not differentiable).
     """
     chk = ArgCheck("photometric_error")
@@ -89,8 +96,8 @@ def photometric_error(
     chk.option("robust", robust, ERROR_KINDS)
     scale = chk.positive("scale", scale, ref_image.dtype)
     min_depth = chk.positive("min_depth", min_depth)
+    _, C, H, W = ref_image.shape
     if cam.model != 0:  # a distorted lens (see warp_frame_depth): its row kernel and Warp adjoint
-        _, C, H, W = ref_image.shape
         rays, stride = _rays(cam, H, W)
         row_sum, row_count = _ops.photometric_rows_lens(
             ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K, cam.dist, rays,
@@ -99,6 +106,10 @@ def photometric_error(
         error, count = _ops.photometric_mean(row_sum, row_count, H, C)
         return error, count.detach()
     inputs = (ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K)
+    if H * W > _MAX_LANES_PLANE:  # the 8-lane kernel's float tap addresses would not be exact
+        row_sum, row_count = _ops.photometric_rows(*inputs, C, H, W, _CODES[robust], scale, min_depth)
+        error, count = _ops.photometric_mean(row_sum, row_count, H, C)
+        return error, count.detach()
     # the gradients autograd may ask for are computed in the forward pass (bit k: input k)
     needs = sum(1 << k for k, t in enumerate(inputs) if t.requires_grad) if torch.is_grad_enabled() else 0
     error, count, *_ = _ops.photometric_error(*inputs, _CODES[robust], scale, min_depth, needs)

@@ -357,17 +357,20 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
     )
 
 
-# channel counts and penalties compiled in (others run the generic kernel of their variant)
+# channel counts and penalties compiled in (others run the generic kernel of their variant; each
+# combination is a module of its own, compiled on first use)
 STATIC_CHANNELS = (1, 3)
+STATIC_KINDS = (ph.KINDS["l1"],)  # the default
 _ERROR_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
 _ERROR_LOCK = threading.Lock()
 
 
 def error_lanes(grad: int, kind: int, C: int) -> FloatKernel:
     """The row kernel for value only (``grad`` 0) or value and gradient (1), compiled for the
-    penalty ``kind`` and, if in :data:`STATIC_CHANNELS`, the channel count ``C`` (constants fold
-    the branches away, which the vectorised code needs to be fast); made on first use."""
-    key = (int(grad), int(kind), C if C in STATIC_CHANNELS else 0)
+    penalty ``kind`` if in :data:`STATIC_KINDS` and the channel count ``C`` if in
+    :data:`STATIC_CHANNELS` (constants fold branches away, which the vectorised code needs to be
+    fast), else reading them at run time; made on first use."""
+    key = (int(grad), int(kind) if kind in STATIC_KINDS else -1, C if C in STATIC_CHANNELS else 0)
     with _ERROR_LOCK:  # one kernel per key, also when threads ask at once
         if key not in _ERROR_KERNELS:
             _ERROR_KERNELS[key] = _make_error_lanes(*key)

@@ -457,6 +457,7 @@ def test_error_deterministic_across_threads_and_batch():
         return outs[0]
 
     run(1, 1, 60, 900)  # one batch item: rows and adjoint reductions cut into pieces
+    run(2, 3, 40, 300)  # the compiled-in 3-channel kernel
     whole = run(3, 2, 24, 400)
     ref, depth, live, pose, K, _ = scene(B=3, C=2, H=24, W=400, seed=8)
     args = [t[1:2].clone().requires_grad_() for t in (ref, depth, live, pose)] + [K.clone().requires_grad_()]
@@ -481,6 +482,80 @@ def test_error_only_wanted_gradients_and_layer():
                                                                                    robust="cauchy", scale=0.3)[0],
                                rtol=0, atol=0)
     assert "cauchy" in repr(loss)
+
+
+def reference_error(ref, depth, live, pose, K, kind, c):
+    """photometric_error through the reference ops: the row kernel and the mean, differentiated
+    by their Warp adjoints (the fast path computes its gradient analytically in the forward pass)."""
+    from gvnn_warp.kernels.photometric import KINDS as CODES
+
+    from gvnn_warp import _photometric_ops as ops
+
+    _, C, H, W = ref.shape
+    row_sum, row_count = ops.photometric_rows(ref, depth, live, pose, K, C, H, W, CODES[kind], c, MIN_DEPTH)
+    return ops.photometric_mean(row_sum, row_count, H, C)
+
+
+@pytest.mark.parametrize("kind, c", KINDS)
+@pytest.mark.parametrize("C", [1, 2, 3])  # compiled-in channel counts (1, 3) and the run-time loop (2)
+def test_error_fast_gradients_equal_warp_adjoint(kind, c, C):
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=3, C=C, H=9, W=21, seed=20 + C)  # W: two full blocks of 8 and a tail
+    live[1, 0, 4, 6] = float("nan")  # a non-finite live pixel: its residuals are skipped
+    pose[2, :, 3] += torch.tensor([0.3, 0.0, 0.0], dtype=pose.dtype)  # many pixels move outside
+    weights = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
+    results = []
+    for fn in (reference_error, lambda *a: photometric_error(*a[:5], robust=a[5], scale=a[6])):
+        args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(3, 3, 3).contiguous())]
+        err, n = fn(*args, kind, c)
+        (err * weights).sum().backward()
+        results.append([err.detach(), n.detach()] + [a.grad for a in args])
+    want, got = results
+    assert torch.equal(got[1], want[1]) and 0 < want[1].min() and want[1].max() < 9 * 21
+    for g, w in zip(got, want):
+        assert torch.isfinite(g).all()
+        torch.testing.assert_close(g, w, rtol=1e-12, atol=1e-12 * float(w.abs().max()))
+
+
+def test_error_fast_path_float32_and_second_order():
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=3, H=12, W=16, seed=30, holes=False)
+    args64 = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(2, 3, 3).contiguous())]
+    args32 = [t.detach().float().requires_grad_() for t in args64]
+    for args in (args64, args32):
+        err, _ = photometric_error(*args, robust="huber", scale=0.1)
+        err.sum().backward(retain_graph=True)
+    for a, b in zip(args32, args64):
+        torch.testing.assert_close(a.grad.double(), b.grad, rtol=2e-3, atol=2e-4 * float(b.grad.abs().max()))
+    # a second backward through the retained graph adds the same gradient again
+    first = [a.grad.clone() for a in args64]
+    err.sum().backward()
+    for a, f in zip(args32, first):
+        assert torch.allclose(a.grad.double(), 2 * f, rtol=2e-3, atol=1e-4 * float(f.abs().max()))
+    err, _ = photometric_error(*args64, robust="l1")
+    (g,) = torch.autograd.grad(err.sum(), args64[1], create_graph=True)
+    with pytest.raises(NotImplementedError, match="photometric_error: second-order gradients"):
+        g.sum().backward()
+
+
+def test_error_large_planes_take_the_reference_path(monkeypatch):
+    # planes beyond 2^24 pixels (float tap addresses of the 8-lane kernel no longer exact) run the
+    # reference kernel and its Warp adjoint: same values and gradients to rounding
+    from gvnn_warp import photometric as P
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=2, H=6, W=9, seed=31)
+    outs = []
+    for limit in (P._MAX_LANES_PLANE, 6 * 9 - 1):
+        monkeypatch.setattr(P, "_MAX_LANES_PLANE", limit)
+        args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K)]
+        err, n = P.photometric_error(*args, robust="cauchy", scale=0.2)
+        err.sum().backward()
+        outs.append([err.detach(), n] + [a.grad for a in args])
+    assert outs[1][1].grad_fn is None and not outs[1][1].requires_grad
+    for a, b in zip(*outs):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)
 
 
 def test_error_pure_warp_tape_matches_torch():
@@ -609,5 +684,7 @@ def test_opcheck_photometric_ops():
     torch.library.opcheck(ops.photometric_rows, (*args, 2, 5, 6, CODES["huber"], 0.1, MIN_DEPTH))
     row_sum, row_count = ops.photometric_rows(*(a.detach() for a in args), 2, 5, 6, CODES["huber"], 0.1, MIN_DEPTH)
     torch.library.opcheck(ops.photometric_mean, (row_sum.requires_grad_(), row_count, 5, 2))
+    torch.library.opcheck(ops.photometric_error, (*args, CODES["huber"], 0.1, MIN_DEPTH, 31))
+    torch.library.opcheck(ops.photometric_error, (*(a.detach() for a in args), CODES["l1"], 1.0, MIN_DEPTH, 0))
     torch.library.opcheck(ops.photometric_normal_equations,
                           (ref, depth, live, live_depth, pose, Kb, CODES["tukey"], 0.4, MIN_DEPTH, 2.0))
