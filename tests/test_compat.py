@@ -52,6 +52,12 @@ def test_warp_array_descriptor():
     assert wcompat.array_length(null) == 0 and wcompat.array_pointer(null) == 0
 
 
+@wp.kernel(module="unique")
+def _scale(offset: int, x: wp.array(dtype=wp.float64), n: int, y: wp.array(dtype=wp.float64)):
+    i = wp.tid() + offset
+    y[i] = x[i] * wp.float64(n)
+
+
 def test_replay_function_runs_the_recorded_launch():
     # the recorded launch's arguments packed once: same results as Launch.launch(), reads the
     # arrays' current contents, a scalar argument replaced through set_param_at_index after a rebuild
@@ -59,8 +65,7 @@ def test_replay_function_runs_the_recorded_launch():
 
     x = wp.array(np.arange(8.0), dtype=wp.float64, device="cpu")
     y = wp.zeros(8, dtype=wp.float64, device="cpu")
-    k = L.FloatKernel(_probe, x="scalar", y="scalar")[wp.float64]
-    cmd = wp.launch(k, dim=6, inputs=[1, x, 3], outputs=[y], device="cpu", record_cmd=True)
+    cmd = wp.launch(_scale, dim=6, inputs=[1, x, 3], outputs=[y], device="cpu", record_cmd=True)
     run = wcompat.replay_function(cmd)
     assert run is not cmd.launch  # the fast path, not the fallback
     run()
