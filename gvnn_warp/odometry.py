@@ -70,6 +70,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from .kernels import _compat
 from .kernels import launch as _launch
 from .kernels import lens as _lens
 from .kernels import lm as _lm
@@ -646,8 +647,9 @@ class _State:
                 outputs=[self.T, self.Tn, self.pose, self.H, self.g, self.mean, self.count, self.lam, self.step,
                          self.trials, self.active, self.ok],
                 device="cpu", record_cmd=True,
-            ).launch)
+            ))
         # the arrays stay referenced with their recorded launches: their ids (the cache key) and
         # addresses cannot be reused by other arrays while the entry exists
-        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne)
-        return tuple(cmds), lm[0], lm[1], keep
+        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne, lm)
+        lm_first, lm_next = (_compat.replay_function(c) for c in lm)
+        return tuple(cmds), lm_first, lm_next, keep
