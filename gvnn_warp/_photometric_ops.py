@@ -313,7 +313,7 @@ def _(grad_error, count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live
 def _no_second_order(ctx, *grads):
     raise NotImplementedError(
         "gvnn_warp.photometric_error: second-order gradients are not supported (its gradient is computed in the "
-        "forward pass and only scaled by the backward, which has no gradient of its own); see docs/conventions.md"
+        "forward pass and only scaled by the backward, which has no gradient of its own)"
     )
 
 

@@ -255,7 +255,9 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
             x = ph.iota8(x0, one)
             d = load8(ref_depth, row, x0, last)
             # lanes past the row's end and invalid depths are masked; their depth is replaced by 1
-            mdep = wp.cw_mul(ph.open_mask8(d, zmin, big), ph.closed_mask8(x, zero, fW - one))
+            mdep = ph.open_mask8(d, zmin, big)
+            if x0 + 8 > W:  # the row's last, partial block
+                mdep = wp.cw_mul(mdep, ph.closed_mask8(x, zero, fW - one))
             dd = ph.select8(mdep, d, ones)
             q0, q1, q2, inv_z, xn, yn, u, v = project8(a0, ax, t, Kb, x, dd, zmin)
             ok = wp.cw_mul(
