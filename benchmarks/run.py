@@ -97,6 +97,32 @@ def wfd_cases(B, C, H, W, forward_only=False, peers=("grid_sample", "kornia"), i
     return cases
 
 
+def lens_cases(B, C, H, W) -> list[Case]:
+    """warp_frame_depth fwd+bwd (grads: image, depth, pose) with the pinhole K, a radtan and a fisheye
+    camera shared by the batch (their rays cached, as for any fixed camera), and the radtan camera
+    with its rays recomputed in every call (the cache emptied: a camera that changes every call)."""
+    from gvnn_warp import functional as Fn
+    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
+
+    image, depth, pose, _, K = wfd_scene(B, C, H, W)
+    K0 = K[0].clone()
+    radtan = RadTanCamera(K0, torch.tensor([0.2624, -0.9531, -0.0054, 0.0026, 1.1633]))
+    fisheye = FisheyeCamera(K0, torch.tensor([0.08, -0.02, 0.004, -0.001]))
+    ours = leaves(image, depth, pose)
+
+    def run(camera, clear=False):
+        if clear:
+            Fn._RAYS_CACHE.clear()
+        G.warp_frame_depth(*ours, camera)[0].sum().backward()
+
+    return [
+        Case("pinhole", lambda: run(K0), clear_grads(ours)),
+        Case("radtan", lambda: run(radtan), clear_grads(ours)),
+        Case("fisheye", lambda: run(fisheye), clear_grads(ours)),
+        Case("radtan_rays_each_call", lambda: run(radtan, True), clear_grads(ours)),
+    ]
+
+
 def bilinear_cases(B, C, H, W, grid_kind="affine") -> list[Case]:
     g = torch.Generator().manual_seed(3)
     image = torch.rand(B, C, H, W, generator=g)
@@ -146,6 +172,9 @@ TARGETS = {
     4: "peak memory of warp_frame_depth forward+backward relative to its inputs, outputs and gradients",
     5: "start-up: a new process importing gvnn_warp and making its first warp_frame_depth call",
     6: "a tiny problem (B=1, C=1, 32x32) where the per-call cost dominates, against kornia",
+    7: "warp_frame_depth through a distorted camera (gvnn_warp.cameras: TUM freiburg1's radial-tangential "
+       "coefficients; a fisheye) against the same call with the pinhole K, forward+backward, B=8 C=3 240x320, "
+       "gradients for image, depth and pose (issue 19)",
 }
 
 
@@ -195,6 +224,12 @@ def targets(args, R: int) -> list[dict]:
 
     res = interleaved(wfd_cases(1, 1, 32, 32, peers=("kornia",)), max(R, 25), warmup=3)
     row(6, "warp_frame_depth fwd+bwd B=1 C=1 32x32 vs kornia", res["ours"], "kornia", res["kornia"], 1.0)
+
+    res = interleaved(lens_cases(B, C, H, W), R)
+    row(7, "warp_frame_depth fwd+bwd, radtan camera vs pinhole K", res["radtan"], "pinhole", res["pinhole"], 1.3)
+    row(7, "warp_frame_depth fwd+bwd, fisheye camera vs pinhole K", res["fisheye"], "pinhole", res["pinhole"], 1.3)
+    row(7, "warp_frame_depth fwd+bwd, radtan camera, rays recomputed every call, vs pinhole K",
+        res["radtan_rays_each_call"], "pinhole", res["pinhole"], note="Newton's method for every pixel's ray")
     return rows
 
 

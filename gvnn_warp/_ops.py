@@ -112,6 +112,26 @@ warp_frame_depth = warp_op(
 )
 
 
+# K (Bc, 3, 3), dist (Bc, 8) -> rays (Bc*H*W, 3): the undistorted ray (xn, yn, w) of every pixel
+pixel_rays = warp_op(
+    "pixel_rays", sampling_kernels.pixel_rays, ["K", "dist"],
+    [Param("H", "int"), Param("W", "int"), Param("model", "int")],
+    [Output("rays", "vec3", lambda K, d, H, W, m: (K.shape[0] * H * W, 3))],
+    lambda K, d, H, W, m: K.shape[0] * H * W,
+)
+# warp_frame_depth through a lens model: + dist (B, 8), rays (Bc*H*W, 3) (Bc = B, or 1 with ray_stride 0)
+warp_frame_depth_lens = warp_op(
+    "warp_frame_depth_lens", sampling_kernels.warp_frame_depth_lens, ["image", "depth", "pose", "K", "dist", "rays"],
+    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"),
+     Param("padding", "int"), Param("model", "int"), Param("ray_stride", "int")],
+    [
+        Output("out", "scalar", lambda img, *_: tuple(img.shape)),
+        Output("valid", "bool", lambda img, d, *_: tuple(d.shape), differentiable=False),
+    ],
+    lambda img, d, *_: d.shape[0] * d.shape[2],  # one thread per image row: B * H
+)
+
+
 def _lanes_kernel(C, H, W, hw, align_corners, padding):
     if not sampling_kernels.fits_lanes(hw, H, W):
         raise ValueError(f"bilinear_sample_lanes: needs hw % 8 == 0 and H*W <= 2^24, got hw={hw}, H*W={H * W}")
@@ -153,4 +173,6 @@ PUBLIC = {
     "bilinear_sample": ("bilinear_sample", "BilinearSampler"),
     "bilinear_sample_lanes": ("bilinear_sample", "BilinearSampler"),  # its 8-lane forward fast path
     "warp_frame_depth": ("warp_frame_depth", "SpatialTransformer3D"),
+    "warp_frame_depth_lens": ("warp_frame_depth", "SpatialTransformer3D"),  # with a distorted camera
+    "pixel_rays": ("warp_frame_depth", "SpatialTransformer3D"),  # its rays through a distorted camera
 }

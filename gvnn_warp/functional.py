@@ -60,6 +60,51 @@ def _intrinsics(chk: ArgCheck, K: Tensor) -> Tensor:
     return (K.expand(chk.dim("B"), 3, 3) if K.dim() == 2 else K).contiguous()
 
 
+class _Lens:
+    """A camera as the fused kernels take it: ``model`` id, ``K`` (B, 3, 3), ``dist`` (B, 8) (see
+    ``gvnn_warp.kernels.lens``), and the camera's own ``K_cam`` (Bc, 3, 3), ``dist_cam`` (Bc, 8),
+    Bc = 1 when one camera serves the whole batch (its rays are then computed once)."""
+
+    def __init__(self, chk: ArgCheck, camera):
+        if isinstance(camera, Tensor):  # the pinhole K: nothing else to make (the calls stay as cheap)
+            self.model, self.K, self.dist, self.K_cam, self.dist_cam = 0, _intrinsics(chk, camera), None, None, None
+            return
+        self.model, self.K, self.dist = camera_args(chk, camera)
+        shared = not isinstance(camera, Camera) or camera.batch_size is None
+        self.K_cam = self.K[:1] if shared else self.K
+        self.dist_cam = self.dist[:1] if shared else self.dist
+
+    def detached(self) -> _Lens:
+        """The same camera with its tensors detached (for ops that are not differentiable)."""
+        out = object.__new__(_Lens)
+        out.model = self.model
+        out.K, out.dist, out.K_cam, out.dist_cam = (t.detach() for t in (self.K, self.dist, self.K_cam, self.dist_cam))
+        return out
+
+
+_RAYS_CACHE: dict = {}  # (model, dtype, H, W, K bytes, dist bytes) -> rays, for cameras without gradients
+_RAYS_CACHE_SIZE = 8
+
+
+def _rays(cam: _Lens, H: int, W: int) -> tuple[Tensor, int]:
+    """The undistorted rays of an H x W image's pixels (kernels.lens_rays) and the ray stride of
+    the fused kernels (H * W per batch item, or 0: one camera shared by the batch). Cached by value
+    for cameras whose K and dist need no gradient (the common, fixed camera): Newton's method then
+    runs once per camera and image size."""
+    Kc, dc = cam.K_cam, cam.dist_cam
+    stride = 0 if Kc.shape[0] == 1 else H * W
+    if Kc.requires_grad or dc.requires_grad or torch.compiler.is_compiling():
+        return _ops.pixel_rays(Kc, dc, H, W, cam.model), stride
+    key = (cam.model, Kc.dtype, H, W, Kc.numpy().tobytes(), dc.numpy().tobytes())
+    rays = _RAYS_CACHE.pop(key, None)
+    if rays is None:
+        rays = _ops.pixel_rays(Kc, dc, H, W, cam.model)
+        if len(_RAYS_CACHE) >= _RAYS_CACHE_SIZE:
+            _RAYS_CACHE.pop(next(iter(_RAYS_CACHE)))
+    _RAYS_CACHE[key] = rays
+    return rays, stride
+
+
 # ----------------------------------------------------------------------------- rotations
 
 
@@ -316,7 +361,7 @@ def warp_frame_depth(
     image: Tensor,
     depth: Tensor,
     pose: Tensor,
-    K: Tensor,
+    K: Tensor | Camera,
     *,
     padding_mode: str = "zeros",
     min_depth: float = MIN_DEPTH,
@@ -332,7 +377,14 @@ def warp_frame_depth(
         image: (B, C, H, W) source image.
         depth: (B, 1, H, W) depth (z, metres) of the target frame.
         pose: (B, 3, 4) or (B, 4, 4) target-to-source transform (a 4x4's last row ignored).
-        K: (B, 3, 3) or (3, 3) intrinsics, shared by both views.
+        K: (B, 3, 3) or (3, 3) intrinsics, shared by both views; or a camera from
+            ``gvnn_warp.cameras`` (both views taken by it): then u = (x, y) is a pixel of the
+            distorted image, its ray is undistort(K^-1 [x, y, 1]) and the moved point is
+            projected through the model (``camera.project``); gradients reach K and every
+            distortion coefficient too. A pixel without a ray (outside the model's domain) counts
+            as an invalid depth, a moved point outside the domain as one behind the camera. The
+            rays are computed once per call, or once per camera value and image size when the
+            camera needs no gradient (a small cache). ``PinholeCamera(K)`` is exactly ``K``.
         padding_mode: "zeros" or "border", how samples outside the image read.
         min_depth: depths and moved points must have z > min_depth (metres) to be used.
 
@@ -352,10 +404,16 @@ def warp_frame_depth(
     chk.tensor("image", image, "B C H W")
     chk.tensor("depth", depth, "B 1 H W")
     pose34 = _pose34(chk, "pose", pose, "B 3|4 4")
-    Kb = _intrinsics(chk, K)
+    cam = _Lens(chk, K)
     pad = _PADDING[chk.option("padding_mode", padding_mode, tuple(_PADDING))]
     min_depth = chk.positive("min_depth", min_depth)
     _, C, H, W = image.shape
-    return _ops.warp_frame_depth(
-        image.contiguous(), depth.contiguous(), pose34.contiguous(), Kb, C, H, W, min_depth, pad
+    if cam.model == 0:  # the pinhole: its own kernel (the row-linear fast path)
+        return _ops.warp_frame_depth(
+            image.contiguous(), depth.contiguous(), pose34.contiguous(), cam.K, C, H, W, min_depth, pad
+        )
+    rays, stride = _rays(cam, H, W)
+    return _ops.warp_frame_depth_lens(
+        image.contiguous(), depth.contiguous(), pose34.contiguous(), cam.K, cam.dist, rays,
+        C, H, W, min_depth, pad, cam.model, stride,
     )

@@ -10,6 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from . import functional as F
+from .cameras import Camera
 
 __all__ = ["SO3", "SE3", "Sim3", "GridGenerator3D", "PinholeProjection", "BilinearSampler", "SpatialTransformer3D"]
 
@@ -36,20 +37,42 @@ class Sim3(nn.Module):
 
 
 class _Intrinsics(nn.Module):
-    """Holds K (3, 3) or (B, 3, 3) as a buffer, or as a learnable parameter.
+    """Holds K (3, 3) or (B, 3, 3) as a buffer, or as a learnable parameter; or a camera from
+    :mod:`gvnn_warp.cameras`, whose K and distortion coefficients ``dist`` become the buffers (or
+    parameters) and which :attr:`camera` rebuilds over them.
 
     K keeps the dtype it is given (a tensor's or NumPy array's; anything else, e.g. a list,
     becomes float32), never torch's default dtype: give it the dtype of the data, or convert the
     layer with ``.to(dtype)``."""
 
-    def __init__(self, K: Tensor, learnable: bool = False):
+    def __init__(self, K, learnable: bool = False):
         super().__init__()
+        self._camera_type = None
+        if isinstance(K, Camera):
+            self._camera_type = type(K)
+            dist = K.dist
+            K = K.K
         typed = isinstance(K, (torch.Tensor, np.ndarray))
         K = (torch.as_tensor(K) if typed else torch.as_tensor(K, dtype=torch.float32)).clone()
         if learnable:
             self.K = nn.Parameter(K)
         else:
             self.register_buffer("K", K)
+        if self._camera_type is not None and dist is not None:
+            dist = dist.detach().clone()
+            if learnable:
+                self.dist = nn.Parameter(dist)
+            else:
+                self.register_buffer("dist", dist)
+
+    @property
+    def camera(self):
+        """What the functions take: the camera over this layer's K (and dist), or K itself."""
+        if self._camera_type is None:
+            return self.K
+        if "dist" in self._parameters or "dist" in self._buffers:
+            return self._camera_type(self.K, self.dist)
+        return self._camera_type(self.K)
 
 
 class GridGenerator3D(_Intrinsics):
@@ -89,11 +112,13 @@ class SpatialTransformer3D(_Intrinsics):
     """The 3D spatial transformer: (image, depth, [omega, t] (B, 6)) -> (warped, valid).
 
     The 6-vector goes through the SE3 layer; the pose maps the depth's frame into the image's.
+    ``K`` is the intrinsics tensor or a camera of :mod:`gvnn_warp.cameras` (a distorted lens);
+    ``learnable_intrinsics=True`` makes K (and the camera's distortion coefficients) parameters.
     """
 
     def __init__(
         self,
-        K: Tensor,
+        K,
         learnable_intrinsics: bool = False,
         padding_mode: str = "zeros",
         min_depth: float = F.MIN_DEPTH,
@@ -104,5 +129,5 @@ class SpatialTransformer3D(_Intrinsics):
 
     def forward(self, image: Tensor, depth: Tensor, xi: Tensor) -> tuple[Tensor, Tensor]:
         return F.warp_frame_depth(
-            image, depth, F.se3_to_matrix(xi), self.K, padding_mode=self.padding_mode, min_depth=self.min_depth
+            image, depth, F.se3_to_matrix(xi), self.camera, padding_mode=self.padding_mode, min_depth=self.min_depth
         )

@@ -70,7 +70,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from .kernels import _compat
 from .kernels import launch as _launch
+from .kernels import lens as _lens
 from .kernels import lm as _lm
 from .kernels import pyramid as _pyramid
 from .kernels.camera import MIN_DEPTH
@@ -91,6 +93,37 @@ _SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per 
 
 def _fail(fn: str, exc: type[Exception], msg: str):
     raise exc(f"gvnn_warp.odometry.{fn}: {msg}")
+
+
+def _lens_camera(fn: str, K, model, dist):
+    """(K (3, 3) float64, model name, packed dist (8,) float64 or None for the pinhole) from K and
+    the ``model`` / ``dist`` arguments, or from a camera of ``gvnn_warp.cameras``."""
+    if hasattr(K, "model") and hasattr(K, "K") and hasattr(K, "dist") and not isinstance(K, np.ndarray):
+        if model is not None or dist is not None:
+            _fail(fn, ValueError, "arguments 'model' and 'dist' must not be given with a camera object")
+        cam = K
+        if cam.K.dim() != 2 or (cam.dist is not None and cam.dist.dim() != 1):
+            _fail(fn, ValueError, "argument 'K' must be an unbatched camera (K (3, 3), dist (n,))")
+        model = {v: k for k, v in _lens.MODEL_IDS.items()}[int(cam.model)]
+        K, dist = cam.K, cam.dist
+    K = _as_numpy(fn, "K", K, (2,)).astype(np.float64)
+    if model is None:
+        model = "pinhole" if dist is None else "radtan"
+    if model not in _lens.MODEL_IDS:
+        _fail(fn, ValueError, f"argument 'model' must be one of {list(_lens.MODEL_IDS)}, got {model!r}")
+    mid = _lens.MODEL_IDS[model]
+    if mid == _lens.PINHOLE:
+        if dist is not None:
+            _fail(fn, ValueError, "argument 'dist' must be None for the pinhole model")
+        return K, model, None
+    n = _lens.N_COEFFS[mid]
+    if isinstance(dist, (list, tuple)):
+        dist = np.asarray(dist, dtype=np.float64)
+    coeffs = None if dist is None else _as_numpy(fn, "dist", dist, (1,)).astype(np.float64)
+    if coeffs is None or coeffs.shape != (n,) or not np.all(np.isfinite(coeffs)):
+        got = None if coeffs is None else coeffs.tolist()
+        _fail(fn, ValueError, f"argument 'dist' must be {n} finite coefficients for the {model} model, got {got}")
+    return K, model, _lens.pack_dist(mid, coeffs)
 
 
 def _is_torch(x) -> bool:
@@ -232,7 +265,16 @@ class DirectAligner:
     "valid_fraction"}]}`` (per-item arrays when batched).
 
     Args:
-        K: (3, 3) intrinsics of the finest level (numpy or torch; float64 internally).
+        K: (3, 3) intrinsics of the finest level (numpy or torch; float64 internally), or an
+            unbatched camera of ``gvnn_warp.cameras`` (``RadTanCamera``, ``FisheyeCamera``,
+            ``PinholeCamera``), which sets ``model`` and ``dist``.
+        model: the lens model of both frames, "pinhole" (default), "radtan" or "fisheye"
+            (docs/conventions.md, "Camera models"); the images are used as they are (distorted):
+            the reference pixels' rays are undistorted once per pyramid level and the moved
+            points projected through the lens, at every level (the coefficients act on
+            normalized coordinates, so they hold for every level's intrinsics).
+        dist: the model's coefficients: (k1, k2, p1, p2, k3) for "radtan" (OpenCV's), (k1, k2,
+            k3, k4) for "fisheye" (cv2.fisheye's); giving them without ``model`` means "radtan".
         levels: pyramid levels (1 = no pyramid); fewer are used if a level would have a side
             below 4 pixels. None (default): as many as keep the coarsest level's shorter side at
             6 pixels or more (6 levels at 320x240, 7 at 640x480), which gives the widest basin.
@@ -290,9 +332,11 @@ class DirectAligner:
         lm_down: float = 0.25,
         min_valid_fraction: float = 0.05,
         depth_tolerance: float = _pyramid.DEPTH_TOLERANCE,
+        model: str | None = None,
+        dist=None,
     ):
         fn = "DirectAligner"
-        K = _as_numpy(fn, "K", K, (2,)).astype(np.float64)
+        K, self.model, self.dist = _lens_camera(fn, K, model, dist)
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             _fail(fn, ValueError, f"argument 'K' must be finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
         self.K = K
@@ -537,6 +581,11 @@ class _State:
         self.K = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
                   for Kl in Ks]
         self.f = [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks]
+        # a distorted lens: its coefficients (the same at every level) and each level's pixel rays
+        self.dist = None if aligner.dist is None else wp.array(
+            np.broadcast_to(aligner.dist.astype(np.float32), (B, 8)).copy(), dtype=_launch.vec8f, device="cpu")
+        self.shapes = list(shapes)
+        self._rays: dict[int, wp.array] = {}
         self.min_count = [max(_MIN_VALID_PIXELS, aligner.min_valid_fraction * h * w) for h, w in shapes]
 
         def arr(dtype, n=B):
@@ -584,6 +633,13 @@ class _State:
         kw = {"robust": al.robust, "scale": al.scale, "depth_weight": al.depth_weight, "min_depth": al.min_depth,
               "occlusion": al.occlusion if level < _OCCLUSION_LEVELS else 0.0,
               "live_depth": live.depths[level] if use_depth else None}
+        if self.dist is not None:  # the level's rays, computed once per aligner state
+            if level not in self._rays:
+                from .kernels.pipeline import pixel_rays
+
+                h, w = self.shapes[level]
+                self._rays[level] = pixel_rays(self.K[level], self.dist, h, w, al.model)
+            kw.update(dist=self.dist, model=al.model, rays=self._rays[level])
         ne = photometric_normal_equations(*args, **kw)
         cmds = getattr(ne, "_cmds", None)
         if not cmds:  # no recorded launches to replay: the public call with out= each time
@@ -599,8 +655,9 @@ class _State:
                 outputs=[self.T, self.Tn, self.pose, self.H, self.g, self.mean, self.count, self.lam, self.step,
                          self.trials, self.active, self.ok],
                 device="cpu", record_cmd=True,
-            ).launch)
+            ))
         # the arrays stay referenced with their recorded launches: their ids (the cache key) and
         # addresses cannot be reused by other arrays while the entry exists
-        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne)
-        return tuple(cmds), lm[0], lm[1], keep
+        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne, lm)
+        lm_first, lm_next = (_compat.replay_function(c) for c in lm)
+        return tuple(cmds), lm_first, lm_next, keep

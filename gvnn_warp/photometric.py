@@ -16,7 +16,8 @@ from torch import Tensor, nn
 
 from . import _photometric_ops as _ops
 from ._checks import ArgCheck
-from .functional import _intrinsics, _pose34
+from .cameras import Camera
+from .functional import _Lens, _pose34, _rays
 from .kernels.camera import MIN_DEPTH
 from .kernels.photometric import KINDS as _CODES
 from .kernels.photometric_pipeline import ERROR_KINDS, NORMAL_EQUATIONS_KINDS
@@ -36,8 +37,7 @@ def _check_frames(chk: ArgCheck, ref_image, ref_depth, live_image, pose, K):
     chk.tensor("ref_depth", ref_depth, "B 1 H W")
     chk.tensor("live_image", live_image, "B C H W")
     pose34 = _pose34(chk, "pose", pose, "B 3|4 4")
-    Kb = _intrinsics(chk, K)
-    return pose34.contiguous(), Kb
+    return pose34.contiguous(), _Lens(chk, K)
 
 
 def photometric_error(
@@ -45,7 +45,7 @@ def photometric_error(
     ref_depth: Tensor,
     live_image: Tensor,
     pose: Tensor,
-    K: Tensor,
+    K: Tensor | Camera,
     *,
     robust: str = "l1",
     scale: float = 1.0,
@@ -76,7 +76,10 @@ def photometric_error(
             depths are skipped (no value, no gradient).
         live_image: (B, C, H, W) live intensities.
         pose: (B, 3, 4) or (B, 4, 4) maps reference-camera points into the live camera.
-        K: (B, 3, 3) or (3, 3) intrinsics, shared by both views.
+        K: (B, 3, 3) or (3, 3) intrinsics, shared by both views, or a camera from
+            ``gvnn_warp.cameras`` (the projection and the rays of the reference pixels through
+            its lens model, as :func:`gvnn_warp.warp_frame_depth` with a camera; gradients reach
+            K and every distortion coefficient).
         robust: "l1" (|r|), "l2" (r^2 / 2), "huber", "cauchy", "geman_mcclure" or "tukey"
             (as :func:`gvnn_warp.robust_rho`, with ``scale``).
         scale: the M-estimator's scale (ignored by "l1" and "l2").
@@ -89,12 +92,20 @@ def photometric_error(
         count: (B,) number of pixels used, as a float tensor (not differentiable).
     """
     chk = ArgCheck("photometric_error")
-    pose34, Kb = _check_frames(chk, ref_image, ref_depth, live_image, pose, K)
+    pose34, cam = _check_frames(chk, ref_image, ref_depth, live_image, pose, K)
     chk.option("robust", robust, ERROR_KINDS)
     scale = chk.positive("scale", scale, ref_image.dtype)
     min_depth = chk.positive("min_depth", min_depth)
-    inputs = (ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, Kb)
     _, C, H, W = ref_image.shape
+    if cam.model != 0:  # a distorted lens (see warp_frame_depth): its row kernel and Warp adjoint
+        rays, stride = _rays(cam, H, W)
+        row_sum, row_count = _ops.photometric_rows_lens(
+            ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K, cam.dist, rays,
+            C, H, W, _CODES[robust], scale, min_depth, cam.model, stride,
+        )
+        error, count = _ops.photometric_mean(row_sum, row_count, H, C)
+        return error, count.detach()
+    inputs = (ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K)
     if H * W > _MAX_LANES_PLANE:  # the 8-lane kernel's float tap addresses would not be exact
         row_sum, row_count = _ops.photometric_rows(*inputs, C, H, W, _CODES[robust], scale, min_depth)
         error, count = _ops.photometric_mean(row_sum, row_count, H, C)
@@ -110,7 +121,7 @@ def photometric_normal_equations(
     ref_depth: Tensor,
     live_image: Tensor,
     pose: Tensor,
-    K: Tensor,
+    K: Tensor | Camera,
     *,
     robust: str = "huber",
     scale: float = 1.0,
@@ -140,7 +151,8 @@ def photometric_normal_equations(
         ref_image, live_image: (B, C, H, W) intensities.
         ref_depth: (B, 1, H, W) reference depth (metres); invalid depths are skipped.
         pose: (B, 3, 4) or (B, 4, 4) maps reference-camera points into the live camera.
-        K: (B, 3, 3) or (3, 3) intrinsics.
+        K: (B, 3, 3) or (3, 3) intrinsics, or a camera from ``gvnn_warp.cameras``: J then
+            includes the lens distortion's Jacobian of the projection.
         robust: "huber" (default), "cauchy", "geman_mcclure", "tukey" or "l2" ("l1" has no IRLS
             weight at r = 0 and is refused).
         scale: the M-estimator's scale (ignored by "l2").
@@ -153,7 +165,7 @@ def photometric_normal_equations(
         differentiable (inputs that require grad are used as data).
     """
     chk = ArgCheck("photometric_normal_equations")
-    pose34, Kb = _check_frames(chk, ref_image, ref_depth, live_image, pose, K)
+    pose34, cam = _check_frames(chk, ref_image, ref_depth, live_image, pose, K)
     if live_depth is not None:
         chk.tensor("live_depth", live_depth, "B 1 H W")
         ld = live_depth.detach().contiguous()
@@ -166,9 +178,14 @@ def photometric_normal_equations(
         0 <= depth_weight < float("inf")
     ):
         chk._fail(ValueError, f"argument 'depth_weight' must be a finite number >= 0, got {depth_weight!r}")
-    return _ops.photometric_normal_equations(
-        ref_image.detach().contiguous(), ref_depth.detach().contiguous(), live_image.detach().contiguous(), ld,
-        pose34.detach(), Kb.detach(), _CODES[robust], scale, min_depth, float(depth_weight),
+    frames = (ref_image.detach().contiguous(), ref_depth.detach().contiguous(), live_image.detach().contiguous(), ld,
+              pose34.detach(), cam.K.detach())
+    if cam.model == 0:
+        return _ops.photometric_normal_equations(*frames, _CODES[robust], scale, min_depth, float(depth_weight))
+    H, W = ref_image.shape[2:]
+    rays, stride = _rays(cam.detached(), H, W)
+    return _ops.photometric_normal_equations_lens(
+        *frames, cam.dist.detach(), rays, _CODES[robust], scale, min_depth, float(depth_weight), cam.model, stride
     )
 
 
@@ -184,7 +201,9 @@ class PhotometricLoss(nn.Module):
         self.scale = chk.positive("scale", scale)
         self.min_depth = chk.positive("min_depth", min_depth)
 
-    def forward(self, ref_image: Tensor, ref_depth: Tensor, live_image: Tensor, pose: Tensor, K: Tensor) -> Tensor:
+    def forward(
+        self, ref_image: Tensor, ref_depth: Tensor, live_image: Tensor, pose: Tensor, K: Tensor | Camera
+    ) -> Tensor:
         return photometric_error(
             ref_image, ref_depth, live_image, pose, K, robust=self.robust, scale=self.scale, min_depth=self.min_depth
         )[0]

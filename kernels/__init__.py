@@ -3,12 +3,14 @@
 - ``@wp.func`` libraries to call from your own kernels: :mod:`.lie` (so3/SE3/Sim3 exp and log,
   quaternions, Euler angles, poses), :mod:`.camera` (unproject, project), :mod:`.lens` (camera
   models: pinhole, radial-tangential, fisheye; project, unproject, distort, undistort),
+  :mod:`.lens_rays` (pixel rays moved and projected through a lens, for fused kernels),
   :mod:`.sampler` (bilinear sampling with zeros/border padding).
 - Thin kernels with float32/float64 overloads: :mod:`.lie_kernels`, :mod:`.camera_kernels`,
   :mod:`.lens_kernels`,
   :mod:`.sampling_kernels` (including the fused 3D spatial transformer).
 - Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`; the fused
-  photometric objective (its Gauss-Newton normal equations): :mod:`.photometric_pipeline`.
+  photometric objective (its Gauss-Newton normal equations): :mod:`.photometric_pipeline`
+  (both take a distorted lens as ``dist=``, ``model=``; its kernels: :mod:`.photometric_lens_kernels`).
 - The launch layer: :mod:`.kinds` (array kinds, float32/float64 overloads, each kernel's declaration
   of how it may be split), :mod:`.threads` (thread count, pools), :mod:`.launch` (the chunk
   planner and ``launch()``; re-exports the public names of the other two).
@@ -23,10 +25,12 @@ from . import (
     launch,
     lens,
     lens_kernels,
+    lens_rays,
     lie,
     lie_kernels,
     photometric,
     photometric_kernels,
+    photometric_lens_kernels,
     photometric_pipeline,
     pipeline,
     sampler,
@@ -62,6 +66,7 @@ __all__ = [
     "launch",
     "lens",
     "lens_kernels",
+    "lens_rays",
     "lie",
     "lie_kernels",
     "masked_squared_error",
@@ -69,6 +74,7 @@ __all__ = [
     "photometric",
     "photometric_error",
     "photometric_kernels",
+    "photometric_lens_kernels",
     "photometric_normal_equations",
     "photometric_pipeline",
     "pipeline",

@@ -296,15 +296,18 @@ class RecordedLaunch:
                       device="cpu", record_cmd=True)
             for k in range(pieces)
         ]
-        self._runs = [c.launch for c in self._cmds]
+        self._runs = [_compat.replay_function(c) for c in self._cmds]
 
     def set_arg(self, index: int, value) -> None:
         """Replace argument ``index`` (0 = the first after ``offset``) in every piece."""
         for c in self._cmds:
             c.set_param_at_index(index + 1, value)
+        self._runs = None  # rebuilt on the next call
 
     def __call__(self) -> None:
         runs = self._runs
+        if runs is None:
+            runs = self._runs = [_compat.replay_function(c) for c in self._cmds]
         if len(runs) == 1:
             runs[0]()
         else:

@@ -20,9 +20,10 @@ import warp as wp
 
 from . import launch as _launch
 from . import photometric_kernels as pk
+from . import photometric_lens_kernels as plk
 from .camera import MIN_DEPTH
 from .photometric import KINDS
-from .pipeline import _expect, _expect_float, _expect_matrices, _type_name
+from .pipeline import _expect, _expect_dist, _expect_float, _expect_matrices, _lens_model, _type_name, pixel_rays
 
 #: penalties of :func:`photometric_normal_equations` (IRLS weights psi(r)/r; "l1" has none at 0)
 NORMAL_EQUATIONS_KINDS = ("l2", "huber", "cauchy", "geman_mcclure", "tukey")
@@ -112,6 +113,9 @@ def photometric_normal_equations(
     min_depth: float = MIN_DEPTH,
     occlusion: float = 0.0,
     out: NormalEquations | None = None,
+    dist: wp.array | None = None,
+    model="pinhole",
+    rays: wp.array | None = None,
 ) -> NormalEquations:
     """The Gauss-Newton system of the photometric residuals, for a left-multiplied pose update.
 
@@ -153,11 +157,20 @@ def photometric_normal_equations(
         out: the result of an earlier call with the same shapes and float type: its buffers are
             reused (and returned), and so are its recorded launches while the arrays passed are
             the same (same data pointers) and the scalar arguments unchanged.
+        dist, model: a distorted lens (``model`` "radtan" or "fisheye", ``dist`` (B,) of
+            length-8 vectors, :func:`.lens.pack_dist`): the reference pixels' rays are undistorted
+            (computed on the call that records the launches, and reused with ``out=`` while the
+            same ``K`` and ``dist`` arrays are passed) and J includes the distortion's Jacobian.
+        rays: with a distorted ``model``, the rays ``pipeline.pixel_rays(K, dist, H, W, model)``
+            computed once by the caller (e.g. per pyramid level of a fixed camera), else None.
 
     Returns:
         :class:`NormalEquations` ``(JtWJ, JtWr, cost, count)``. Not differentiable.
     """
     fn = "photometric_normal_equations"
+    if model != "pinhole" and model != 0:
+        return _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, scale, live_depth,
+                                      depth_weight, min_depth, occlusion, out, dist, _lens_model(fn, model), rays)
     key = None
     if out is not None and isinstance(out, NormalEquations) and out._cmds:
         a = out._args
@@ -261,6 +274,8 @@ def photometric_error(
     robust: str = "l1",
     scale: float = 1.0,
     min_depth: float = MIN_DEPTH,
+    dist: wp.array | None = None,
+    model="pinhole",
 ) -> tuple[wp.array, wp.array]:
     """The mean robust photometric error of the reference frame warped into the live image.
 
@@ -279,6 +294,8 @@ def photometric_error(
         robust: "l1" (|r|, default), "l2" (r^2 / 2), "huber", "cauchy", "geman_mcclure", "tukey"
             (``gvnn_warp.robust_rho`` with ``scale``).
         scale: the M-estimator's scale (ignored by "l1" and "l2").
+        dist, model: a distorted lens (as :func:`photometric_normal_equations`); its rays are
+            computed in the call (one more launch, recorded on a tape: gradients reach dist).
 
     Returns:
         error (B,) and count (B,) (float, integer-valued). ``error`` has a gradient buffer when an
@@ -288,17 +305,86 @@ def photometric_error(
     fn = "photometric_error"
     B, C, H, W, ft = _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth)
     _check_penalty(fn, robust, scale, ERROR_KINDS)
-    grad = any(a.requires_grad for a in (ref_image, ref_depth, live_image, pose, K))
+    m = _lens_model(fn, model)
+    if m != 0:
+        _expect_dist(fn, dist, B, ft)
+    grad = any(a.requires_grad for a in (ref_image, ref_depth, live_image, pose, K)) or (m != 0 and dist.requires_grad)
     row_sum = wp.zeros(B * H, dtype=ft, device="cpu", requires_grad=grad)
     row_count = wp.zeros(B * H, dtype=ft, device="cpu")
     error = wp.zeros(B, dtype=ft, device="cpu", requires_grad=grad)
     count = wp.zeros(B, dtype=ft, device="cpu")
-    wp.launch(
-        pk.photometric_rows[ft], dim=B * H,
-        inputs=[0, ref_image.flatten(), ref_depth.flatten(), live_image.flatten(), pose, K, C, H, W,
-                KINDS[robust], float(scale), float(min_depth)],
-        outputs=[row_sum, row_count], device="cpu",
-    )
+    frames = [0, ref_image.flatten(), ref_depth.flatten(), live_image.flatten(), pose, K]
+    penalty = [C, H, W, KINDS[robust], float(scale), float(min_depth)]
+    if m == 0:
+        kernel, inputs = pk.photometric_rows[ft], [*frames, *penalty]
+    else:
+        rays = pixel_rays(K, dist, H, W, m)
+        kernel, inputs = plk.photometric_rows_lens[ft], [*frames, dist, rays.flatten(), *penalty, m, H * W]
+    wp.launch(kernel, dim=B * H, inputs=inputs, outputs=[row_sum, row_count], device="cpu")
     wp.launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C], outputs=[error, count],
               device="cpu")
     return error, count
+
+
+def _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, scale, live_depth, depth_weight,
+                           min_depth, occlusion, out, dist, m, rays):
+    """:func:`photometric_normal_equations` through a distorted lens ``m`` (see there)."""
+    fn = "photometric_normal_equations"
+    args = (ref_image, ref_depth, live_image, pose, K, live_depth, dist, rays, robust, scale, depth_weight,
+            min_depth, occlusion, m, _launch.get_num_threads())
+    if isinstance(out, NormalEquations) and out._cmds and len(out._args) == len(args) and all(
+        a is b if isinstance(b, wp.array) or b is None else a == b for a, b in zip(out._args, args)
+    ):
+        for cmd in out._cmds:
+            cmd()
+        return out
+    B, C, H, W, ft = _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth)
+    _check_penalty(fn, robust, scale, NORMAL_EQUATIONS_KINDS)
+    _expect_dist(fn, dist, B, ft)
+    _expect(fn, "depth_weight", isinstance(depth_weight, (int, float)) and 0 <= depth_weight < math.inf,
+            "a finite number >= 0", repr(depth_weight))
+    _expect(fn, "occlusion", isinstance(occlusion, (int, float)) and 0 <= occlusion < math.inf,
+            "a finite number >= 0", repr(occlusion))
+    if live_depth is not None:
+        _expect(fn, "live_depth", isinstance(live_depth, wp.array) and tuple(live_depth.shape) == (B, 1, H, W)
+                and live_depth.dtype == ft, f"a ({B}, 1, {H}, {W}) {ft.__name__} wp.array or None",
+                getattr(live_depth, "shape", type(live_depth).__name__))
+    if out is not None:
+        ok = isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft
+        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B} and {ft.__name__}",
+                "another" if isinstance(out, NormalEquations) else type(out).__name__, TypeError)
+    else:
+        out = NormalEquations(
+            wp.zeros((B, 6, 6), dtype=ft, device="cpu"), wp.zeros((B, 6), dtype=ft, device="cpu"),
+            wp.zeros(B, dtype=ft, device="cpu"), wp.zeros(B, dtype=ft, device="cpu"),
+        )
+    if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
+        out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
+    if rays is None:
+        rays = pixel_rays(K, dist, H, W, m)  # computed once per recording (Newton's method per pixel)
+    else:
+        vec3 = wp.types.vector(3, ft)
+        _expect(fn, "rays", isinstance(rays, wp.array) and rays.dtype == vec3 and rays.size == B * H * W
+                and rays.is_contiguous, f"a contiguous wp.array of {B * H * W} {ft.__name__} vec3 (pixel_rays)",
+                getattr(rays, "shape", type(rays).__name__), TypeError)
+    n_pix = B * C * H * W
+    no_depth = wp.zeros(0, dtype=ft, device="cpu")
+    inputs = [
+        _flat(ref_image, n_pix), _flat(ref_depth, B * H * W), _flat(live_image, n_pix),
+        _flat(live_depth, B * H * W) if live_depth is not None else no_depth,
+        pose, K, dist, rays.flatten(), C, H, W, NORMAL_EQUATIONS_KINDS_CODES[robust], float(scale),
+        float(min_depth), float(depth_weight), float(occlusion), m, H * W, out._rows,
+    ]
+    outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
+    variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
+    out._cmds = [
+        _launch.RecordedLaunch(plk.normal_equations_rows_lens[variant][ft], B * H, inputs, work=W,
+                               grain=pk._GRAIN_PIXELS),
+        _launch.RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [out._rows, H, *outputs],
+                               grain=pk._GRAIN_PIXELS),
+    ]
+    out._key = (None, inputs, rays)  # the views and rays stay alive with the recorded launches
+    out._args = args
+    for cmd in out._cmds:
+        cmd()
+    return out

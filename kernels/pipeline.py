@@ -10,8 +10,10 @@ launch the same kernels the torch layers use, so a ``wp.Tape`` records them::
     tape.backward(loss=loss)          # pose.grad, image.grad, depth.grad, K.grad
 
 Shapes: image (B, C, H, W), depth (B, 1, H, W), pose (B,) of 3x4 matrices [R | t] (mapping the
-depth's frame into the image's), K (B,) of 3x3 intrinsics; float32 or float64 throughout.
-Conventions are in ``docs/conventions.md``.
+depth's frame into the image's), K (B,) of 3x3 intrinsics; float32 or float64 throughout. A
+lens model other than the pinhole is given as ``model`` (a name of :data:`.lens.MODEL_IDS` or
+its id) and ``dist`` (B,) of length-8 distortion vectors (:func:`.lens.pack_dist`); gradients
+then reach ``dist.grad`` too. Conventions are in ``docs/conventions.md``.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from typing import Any
 
 import warp as wp
 
-from . import _compat, sampling_kernels
+from . import _compat, lens, sampling_kernels
 from .camera import MIN_DEPTH
 from .sampler import PADDING_MODES as _PADDING
 
@@ -47,19 +49,57 @@ def _expect_matrices(fn: str, name: str, a: wp.array, shape: tuple[int, int], ft
     _expect(fn, name, ok, f"an array of {shape[0]}x{shape[1]} {ft.__name__} matrices", _type_name(a.dtype), TypeError)
 
 
+def _lens_model(fn: str, model) -> int:
+    """A model name or id -> its id (:data:`.lens.MODEL_IDS`)."""
+    ids = lens.MODEL_IDS
+    ok = model in ids or (isinstance(model, int) and not isinstance(model, bool) and model in ids.values())
+    _expect(fn, "model", ok, f"one of {list(ids)} (or its id)", repr(model))
+    return ids[model] if isinstance(model, str) else int(model)
+
+
+def _expect_dist(fn: str, dist, B: int, ft) -> None:
+    _expect(fn, "dist", isinstance(dist, wp.array), "a wp.array of length-8 distortion vectors (lens.pack_dist)",
+            type(dist).__name__, TypeError)
+    _expect(fn, "dist", dist.ndim == 1 and dist.shape[0] == B, f"a ({B},) array of length-8 vectors", dist.shape)
+    ok = _compat.matrix_shape(dist.dtype) == (8,) and _compat.scalar_type(dist.dtype) is ft
+    _expect(fn, "dist", ok, f"an array of length-8 {ft.__name__} vectors", _type_name(dist.dtype), TypeError)
+
+
+def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
+    """The undistorted rays (B, H, W) of vec3 ``(xn, yn, w)`` of every pixel of B cameras (see
+    :mod:`.lens_rays`; ``w`` 0 where the pixel has no ray). Recordable on a ``wp.Tape`` (gradients
+    to K and dist through the implicit function theorem)."""
+    fn = "pixel_rays"
+    m = _lens_model(fn, model)
+    _expect(fn, "K", isinstance(K, wp.array) and K.ndim == 1, "a (B,) array of 3x3 matrices", getattr(K, "shape", K))
+    ft = _compat.scalar_type(K.dtype)
+    _expect_matrices(fn, "K", K, (3, 3), ft)
+    _expect_dist(fn, dist, K.shape[0], ft)
+    B = K.shape[0]
+    vec3 = wp.types.vector(3, ft)
+    rays = wp.zeros((B, H, W), dtype=vec3, device=K.device, requires_grad=K.requires_grad or dist.requires_grad)
+    wp.launch(sampling_kernels.pixel_rays[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
+              outputs=[rays.flatten()], device=K.device)
+    return rays
+
+
 def warp_frame_depth(
     image: wp.array,
     depth: wp.array,
     pose: wp.array,
     K: wp.array,
     *,
+    dist: wp.array | None = None,
+    model="pinhole",
     padding_mode: str = "zeros",
     min_depth: float = MIN_DEPTH,
 ) -> tuple[wp.array, wp.array]:
     """The 3D spatial transformer on Warp arrays (same semantics as ``gvnn_warp.warp_frame_depth``).
 
     Returns ``warped`` (B, C, H, W) and ``valid`` (B, 1, H, W) of ``wp.bool``. ``warped`` has a
-    gradient buffer when any input does, so the call can be recorded on a ``wp.Tape``.
+    gradient buffer when any input does, so the call can be recorded on a ``wp.Tape``. With a
+    distorted ``model`` ("radtan", "fisheye"), ``dist`` (B,) holds each item's distortion vector;
+    the rays of the depth's pixels are computed first (:func:`pixel_rays`, one more launch).
     """
     fn = "warp_frame_depth"
     _expect(fn, "image", image.ndim == 4, "a 4-D (B, C, H, W) array", image.shape)
@@ -74,13 +114,25 @@ def warp_frame_depth(
     _expect_matrices(fn, "pose", pose, (3, 4), ft)
     _expect_matrices(fn, "K", K, (3, 3), ft)
     _expect(fn, "min_depth", 0 < min_depth < float("inf"), "a positive finite number", repr(min_depth))
+    m = _lens_model(fn, model)
+    if m != 0:
+        _expect_dist(fn, dist, B, ft)
     requires_grad = image.requires_grad or depth.requires_grad or pose.requires_grad or K.requires_grad
+    requires_grad = requires_grad or (m != 0 and dist.requires_grad)
     warped = wp.zeros((B, C, H, W), dtype=ft, device=image.device, requires_grad=requires_grad)
     valid = wp.zeros((B, 1, H, W), dtype=wp.bool, device=image.device)
+    common = [image.flatten(), depth.flatten(), pose, K]
+    params = [C, H, W, float(min_depth), _PADDING[padding_mode]]
+    if m == 0:
+        kernel, inputs = sampling_kernels.warp_frame_depth[ft], [0, *common, *params]
+    else:
+        rays = pixel_rays(K, dist, H, W, m)
+        kernel = sampling_kernels.warp_frame_depth_lens[ft]
+        inputs = [0, *common, dist, rays.flatten(), *params, m, H * W]
     wp.launch(
-        sampling_kernels.warp_frame_depth[ft],
+        kernel,
         dim=B * H,  # one thread per image row, as in the torch op
-        inputs=[0, image.flatten(), depth.flatten(), pose, K, C, H, W, float(min_depth), _PADDING[padding_mode]],
+        inputs=inputs,
         outputs=[warped.flatten(), valid.flatten()],
         device=image.device,
     )

@@ -37,6 +37,11 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
     fish = [0.02, -0.005, 0.001, -0.0002]
     fdist = torch.stack([torch.as_tensor(lens.pack_dist(lens.FISHEYE, [c * (1 + b) for c in fish])) for b in range(B)])
     cam_px = torch.stack([r(B * P) * (W - 1), r(B * P) * (H - 1)], dim=-1)
+    # distorted cameras (TUM freiburg1's radtan coefficients; a fisheye), packed as the kernels take them
+    radtan = torch.from_numpy(lens.pack_dist(lens.RADTAN, [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]))
+    fisheye = torch.from_numpy(lens.pack_dist(lens.FISHEYE, [0.08, -0.02, 0.004, -0.001]))
+    radtan, fisheye = (d.expand(B, 8).contiguous() for d in (radtan, fisheye))
+    rays = G._ops.pixel_rays(K[:1].contiguous(), radtan[:1].contiguous(), H, W, lens.RADTAN)  # shared by the batch
     return {
         # gvnn_warp._ops
         "so3_exp": (r(n, 3),),
@@ -59,6 +64,8 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "bilinear_sample": (img, r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
         "bilinear_sample_lanes": (img, r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
         "warp_frame_depth": (img, r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
+        "pixel_rays": (K, fisheye, H, W, lens.FISHEYE),
+        "warp_frame_depth_lens": (img, r(B, 1, H, W) + 1, pose, K, radtan, rays, C, H, W, 1e-3, 0, lens.RADTAN, 0),
         # gvnn_warp._perpixel_ops
         "flow_warp": (img, u(B, 2, H, W, scale=2), C, H, W, 0),
         "disparity_warp": (img, u(B, 1, H, W, scale=2), C, H, W, 1),
@@ -77,5 +84,7 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         # gvnn_warp._photometric_ops (reference and live images, depth, pose, K; penalty cauchy)
         "photometric_rows": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, C, H, W,
                              PHOTOMETRIC_CODES["cauchy"], 0.5, 1e-3),
+        "photometric_rows_lens": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, radtan, rays, C, H, W,
+                                  PHOTOMETRIC_CODES["huber"], 0.5, 1e-3, lens.RADTAN, 0),
         "photometric_mean": (r(B * H), torch.randint(0, W + 1, (B * H,), generator=g).to(f64), H, C),
     }

@@ -52,6 +52,45 @@ def test_warp_array_descriptor():
     assert wcompat.array_length(null) == 0 and wcompat.array_pointer(null) == 0
 
 
+@wp.kernel(module="unique")
+def _scale(offset: int, x: wp.array(dtype=wp.float64), n: int, y: wp.array(dtype=wp.float64)):
+    i = wp.tid() + offset
+    y[i] = x[i] * wp.float64(n)
+
+
+def test_replay_function_runs_the_recorded_launch():
+    # the recorded launch's arguments packed once: same results as Launch.launch(), reads the
+    # arrays' current contents, a scalar argument replaced through set_param_at_index after a rebuild
+    import numpy as np
+
+    x = wp.array(np.arange(8.0), dtype=wp.float64, device="cpu")
+    y = wp.zeros(8, dtype=wp.float64, device="cpu")
+    cmd = wp.launch(_scale, dim=6, inputs=[1, x, 3], outputs=[y], device="cpu", record_cmd=True)
+    run = wcompat.replay_function(cmd)
+    assert run is not cmd.launch  # the fast path, not the fallback
+    run()
+    assert y.numpy().tolist() == [0, 3, 6, 9, 12, 15, 18, 0]
+    x.assign(np.arange(8.0) + 1)
+    run()
+    assert y.numpy().tolist() == [0, 6, 9, 12, 15, 18, 21, 0]
+    cmd.set_param_at_index(2, 2)
+    wcompat.replay_function(cmd)()
+    assert y.numpy().tolist() == [0, 4, 6, 8, 10, 12, 14, 0]
+    # a recorded launch of the normal equations replays to the same bits either way
+    from gvnn_warp.kernels.photometric_pipeline import photometric_normal_equations
+
+    img = wp.array(np.random.default_rng(0).random((1, 1, 8, 16)), dtype=wp.float64, device="cpu")
+    depth = wp.array(np.full((1, 1, 8, 16), 2.0), dtype=wp.float64, device="cpu")
+    pose = wp.array([np.eye(3, 4) + 0.01], dtype=L.mat34d, device="cpu")
+    K = wp.array([[[10.0, 0, 7.5], [0, 10.0, 3.5], [0, 0, 1]]], dtype=wp.mat33d, device="cpu")
+    ne = photometric_normal_equations(img, depth, img, pose, K)
+    want = [a.copy() for a in ne.numpy()]
+    for c in ne._cmds:
+        for piece in c._cmds:
+            piece.launch()
+    assert all(np.array_equal(a, b) for a, b in zip(ne.numpy(), want))
+
+
 def test_warp_type_attributes():
     assert wcompat.scalar_type(wp.vec3f) is wp.float32 and wcompat.scalar_type(wp.float64) is wp.float64
     assert wcompat.scalar_type(L.mat34d) is wp.float64

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from gvnn_warp.datasets import tum
 from gvnn_warp.datasets.tum import (
+    DISTORTION_PRESETS,
     DatasetError,
     TUMWriter,
     associate,
@@ -408,3 +409,39 @@ def test_module_is_free_of_torch():
     code = "import sys, gvnn_warp.datasets; assert 'torch' not in sys.modules, 'torch imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
     assert tum.DEFAULT_DEPTH_SCALE == 5000.0
+
+
+def test_radtan_distortion_from_presets_intrinsics_file_and_explicit(tmp_path):
+    _three_frame_folder(tmp_path)  # a pinhole intrinsics.txt: no distortion
+    assert read_tum(tmp_path).dist is None
+    fr1, fr2 = read_tum(tmp_path, intrinsics="fr1").dist, read_tum(tmp_path, intrinsics="fr2").dist
+    np.testing.assert_array_equal(fr1, [0.2624, -0.9531, -0.0054, 0.0026, 1.1633])  # TUM's published values
+    np.testing.assert_array_equal(fr2, [0.2312, -0.7849, -0.0033, -0.0001, 0.9172])
+    assert read_tum(tmp_path, intrinsics="fr3").dist is None and read_tum(tmp_path, intrinsics="icl").dist is None
+    seq = read_tum(tmp_path, intrinsics=(1, 2, 3, 4, 0.1, -0.2, 0.01, 0.02, 0.3))
+    np.testing.assert_allclose(seq.K, [[1, 0, 3], [0, 2, 4], [0, 0, 1]])
+    np.testing.assert_array_equal(seq.dist, [0.1, -0.2, 0.01, 0.02, 0.3])
+    (tmp_path / "intrinsics.txt").write_text("# fx fy cx cy k1 k2 p1 p2 k3\n500 501 2 1.5 0.1 -0.2 0.01 0.02 0.3\n")
+    seq = read_tum(tmp_path)
+    np.testing.assert_allclose(seq.K, [[500, 0, 2], [0, 501, 1.5], [0, 0, 1]])
+    np.testing.assert_array_equal(seq.dist, [0.1, -0.2, 0.01, 0.02, 0.3])
+    (tmp_path / "intrinsics.txt").write_text("500 501 2 1.5 0.1 -0.2 0.01 nan 0.3\n")
+    with pytest.raises(DatasetError, match="distortion coefficients must be finite"):
+        read_tum(tmp_path)
+    (tmp_path / "intrinsics.txt").write_text("500 501 2 1.5 0.1 -0.2\n")
+    with pytest.raises(DatasetError, match=r"intrinsics.txt:1: expected 'fx fy cx cy' \(four numbers\) or"):
+        read_tum(tmp_path)
+    named = tmp_path / "rgbd_dataset_freiburg1_desk"  # no intrinsics.txt: the folder's preset, distortion too
+    _three_frame_folder(named, intrinsics=None)
+    np.testing.assert_array_equal(read_tum(named).dist, DISTORTION_PRESETS["fr1"])
+
+
+def test_writer_round_trips_the_distortion(tmp_path):
+    K = np.array([[50.0, 0, 2.5], [0, 51.0, 1.5], [0, 0, 1]])
+    d = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]
+    with TUMWriter(tmp_path, K, dist=d) as w:
+        for t in (1.0, 2.0):
+            w.add(t, np.zeros((3, 4, 5)), np.ones((1, 4, 5)))
+    seq = read_tum(tmp_path)
+    np.testing.assert_allclose(seq.K, K)
+    np.testing.assert_array_equal(seq.dist, d)

@@ -326,3 +326,30 @@ def test_odometry_benchmark_runs_without_open3d(tmp_path):
     r = json.loads((tmp_path / "r.json").read_text())["results"]["80x60"]["gvnn_warp DirectAligner"]
     assert r["basin_5_pairs"] == 3 and 0 <= r["basin_5"] <= 1 and 0 <= r["failed_pairs"] <= 7
     assert r["ms_per_pair"] > 0 and 0 < r["rpe_trans_rmse_cm"] < 1.0 and r["ate_alignment"].startswith("SE(3)")
+
+
+def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch):
+    from gvnn_warp.cli import main
+    from gvnn_warp.demos import track as track_cli
+
+    data = _render(tmp_path)
+    gt = read_tum(data).gt_poses
+    made = []
+    real = track_cli.make_aligner
+
+    def fake(K, **kwargs):
+        made.append(kwargs)
+        return TrueMotion(gt)
+
+    monkeypatch.setattr(track_cli, "make_aligner", fake)
+    out = tmp_path / "out"
+    assert main(["track", str(data), "--out", str(out), "--no-progress"]) == 0
+    assert made[-1]["dist"] is None  # the rendered folder's intrinsics.txt: a pinhole
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--intrinsics",
+                 "100,100,20,15,0.1,-0.2,0.01,0.02,0.3"]) == 0
+    np.testing.assert_array_equal(made[-1]["dist"], [0.1, -0.2, 0.01, 0.02, 0.3])
+    assert json.loads((out / "metrics.json").read_text())["intrinsics"]["radtan"] == [0.1, -0.2, 0.01, 0.02, 0.3]
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--intrinsics", "fr1"]) == 0
+    np.testing.assert_array_equal(made[-1]["dist"], [0.2624, -0.9531, -0.0054, 0.0026, 1.1633])
+    aligner = real(read_tum(data).K, dist=[0.1, -0.2, 0.01, 0.02, 0.3])
+    assert aligner.model == "radtan" and aligner.dist[4] == 0.3

@@ -6,6 +6,7 @@
 
 from .tum import (
     DEFAULT_DEPTH_SCALE,
+    DISTORTION_PRESETS,
     INTRINSICS_PRESETS,
     DatasetError,
     TUMSequence,
@@ -23,6 +24,7 @@ from .tum import (
 
 __all__ = [
     "DEFAULT_DEPTH_SCALE",
+    "DISTORTION_PRESETS",
     "INTRINSICS_PRESETS",
     "DatasetError",
     "TUMSequence",

@@ -6,7 +6,10 @@ A sequence folder holds (the format of the TUM RGB-D benchmark, also used by ICL
     rgb.txt           timestamp filename        (lines starting with # are comments)
     depth.txt         timestamp filename
     groundtruth.txt   timestamp tx ty tz qx qy qz qw    (optional; T_world_cam, metres)
-    intrinsics.txt    fx fy cx cy                       (optional; not part of TUM's own format)
+    intrinsics.txt    fx fy cx cy [k1 k2 p1 p2 k3]      (optional; not part of TUM's own format;
+                                                        the 5 radial-tangential coefficients of
+                                                        OpenCV's model when the images are
+                                                        distorted, none for a pinhole)
     rgb/*.png         8-bit colour images
     depth/*.png       16-bit single-channel depth, metres * depth_scale (5000), 0 = no depth
 
@@ -42,6 +45,7 @@ import numpy as np
 
 __all__ = [
     "DEFAULT_DEPTH_SCALE",
+    "DISTORTION_PRESETS",
     "INTRINSICS_PRESETS",
     "DatasetError",
     "TUMSequence",
@@ -62,10 +66,10 @@ DEFAULT_DEPTH_SCALE = 5000.0
 #: Maximum time difference (s) for associating stamps, as TUM's associate.py and evaluate_ate.py.
 DEFAULT_MAX_DIFFERENCE = 0.02
 
-#: Published pinhole intrinsics (fx, fy, cx, cy) of 640x480 images. fr1, fr2, fr3: the TUM RGB-D
-#: benchmark's calibrated colour cameras of the Freiburg 1/2/3 sequences (their lens distortion
-#: is ignored; fr3's images are already undistorted); icl: ICL-NUIM (fy given there as -480 for
-#: their y-up renderer; +480 for the TUM-compatible files).
+#: Published intrinsics (fx, fy, cx, cy) of 640x480 images. fr1, fr2, fr3: the TUM RGB-D
+#: benchmark's calibrated colour cameras of the Freiburg 1/2/3 sequences (fr1's and fr2's lens
+#: distortion: :data:`DISTORTION_PRESETS`; fr3's images are already undistorted); icl: ICL-NUIM
+#: (fy given there as -480 for their y-up renderer; +480 for the TUM-compatible files).
 INTRINSICS_PRESETS: dict[str, tuple[float, float, float, float]] = {
     "fr1": (517.3, 516.5, 318.6, 255.3),
     "fr2": (520.9, 521.0, 325.1, 249.7),
@@ -73,6 +77,14 @@ INTRINSICS_PRESETS: dict[str, tuple[float, float, float, float]] = {
     "icl": (481.20, 480.0, 319.5, 239.5),
 }
 _PRESET_SIZE = (640, 480)
+#: The radial-tangential distortion (k1, k2, p1, p2, k3; OpenCV's order, TUM's d0..d4) the TUM
+#: RGB-D benchmark publishes for the fr1 and fr2 colour cameras (the images are distorted); the
+#: other presets are pinholes. The coefficients act on normalized coordinates: they hold for any
+#: image size.
+DISTORTION_PRESETS: dict[str, tuple[float, float, float, float, float]] = {
+    "fr1": (0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+    "fr2": (0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
+}
 
 
 class DatasetError(ValueError):
@@ -319,7 +331,14 @@ def _k_from_values(values, source: str) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def _read_intrinsics_file(path: Path) -> np.ndarray:
+def _dist_from_values(values, source: str) -> np.ndarray:
+    d = np.array([float(v) for v in values])
+    if not np.all(np.isfinite(d)):
+        raise DatasetError(f"{source}: distortion coefficients must be finite, got {' '.join(map(str, d))}")
+    return d
+
+
+def _read_intrinsics_file(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -329,9 +348,11 @@ def _read_intrinsics_file(path: Path) -> np.ndarray:
             values = [float(v) for v in fields]
         except ValueError:
             values = []
-        if len(values) != 4:
-            raise DatasetError(f"{path}:{number}: expected 'fx fy cx cy' (four numbers), got {line!r}")
-        return _k_from_values(values, str(path))
+        if len(values) not in (4, 9):
+            raise DatasetError(f"{path}:{number}: expected 'fx fy cx cy' (four numbers) or 'fx fy cx cy k1 k2 p1 p2 "
+                               f"k3' (nine: with radial-tangential distortion), got {line!r}")
+        dist = _dist_from_values(values[4:], str(path)) if len(values) == 9 else None
+        return _k_from_values(values[:4], str(path)), dist
     raise DatasetError(f"{path}: no 'fx fy cx cy' line")
 
 
@@ -422,6 +443,8 @@ class TUMSequence:
     Attributes:
         root: the folder.
         K: (3, 3) float64 intrinsics; ``intrinsics_source`` says where they came from.
+        dist: (5,) float64 radial-tangential distortion (k1, k2, p1, p2, k3) of the images, or
+            None (a pinhole: undistorted images); from the same source as K.
         width, height: image size (from the first colour image).
         timestamps: (N,) float64 colour timestamps of the frames.
         depth_timestamps: (N,) float64 timestamps of their depth images.
@@ -447,6 +470,7 @@ class TUMSequence:
     gt_valid: np.ndarray | None = None
     gt_timestamps: np.ndarray | None = None
     gt_raw_poses: np.ndarray | None = field(default=None, repr=False)
+    dist: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.rgb_files)
@@ -501,10 +525,12 @@ def read_tum(
 
     Args:
         root: the folder with ``rgb.txt`` and ``depth.txt``.
-        intrinsics: a preset name (``fr1``, ``fr2``, ``fr3``, ``icl``), ``(fx, fy, cx, cy)`` or a
-            (3, 3) ``K``; overrides ``intrinsics.txt``. None: ``root/intrinsics.txt`` if present,
-            else the Freiburg preset named by the folder (``rgbd_dataset_freiburg2_*`` -> fr2),
-            else an error.
+        intrinsics: a preset name (``fr1``, ``fr2``, ``fr3``, ``icl``; fr1 and fr2 with their
+            published distortion, :data:`DISTORTION_PRESETS`), ``(fx, fy, cx, cy)``, ``(fx, fy,
+            cx, cy, k1, k2, p1, p2, k3)`` (with radial-tangential distortion) or a (3, 3) ``K``;
+            overrides ``intrinsics.txt``. None: ``root/intrinsics.txt`` if present, else the
+            Freiburg preset named by the folder (``rgbd_dataset_freiburg2_*`` -> fr2), else an
+            error. The result's ``K`` and ``dist`` (None for a pinhole) come from it.
         depth_scale: raw depth units per metre (5000 for TUM and ICL-NUIM).
         max_difference: seconds; colour/depth association and ground-truth matching.
 
@@ -529,9 +555,9 @@ def read_tum(
     first = read_rgb(rgb_files[0])
     height, width = first.shape[1:]
 
-    K, source = _resolve_intrinsics(root, intrinsics, width, height)
+    K, source, dist = _resolve_intrinsics(root, intrinsics, width, height)
     seq = TUMSequence(
-        root=root, K=K, intrinsics_source=source, width=width, height=height,
+        root=root, K=K, intrinsics_source=source, width=width, height=height, dist=dist,
         timestamps=rgb_times[pairs[:, 0]], depth_timestamps=depth_times[pairs[:, 1]],
         rgb_files=rgb_files, depth_files=depth_files, depth_scale=float(depth_scale),
     )
@@ -543,27 +569,36 @@ def read_tum(
     return seq
 
 
-def _resolve_intrinsics(root: Path, intrinsics, width: int, height: int) -> tuple[np.ndarray, str]:
+def _resolve_intrinsics(root: Path, intrinsics, width: int, height: int):
+    """(K, source, dist or None)."""
     if isinstance(intrinsics, str):
         if intrinsics not in INTRINSICS_PRESETS:
             raise ValueError(f"read_tum: unknown intrinsics preset {intrinsics!r}; "
                              f"expected one of {', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy")
-        return intrinsics_preset(intrinsics, width, height), f"preset {intrinsics}"
+        return intrinsics_preset(intrinsics, width, height), f"preset {intrinsics}", _preset_dist(intrinsics)
     if intrinsics is not None:
         arr = np.asarray(intrinsics, dtype=np.float64)
         if arr.shape == (3, 3):
-            return _k_from_values((arr[0, 0], arr[1, 1], arr[0, 2], arr[1, 2]), "read_tum"), "given"
+            return _k_from_values((arr[0, 0], arr[1, 1], arr[0, 2], arr[1, 2]), "read_tum"), "given", None
         if arr.shape == (4,):
-            return _k_from_values(arr, "read_tum"), "given"
-        raise ValueError(f"read_tum: intrinsics must be a preset name, (fx, fy, cx, cy) or a (3, 3) K, "
-                         f"got shape {arr.shape}")
+            return _k_from_values(arr, "read_tum"), "given", None
+        if arr.shape == (9,):
+            return _k_from_values(arr[:4], "read_tum"), "given", _dist_from_values(arr[4:], "read_tum")
+        raise ValueError(f"read_tum: intrinsics must be a preset name, (fx, fy, cx, cy), (fx, fy, cx, cy, k1, k2, "
+                         f"p1, p2, k3) or a (3, 3) K, got shape {arr.shape}")
     path = root / "intrinsics.txt"
     if path.exists():
-        return _read_intrinsics_file(path), str(path)
+        K, dist = _read_intrinsics_file(path)
+        return K, str(path), dist
     preset = _preset_from_name(root)
     if preset is not None:
-        return intrinsics_preset(preset, width, height), f"preset {preset} (from the folder name)"
+        return intrinsics_preset(preset, width, height), f"preset {preset} (from the folder name)", _preset_dist(preset)
     raise DatasetError(f"{path}: missing; give intrinsics ({', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy)")
+
+
+def _preset_dist(name: str) -> np.ndarray | None:
+    d = DISTORTION_PRESETS.get(name)
+    return None if d is None else np.array(d, dtype=np.float64)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -577,13 +612,15 @@ class TUMWriter:
     ``depth_scale`` rounded; depths that are not finite, not positive, or beyond 65535 /
     ``depth_scale`` metres are written as 0 = no depth), and on :meth:`close` (or leaving a
     ``with`` block without an error) ``rgb.txt``, ``depth.txt``, ``groundtruth.txt`` (if poses
-    were given) and ``intrinsics.txt``.
+    were given) and ``intrinsics.txt`` (with ``dist``, the images' radial-tangential
+    coefficients (k1, k2, p1, p2, k3), after fx fy cx cy).
     """
 
     def __init__(self, root: str | Path, K: np.ndarray, depth_scale: float = DEFAULT_DEPTH_SCALE,
-                 comment: str = "written by gvnn_warp.datasets.tum.TUMWriter"):
+                 comment: str = "written by gvnn_warp.datasets.tum.TUMWriter", dist=None):
         self.root = Path(root)
         self.K = np.asarray(K, dtype=np.float64)
+        self.dist = None if dist is None else np.asarray(dist, dtype=np.float64).reshape(5)
         self.depth_scale = float(depth_scale)
         self.comment = comment
         self._stamps: list[float] = []
@@ -620,8 +657,14 @@ class TUMWriter:
             write_trajectory(self.root / "groundtruth.txt", np.array(self._stamps), np.stack(self._poses),
                              comment=f"{self.comment}\nground-truth trajectory T_world_cam")
         fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        (self.root / "intrinsics.txt").write_text(f"# fx fy cx cy (pixel centres at integer coordinates)\n"
-                                                  f"{fx:.9g} {fy:.9g} {cx:.9g} {cy:.9g}\n")
+        if self.dist is None:
+            (self.root / "intrinsics.txt").write_text(f"# fx fy cx cy (pixel centres at integer coordinates)\n"
+                                                      f"{fx:.9g} {fy:.9g} {cx:.9g} {cy:.9g}\n")
+        else:
+            k = " ".join(f"{v:.9g}" for v in self.dist)
+            (self.root / "intrinsics.txt").write_text(
+                "# fx fy cx cy k1 k2 p1 p2 k3 (pixel centres at integer coordinates; radial-tangential distortion)\n"
+                f"{fx:.9g} {fy:.9g} {cx:.9g} {cy:.9g} {k}\n")
 
     def __enter__(self) -> TUMWriter:
         return self

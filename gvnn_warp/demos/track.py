@@ -2,7 +2,7 @@
 
 Usage::
 
-    gvnn-warp track DIR --out OUT [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy] [--depth-scale S]
+    gvnn-warp track DIR --out OUT [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
                     [--max-frames N] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
                     [--keyframe-valid F]] [--init identity|velocity] [--levels L] [--robust KIND]
                     [--depth-weight W] [--color]
@@ -10,7 +10,9 @@ Usage::
 Aligns every frame of the sequence in DIR (``gvnn_warp.datasets.tum``: rgb.txt, depth.txt,
 groundtruth.txt when present) to the previous one - or, with ``--keyframes``, to a keyframe kept
 until the motion or the valid fraction passes a threshold - with ``gvnn_warp.odometry.DirectAligner``
-on grey images (``--color``: RGB), and writes:
+on grey images (``--color``: RGB) - through the camera's radial-tangential distortion when the
+intrinsics have one (the fr1/fr2 presets, nine numbers in ``--intrinsics`` or intrinsics.txt) -
+and writes:
 
 - ``OUT/trajectory.txt``: the estimate in the TUM format (``timestamp tx ty tz qx qy qz qw``,
   ``T_world_cam``), one pose per frame, starting at the ground truth's first pose (identity
@@ -46,16 +48,17 @@ MAX_ITERATIONS = 1000
 
 
 def intrinsics_arg(text: str):
-    """``type=`` for ``--intrinsics``: a preset name, or ``fx,fy,cx,cy`` (finite, fx, fy > 0)."""
+    """``type=`` for ``--intrinsics``: a preset name, ``fx,fy,cx,cy`` (finite, fx, fy > 0), or
+    ``fx,fy,cx,cy,k1,k2,p1,p2,k3`` (with radial-tangential distortion, finite)."""
     if text in PRESETS:
         return text
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) != 4 or not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[1] <= 0:
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(PRESETS)} or fx,fy,cx,cy (finite, fx, fy > 0), "
-                                         f"got {text!r}")
+    if len(values) not in (4, 9) or not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(PRESETS)} or fx,fy,cx,cy (finite, fx, fy > 0) "
+                                         f"or fx,fy,cx,cy,k1,k2,p1,p2,k3, got {text!r}")
     return tuple(values)
 
 
@@ -66,8 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", type=Path, metavar="DIR", help="TUM RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])")
     p.add_argument("--out", type=output_dir, required=True, metavar="OUT",
                    help="output folder for trajectory.txt, metrics.json and the figures (made if missing)")
-    p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY",
-                   help="fr1, fr2, fr3, icl (published 640x480 values) or fx,fy,cx,cy (default: DIR/intrinsics.txt, "
+    p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY[,K1,K2,P1,P2,K3]",
+                   help="fr1, fr2, fr3, icl (published 640x480 values; fr1, fr2 with their radial-tangential "
+                        "distortion) or fx,fy,cx,cy[,k1,k2,p1,p2,k3] (default: DIR/intrinsics.txt, "
                         "else the Freiburg preset named by the folder)")
     p.add_argument("--depth-scale", type=positive_float, default=5000.0, metavar="S",
                    help="raw depth units per metre (5000 in TUM RGB-D and ICL-NUIM)")
@@ -109,11 +113,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
-                 depth_weight: float = 0.0, color: bool = False):
-    """The ``gvnn_warp.odometry.DirectAligner`` that ``gvnn-warp track`` uses (None: the aligner's default)."""
+                 depth_weight: float = 0.0, color: bool = False, dist=None):
+    """The ``gvnn_warp.odometry.DirectAligner`` that ``gvnn-warp track`` uses (None: the aligner's default;
+    ``dist``: radial-tangential coefficients (k1, k2, p1, p2, k3) of the images, None for a pinhole)."""
     from ..odometry import DirectAligner
 
     kwargs = {"robust": robust, "depth_weight": depth_weight, "color": color}
+    if dist is not None:
+        kwargs.update(model="radtan", dist=dist)
     if levels is not None:
         kwargs["levels"] = levels
     if iterations is not None:
@@ -148,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
 
     seq, n = check(args)
     aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
-                           depth_weight=args.depth_weight, color=args.color)
+                           depth_weight=args.depth_weight, color=args.color, dist=seq.dist)
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         return _track_and_report(args, seq, n, aligner)
@@ -182,6 +189,7 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
         "pairs": n - 1,
         "size": [seq.width, seq.height],
         "intrinsics": {"fx": seq.K[0, 0], "fy": seq.K[1, 1], "cx": seq.K[0, 2], "cy": seq.K[1, 2],
+                       "radtan": None if seq.dist is None else [float(v) for v in seq.dist],
                        "source": seq.intrinsics_source},
         "settings": {"mode": "keyframe" if policy else "frame-to-frame", "init": args.init,
                      "levels": args.levels or "auto", "iterations": args.iterations, "robust": args.robust,

@@ -1,0 +1,226 @@
+"""Pixel rays through a lens model, for the fused kernels (``@wp.func``, no launches here).
+
+A lens model (``model``, ``K``, ``dist``: the contract of :mod:`.lens`) cannot use the pinhole's
+row linearity (:func:`.camera.row_rays`): the ray of pixel (x, y) is ``undistort(K^-1 [x, y, 1])``,
+found by Newton's method. The fused kernels therefore read precomputed rays (:func:`pixel_ray`,
+launched once per camera and image size, its gradient by the implicit function theorem through
+:func:`.lens.undistort`) and move and project them with :func:`project_ray`, whose hand-written
+adjoint computes the projection's Jacobian once per pixel (Warp's automatic adjoint would
+re-derive it term by term).
+
+A ray is stored as ``(xn, yn, w)``: the ideal normalized coordinates of the pixel (its point at
+depth d is ``d (xn, yn, 1)``) and ``w = 1`` where the undistortion converged inside the model's
+domain, 0 where it did not (the pixel has no ray: treated as an invalid depth).
+"""
+
+from typing import Any
+
+import warp as wp
+
+from . import camera, lens, sampler
+from .kinds import vec8d, vec8f
+
+
+@wp.func
+def pixel_ray(model: int, K: Any, dist: Any, x: Any, y: Any):
+    """The stored ray ``(xn, yn, w)`` of pixel (x, y) (see the module docstring). Gradients (to
+    K and dist) through :func:`.lens.undistort`'s implicit-function adjoint; none where w = 0."""
+    r = camera.pixel_ray(K, x, y)
+    xn, ok = lens.undistort(model, dist, wp.vector(r[0], r[1]))
+    return wp.vector(xn[0], xn[1], wp.where(ok, type(x)(1.0), type(x)(0.0)))
+
+
+def _make_project_ray(T, project_ray=None):
+    """float type ``T`` overload of project_ray (Warp custom adjoints need concrete types); the
+    parameter named like the function is the overload made before (see sampler.py)."""
+    f64 = wp.float64
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+    vec8 = vec8f if T == wp.float32 else vec8d
+
+    @wp.func
+    def project_ray(model: int, R: mat33, t: vec3, K: mat33, dist: vec8, ray: vec3, depth: T, min_depth: T):
+        """Move the point ``depth (ray_x, ray_y, 1)`` by [R | t] and project it through the lens:
+        returns ((u, v, q_z), ok) with q the moved point; ``ok``: q_z > min_depth and q inside the
+        model's domain (r^2 < dist[LIMIT]). Where not ok, (u, v) is a finite stand-in (the
+        principal point) for the caller to reject, and no gradient flows from it. The lens is
+        evaluated as :func:`.lens.project` does (in float64, rounded; X/Z as X * (1/Z)), so (u, v)
+        equals ``lens.project(model, K, dist, q)`` to rounding. Gradients (hand-written adjoint): to R, t, K, dist,
+        the ray's (x, y) and depth; q_z passes its own gradient."""
+        q = R * vec3(ray[0] * depth, ray[1] * depth, depth) + t
+        front = q[2] > min_depth
+        iz = f64(1.0) / f64(wp.where(front, q[2], T(1.0)))  # one division (two cost more than the lens)
+        x = f64(q[0]) * iz
+        y = f64(q[1]) * iz
+        d = lens._to64(dist)
+        ok = front and x * x + y * y < d[lens.LIMIT]
+        xd, yd = lens._distort_value64(model, d, wp.where(ok, x, f64(0.0)), wp.where(ok, y, f64(0.0)))
+        u = T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2]))
+        v = T(f64(K[1, 1]) * yd + f64(K[1, 2]))
+        return vec3(u, v, q[2]), ok
+
+    @wp.func_grad(project_ray)
+    def adj_project_ray(
+        model: int, R: mat33, t: vec3, K: mat33, dist: vec8, ray: vec3, depth: T, min_depth: T,
+        adj_ret0: vec3, adj_ret1: bool,
+    ):
+        P = vec3(ray[0] * depth, ray[1] * depth, depth)
+        q = R * P + t
+        front = q[2] > min_depth
+        iz = f64(1.0) / f64(wp.where(front, q[2], T(1.0)))
+        x = f64(q[0]) * iz
+        y = f64(q[1]) * iz
+        d = lens._to64(dist)
+        gq = vec3(T(0.0), T(0.0), adj_ret0[2])
+        if front and x * x + y * y < d[lens.LIMIT]:
+            xd, yd, J = lens._distort64(model, d, x, y)
+            gu = f64(adj_ret0[0])
+            gv = f64(adj_ret0[1])
+            # u = fx xd + s yd + cx, v = fy yd + cy; (xd, yd) = D(x, y); x = q0 / q2, y = q1 / q2
+            gxd = f64(K[0, 0]) * gu
+            gyd = f64(K[0, 1]) * gu + f64(K[1, 1]) * gv
+            gx = J[0, 0] * gxd + J[1, 0] * gyd
+            gy = J[0, 1] * gxd + J[1, 1] * gyd
+            gq = vec3(T(gx * iz), T(gy * iz), T(f64(adj_ret0[2]) - (x * gx + y * gy) * iz))
+            wp.adjoint[K] += mat33(
+                T(gu * xd), T(gu * yd), T(gu), T(0.0), T(gv * yd), T(gv), T(0.0), T(0.0), T(0.0)
+            )
+            wp.adjoint[dist] += lens._from64(lens._distort_vjp_dist64(model, d, x, y, gxd, gyd), depth)
+        wp.adjoint[t] += gq
+        wp.adjoint[R] += wp.outer(gq, P)
+        gP = wp.transpose(R) * gq
+        wp.adjoint[ray] += vec3(gP[0] * depth, gP[1] * depth, T(0.0))
+        wp.adjoint[depth] += gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
+
+    return project_ray
+
+
+project_ray = _make_project_ray(wp.float64, _make_project_ray(wp.float32))
+
+
+
+def _make_warp_pixel(T, warp_pixel=None):
+    """float type ``T`` overload of warp_pixel (see _make_project_ray)."""
+    f64 = wp.float64
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+    vec8 = vec8f if T == wp.float32 else vec8d
+
+    @wp.func
+    def warp_pixel(
+        image: wp.array(dtype=T), out: wp.array(dtype=T), valid: wp.array(dtype=wp.bool),
+        K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i: int, b: int, src: int, dst: int, C: int, H: int,
+        W: int, padding: int, model: int, R: mat33, t: vec3, Kb: mat33, db: vec8, ray: vec3, depth: T,
+        active: wp.bool, min_depth: T, tol: T,
+    ):
+        """One pixel of the 3D spatial transformer through the lens: the point ``depth (ray_x, ray_y,
+        1)`` moved by [R | t] and projected (:func:`project_ray`), ``valid[i]`` (``active``, in the
+        domain, inside the image within ``tol``) and the bilinear samples of the C channels of
+        ``image`` (plane ``src``) into ``out[dst + c H W]`` (0 where not active or in the domain).
+
+        Hand-written adjoint: the projection and its Jacobian once, the sampler's gradient
+        (:func:`.sampler.sample_channels_grad`), then the gradients to R, t, the ray and depth, and
+        to ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a wanted gradient); the
+        backward pass does not replay it (nothing the kernel computes after it reads its results)."""
+        uvz, in_domain = project_ray(model, R, t, Kb, db, ray, depth, min_depth)
+        ok = active and in_domain
+        u = uvz[0]
+        v = uvz[1]
+        valid[i] = ok and u >= -tol and u <= T(W - 1) + tol and v >= -tol and v <= T(H - 1) + tol
+        xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+        sampler.sample_channels(image, out, src, dst, C, H * W, H * W, H, W, xs, ys, ok and reachable)
+
+    @wp.func_grad(warp_pixel)
+    def adj_warp_pixel(
+        image: wp.array(dtype=T), out: wp.array(dtype=T), valid: wp.array(dtype=wp.bool),
+        K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i: int, b: int, src: int, dst: int, C: int, H: int,
+        W: int, padding: int, model: int, R: mat33, t: vec3, Kb: mat33, db: vec8, ray: vec3, depth: T,
+        active: wp.bool, min_depth: T, tol: T,
+    ):
+        P = vec3(ray[0] * depth, ray[1] * depth, depth)
+        q = R * P + t
+        if active and q[2] > min_depth:
+            iz = f64(1.0) / f64(q[2])
+            x = f64(q[0]) * iz
+            y = f64(q[1]) * iz
+            d = lens._to64(db)
+            if x * x + y * y < d[lens.LIMIT]:
+                xd, yd, J = lens._distort64(model, d, x, y)
+                u = T(f64(Kb[0, 0]) * xd + f64(Kb[0, 1]) * yd + f64(Kb[0, 2]))
+                v = T(f64(Kb[1, 1]) * yd + f64(Kb[1, 2]))
+                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+                if reachable:
+                    gxs, gys = sampler.sample_channels_grad(
+                        image, wp.adjoint[image], wp.adjoint[out], src, dst, C, H * W, H * W, H, W, xs, ys
+                    )
+                    # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
+                    gu = f64(gxs)
+                    gv = f64(gys)
+                    if padding == sampler.PADDING_BORDER:
+                        gu = wp.where(u <= T(0.0) or u >= T(W - 1), f64(0.0), gu)
+                        gv = wp.where(v <= T(0.0) or v >= T(H - 1), f64(0.0), gv)
+                    gxd = f64(Kb[0, 0]) * gu
+                    gyd = f64(Kb[0, 1]) * gu + f64(Kb[1, 1]) * gv
+                    gx = J[0, 0] * gxd + J[1, 0] * gyd
+                    gy = J[0, 1] * gxd + J[1, 1] * gyd
+                    gq = vec3(T(gx * iz), T(gy * iz), T(-(x * gx + y * gy) * iz))
+                    gK = wp.adjoint[K]
+                    if gK.shape[0] > 0:
+                        gK[b] = gK[b] + mat33(
+                            T(gu * xd), T(gu * yd), T(gu), T(0.0), T(gv * yd), T(gv), T(0.0), T(0.0), T(0.0)
+                        )
+                    gd = wp.adjoint[dist]
+                    if gd.shape[0] > 0:
+                        gd[b] = gd[b] + lens._from64(lens._distort_vjp_dist64(model, d, x, y, gxd, gyd), depth)
+                    wp.adjoint[t] += gq
+                    wp.adjoint[R] += wp.outer(gq, P)
+                    gP = wp.transpose(R) * gq
+                    wp.adjoint[ray] += vec3(gP[0] * depth, gP[1] * depth, T(0.0))
+                    wp.adjoint[depth] += gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
+
+    @wp.func_replay(warp_pixel)
+    def replay_warp_pixel(
+        image: wp.array(dtype=T), out: wp.array(dtype=T), valid: wp.array(dtype=wp.bool),
+        K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i: int, b: int, src: int, dst: int, C: int, H: int,
+        W: int, padding: int, model: int, R: mat33, t: vec3, Kb: mat33, db: vec8, ray: vec3, depth: T,
+        active: wp.bool, min_depth: T, tol: T,
+    ):
+        # the backward pass needs nothing the forward stored: skip projecting and sampling again
+        pass
+
+    return warp_pixel
+
+
+warp_pixel = _make_warp_pixel(wp.float64, _make_warp_pixel(wp.float32))
+
+@wp.func
+def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any, depth: Any, min_depth: Any):
+    """:func:`project_ray`'s values with the projection's Jacobian, for Gauss-Newton (no adjoint):
+    returns (u, v, q, ok, du/dq, dv/dq), q the moved point, du/dq and dv/dq (vec3) the rows of
+    d(u, v)/dq = [[fx, s], [0, fy]] J_D (1 / q_z) [[1, 0, -x], [0, 1, -y]] (J_D the distortion's
+    Jacobian at (x, y) = (q_x, q_y) / q_z). Where not ok the Jacobian is that of the stand-in."""
+    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
+    front = q[2] > min_depth
+    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
+    x = wp.float64(q[0]) * iz
+    y = wp.float64(q[1]) * iz
+    d = lens._to64(dist)
+    ok = front and x * x + y * y < d[lens.LIMIT]
+    xs = wp.where(ok, x, wp.float64(0.0))
+    ys = wp.where(ok, y, wp.float64(0.0))
+    xd, yd, J = lens._distort64(model, d, xs, ys)
+    fx = wp.float64(K[0, 0])
+    s = wp.float64(K[0, 1])
+    fy = wp.float64(K[1, 1])
+    a00 = fx * J[0, 0] + s * J[1, 0]
+    a01 = fx * J[0, 1] + s * J[1, 1]
+    a10 = fy * J[1, 0]
+    a11 = fy * J[1, 1]
+    du = wp.vector(type(depth)(a00 * iz), type(depth)(a01 * iz), type(depth)(-(a00 * xs + a01 * ys) * iz))
+    dv = wp.vector(type(depth)(a10 * iz), type(depth)(a11 * iz), type(depth)(-(a10 * xs + a11 * ys) * iz))
+    u = type(depth)(fx * xd + s * yd + wp.float64(K[0, 2]))
+    v = type(depth)(fy * yd + wp.float64(K[1, 2]))
+    return u, v, q, ok, du, dv
+
+
+__all__ = ["pixel_ray", "project_ray", "project_ray_jacobian", "warp_pixel"]
