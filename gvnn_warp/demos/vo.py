@@ -36,8 +36,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from ._args import (
     UsageError,
-    bounded_int_list,
     bounded_int,
+    bounded_int_list,
     description,
     image_size,
     output_dir,

@@ -191,7 +191,8 @@ def check_config(cfg: VOConfig, world: int | None = None) -> dict | None:
         if cfg.n_frames <= gap:
             raise ConfigError(f"--frames {cfg.n_frames} is too few: pairs are up to {gap} frames apart (--gaps), so "
                               f"each trajectory needs at least {gap + 1} frames")
-        n_train, nbytes, more = n_pairs(cfg, cfg.n_train_traj), _data_bytes(cfg), "render more (--trajectories, --frames)"
+        n_train, nbytes = n_pairs(cfg, cfg.n_train_traj), _data_bytes(cfg)
+        more = "render more (--trajectories, --frames)"
     if n_train < cfg.batch_size:
         raise ConfigError(f"{n_train} training pairs are fewer than --batch-size {cfg.batch_size}: "
                           f"{more} or use a smaller batch")
