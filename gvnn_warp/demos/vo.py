@@ -39,6 +39,7 @@ from ._args import (
     bounded_int,
     bounded_int_list,
     description,
+    finite_float,
     image_size,
     output_dir,
     positive_float,
@@ -84,6 +85,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-pixel penalty: l1, l2, or an M-estimator of gvnn_warp.perpixel (default: l1)")
     p.add_argument("--loss-scale", type=positive_float, default=None, metavar="X",
                    help="M-estimator scale, intensity units (default: 0.1)")
+    p.add_argument("--pose-weight", type=finite_float(0, 1e6), default=None, metavar="W",
+                   help="weight of a pose term (L1 distance of the rotation vector, radians, and of the translation "
+                        "over the median depth, from the truth) added to the photometric cost (default: 1 for se3 "
+                        "and so3; 0: the paper's photometric cost alone)")
     p.add_argument("--batch-size", type=positive_int, default=None, metavar="B",
                    help="global batch size, split between torchrun's ranks (default: 16)")
     p.add_argument("--lr", type=positive_float, default=None, metavar="LR",
@@ -134,6 +139,7 @@ def _config(args: argparse.Namespace):
         gaps=getattr(args, "gaps", None),
         stage_scales=(1,) * args.stages if getattr(args, "stages", None) else None,
         refine=getattr(args, "refine", None),
+        pose_weight=getattr(args, "pose_weight", None),
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )

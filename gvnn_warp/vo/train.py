@@ -31,7 +31,7 @@ from torch import Tensor
 
 from .checkpoint import CHECKPOINT_FORMAT, CheckpointError, network_spec, read_checkpoint
 from .data import PairSet, read_split, render_split, split_seeds, tum_frames
-from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, warp_live
+from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, pose_loss, warp_live
 from .model import CascadeVO
 
 __all__ = ["CHECKPOINT", "METRICS", "VOConfig", "check_config", "default_config", "evaluate", "train"]
@@ -54,6 +54,7 @@ class VOConfig:
     loss: str = DEFAULT_LOSS
     loss_scale: float = 0.1  # M-estimator epsilon / c (intensity units)
     loss_levels: int = 1  # >1: also compare 2x2, 4x4, ... means of the two warps
+    pose_weight: float = 0.0  # weight of the pose term (.loss.pose_loss) added to the photometric cost
     batch_size: int = 16  # global batch (split between DDP ranks)
     lr: float = 1e-3
     warmup: int = 20  # linear lr warm-up steps, then cosine decay to lr_final_frac * lr
@@ -311,6 +312,15 @@ def _flip(f: Tensor, *images: Tensor) -> list[Tensor]:
     return out
 
 
+def _flip_pose(f: Tensor, pose: Tensor) -> Tensor:
+    """The poses ``M T M`` of the pairs :func:`_flip` mirrored (M = diag(-1, 1, 1, 1) left-right,
+    diag(1, -1, 1, 1) upside-down)."""
+    m = torch.ones(pose.shape[0], 4, dtype=pose.dtype)
+    m[f[:, 0], 0] = -1.0
+    m[f[:, 1], 1] = -1.0
+    return m[:, :, None] * pose * m[:, None, :]
+
+
 def _even_subset(n_total: int, n: int) -> Tensor:
     return torch.from_numpy(np.unique(np.linspace(0, n_total - 1, min(n, n_total)).round().astype(np.int64)))
 
@@ -487,17 +497,20 @@ def train(cfg: VOConfig) -> dict:
             idx = gidx[rank * local_batch : (rank + 1) * local_batch]
             for g in opt.param_groups:
                 g["lr"] = _lr_at(cfg, step)
-            ref, live, ref_d, live_d, _, _ = train_set.batch(idx)
+            ref, live, ref_d, live_d, pose, _ = train_set.batch(idx)
             gt_w, gt_v = train_gt[idx], train_valid[idx]
             if flips:
                 f = torch.from_numpy(rng.random((cfg.batch_size, 2)) < 0.5)[rank * local_batch :][:local_batch]
                 ref, live, ref_d, live_d, gt_w, gt_v = _flip(f, ref, live, ref_d, live_d, gt_w, gt_v)
+                pose = _flip_pose(f, pose)
             preds = net(ref, live, ref_d, live_d, train_set.K, all_stages=True)
             # every stage's estimate is scored (deep supervision); the last one is the output
             loss = sum(
                 photometric_loss(p, live, ref_d, gt_w, gt_v, train_set.K, cfg.loss, cfg.loss_scale, cfg.loss_levels)[0]
                 for p in preds
             ).mean() / len(preds)
+            if cfg.pose_weight > 0:
+                loss = loss + cfg.pose_weight * sum(pose_loss(p, pose, ref_d) for p in preds).mean() / len(preds)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
