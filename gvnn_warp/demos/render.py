@@ -48,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=seed, default=0, metavar="S", help="seed of the room and the trajectory")
     p.add_argument("--scene-seed", type=seed, default=None, metavar="S",
                    help="seed of the room, if another than --seed (gvnn-warp vo trains in room 0: another trajectory "
-                        "in that room is --scene-seed 0 --seed S)")
+                        "in that room is --scene-seed 0 --seed S; default: --seed)")
     p.add_argument("--overwrite", action="store_true", help="replace a TUM sequence already in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -75,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="direct: the direct aligner; vo: the trained network of --checkpoint alone; vo+direct: the "
                         "direct aligner starting from the network's estimate")
     p.add_argument("--checkpoint", type=Path, default=None, metavar="CKPT",
-                   help="checkpoint.pt of gvnn-warp vo (needed by --method vo and vo+direct)")
+                   help="checkpoint.pt of gvnn-warp vo (needed by --method vo and vo+direct; default: none)")
     p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY",
                    help="fr1, fr2, fr3, icl (published 640x480 values) or fx,fy,cx,cy (default: DIR/intrinsics.txt, "
                         "else the Freiburg preset named by the folder)")

@@ -69,9 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="output directory (checkpoint, metrics.json, figures; made if missing)")
     p.add_argument("--data", type=Path, nargs="+", default=None, metavar="DIR",
                    help="train on these TUM-format folders (with groundtruth.txt) instead of rendered trajectories; "
-                        "the last one is held out for evaluation unless --eval-data is given")
+                        "the last one is held out for evaluation unless --eval-data is given (default: render)")
     p.add_argument("--eval-data", type=Path, nargs="+", default=None, metavar="DIR",
-                   help="TUM-format folders to evaluate on (with --data)")
+                   help="TUM-format folders to evaluate on (with --data; default: the last --data folder)")
     p.add_argument("--gaps", type=bounded_int_list(1, 1000), default=None, metavar="G,G,...",
                    help="frame gaps of the training and evaluation pairs (default: 1,2,3 for so3, "
                         "1,2,3,5,8,10 for se3)")

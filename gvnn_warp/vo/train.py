@@ -282,15 +282,15 @@ def _lr_at(cfg: VOConfig, step: int) -> float:
 
 def _gt_warps(ps: PairSet, chunk: int = 64) -> tuple[Tensor, Tensor]:
     """Live images warped with the ground-truth poses (and valid masks) for every pair."""
-    warps, valids = [], []
+    n, (C, H, W) = len(ps), ps.images.shape[1:]
+    warps = torch.empty(n, C, H, W, dtype=ps.images.dtype)  # filled in place: no second copy at the end
+    valids = torch.empty(n, 1, H, W, dtype=torch.bool)
     with torch.no_grad():
-        for i in range(0, len(ps), chunk):
-            idx = torch.arange(i, min(i + chunk, len(ps)))
+        for i in range(0, n, chunk):
+            idx = torch.arange(i, min(i + chunk, n))
             _, live, ref_d, _, pose, _ = ps.batch(idx)
-            w, v = warp_live(live, ref_d, pose, ps.K)
-            warps.append(w)
-            valids.append(v)
-    return torch.cat(warps), torch.cat(valids)
+            warps[idx], valids[idx] = warp_live(live, ref_d, pose, ps.K)
+    return warps, valids
 
 
 def _symmetric_intrinsics(K: Tensor, W: int, H: int) -> bool:
