@@ -19,7 +19,9 @@ Then, for the methods
 - vo+direct: the direct aligner starting from the network's estimate,
 
 1. tracking, frame to frame over the whole sequence: ATE (SE(3) Umeyama, or the first pose where
-   that is degenerate: so3) and RPE over 1-frame steps, by ``evo``, and frames per second (one
+   that is degenerate: so3; the camera positions' RMSE by ``evo``), the orientation drift (RMSE of
+   the angle between estimated and true orientation per frame, both trajectories starting at the
+   true first pose, not aligned), RPE over 1-frame steps by ``evo``, and frames per second (one
    ``prepare`` + ``align_frames`` per frame, file reading excluded; the trackers run in lockstep,
    frame by frame, so that all see the same machine load);
 2. pairs: every pair (i, i + g) for g in ``--gaps``, each aligned on its own (direct from the
@@ -95,8 +97,10 @@ def run_tracking(frames, methods: dict, gt, stamps, progress: bool) -> dict:
     for name, tr in trackers.items():
         res = tr.result()
         m = evaluate_trajectory(stamps, res.poses, gt)
+        _, ape_rot = pose_error(res.poses, gt)  # orientation drift: both start at the true first pose
         ms = res.ms_per_pair
-        out[name] = {"ate_m": m.ate_rmse_m, "ate_alignment": m.ate_alignment, "rpe_trans_m": m.rpe_trans_rmse_m,
+        out[name] = {"ate_m": m.ate_rmse_m, "ate_rot_deg": float(np.sqrt(np.mean(ape_rot**2))),
+                     "ate_alignment": m.ate_alignment, "rpe_trans_m": m.rpe_trans_rmse_m,
                      "rpe_rot_deg": m.rpe_rot_rmse_deg, "ms_per_pair": ms,
                      "fps": None if name == "identity" else 1e3 / ms}
     return out
@@ -165,16 +169,17 @@ def run_motion(motion: str, ckpt: Path, args, tmp: Path) -> dict | None:
 
 
 def table(results: dict, gaps: list[int]) -> str:
-    head = ("| sequence | method | ATE | RPE trans | RPE rot | frames/s | "
+    head = ("| sequence | method | ATE trans | ATE rot | RPE trans | RPE rot | frames/s | "
             + " | ".join(f"failed, gap {g}" for g in gaps) + " |")
-    lines = [head, "|" + "---|" * (6 + len(gaps))]
+    lines = [head, "|" + "---|" * (7 + len(gaps))]
     for motion, r in results.items():
         label = f"{motion}, {r['frames']} frames {r['size'][0]}x{r['size'][1]}"
         for name in METHODS:
             t, p = r["tracking"][name], r["pairs"][name]
             fps = "-" if t["fps"] is None else f"{t['fps']:.0f}"
             fails = " | ".join(f"{p[str(g)]['failed_pct']:.0f}%" for g in gaps)
-            lines.append(f"| {label} | {name} | {100 * t['ate_m']:.2f} cm | {100 * t['rpe_trans_m']:.3f} cm | "
+            lines.append(f"| {label} | {name} | {100 * t['ate_m']:.2f} cm | {t['ate_rot_deg']:.2f} deg | "
+                         f"{100 * t['rpe_trans_m']:.3f} cm | "
                          f"{t['rpe_rot_deg']:.3f} deg | {fps} | {fails} |")
     return "\n".join(lines)
 

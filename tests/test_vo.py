@@ -26,7 +26,7 @@ TINY = (64, 48)
 def _tiny_config(out: Path, **kw):
     base = dict(
         steps=30, size=TINY, batch_size=8, lr=2e-3, warmup=5, n_train_traj=2, n_eval_traj=1, n_frames=16,
-        n_eval=16, n_panel=2, checkpoint_every=10, progress=False,
+        n_eval=16, n_panel=2, checkpoint_every=10, progress=False, stage_scales=(1,),
     )
     base.update(kw)
     return default_config("so3", str(out), **base)

@@ -73,10 +73,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--eval-data", type=Path, nargs="+", default=None, metavar="DIR",
                    help="TUM-format folders to evaluate on (with --data; default: the last --data folder)")
     p.add_argument("--gaps", type=bounded_int_list(1, 1000), default=None, metavar="G,G,...",
-                   help="frame gaps of the training and evaluation pairs (default: 1,2,3 for so3, "
-                        "1,2,3,5,8,10 for se3)")
+                   help="frame gaps of the training and evaluation pairs (default: 1 for so3, "
+                        "1,2,3,5,7,10 for se3)")
     p.add_argument("--steps", type=bounded_int(1, 10_000_000), default=None, metavar="N",
-                   help="total training steps (default: 2800 for so3, 1800 for se3)")
+                   help="total training steps (default: 1400 for so3, 1800 for se3)")
     p.add_argument("--size", type=_SIZE, default=None, metavar="WxH", help="image size WxH (default: 128x96)")
     p.add_argument("--seed", type=seed, default=None, metavar="S",
                    help="seed of weights, trajectories and batches (default: 0)")
@@ -100,10 +100,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the first N frames of each folder (default: all)")
     p.add_argument("--stages", type=bounded_int(1, 8), default=None, metavar="N",
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
-                        "the pose so far (default: 1 for so3, 2 for se3)")
+                        "the pose so far (default: 2)")
     p.add_argument("--refine", type=bounded_int(0, 20), default=None, metavar="N",
                    help="when predicting, apply the last stage this many more times to the re-warped live image "
-                        "(default: 0 for so3, 2 for se3)")
+                        "(default: 2)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
