@@ -446,3 +446,28 @@ def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
         assert err[-1].startswith("gvnn-warp track: error: ") and message in err[-1], (extra, err)
         assert sum("error" in line for line in err) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_vo_tracking_benchmark_end_to_end(tmp_path):
+    """benchmarks/vo_tracking.py on a tiny rendered sequence with an untrained (identity) network: vo is
+    then the identity (same failures), vo+direct the direct method, and the identity's failures are the
+    pairs whose true motion passes 2 deg or 5 cm."""
+    from benchmarks import vo_tracking
+    from gvnn_warp.synthetic import default_intrinsics, smooth_se3_trajectory
+
+    ckpt = _vo_checkpoint(tmp_path / "zero.pt", default_intrinsics(80, 60))
+    out = tmp_path / "r.json"
+    assert vo_tracking.main(["--se3", str(ckpt), "--motions", "se3", "--frames", "8", "--size", "80x60", "--gaps",
+                             "1,4", "--seed", "901", "--no-progress", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())["results"]["se3"]
+    gt = smooth_se3_trajectory(8, 901)
+    for g in (1, 4):
+        dt, dr = pose_error(np.eye(4), relative_pose(gt[g:], gt[:-g]))
+        expect = int(((dr > 2.0) | (dt > 0.05)).sum())
+        assert r["pairs"]["identity"][str(g)]["failed"] == r["pairs"]["vo"][str(g)]["failed"] == expect
+        assert r["pairs"]["vo+direct"][str(g)]["failed"] == r["pairs"]["direct"][str(g)]["failed"]
+    assert r["pairs"]["identity"]["4"]["failed"] > 0 and r["pairs"]["identity"]["1"]["pairs"] == 7
+    t = r["tracking"]
+    assert t["vo+direct"]["ate_m"] == pytest.approx(t["direct"]["ate_m"], rel=1e-3, abs=1e-5)
+    assert t["vo"]["ate_rot_deg"] == pytest.approx(t["identity"]["ate_rot_deg"], abs=1e-3)
+    assert t["identity"]["fps"] is None and t["direct"]["fps"] > 0
