@@ -89,6 +89,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="weight of a pose term (L1 distance of the rotation vector, radians, and of the translation "
                         "over the median depth, from the truth) added to the photometric cost (default: 1 for se3 "
                         "and so3; 0: the paper's photometric cost alone)")
+    p.add_argument("--pose-t-weight", type=finite_float(0, 1e6), default=None, metavar="W",
+                   help="weight of the pose term's translation part relative to its rotation part (default: 1; 3 "
+                        "did not lower the se3 translation error)")
     p.add_argument("--batch-size", type=positive_int, default=None, metavar="B",
                    help="global batch size, split between torchrun's ranks (default: 16)")
     p.add_argument("--lr", type=positive_float, default=None, metavar="LR",
@@ -140,6 +143,7 @@ def _config(args: argparse.Namespace):
         stage_scales=(1,) * args.stages if getattr(args, "stages", None) else None,
         refine=getattr(args, "refine", None),
         pose_weight=getattr(args, "pose_weight", None),
+        pose_t_weight=getattr(args, "pose_t_weight", None),
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )

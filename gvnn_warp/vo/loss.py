@@ -107,10 +107,11 @@ def photometric_loss(
     return total / levels, pred_warp, valid
 
 
-def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor) -> Tensor:
+def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor, t_weight: float = 1.0) -> Tensor:
     """(B,) L1 distance of predicted pose vectors ``pred`` ((B, 3) omega or (B, 6) [omega, t]) from
     the ground truth ``T_gt`` (B, 4, 4): ``|omega - omega_gt|_1`` (radians) plus, for (B, 6),
-    ``|t - t_gt|_1 / d`` with ``d`` the median reference depth (a translation's parallax, in radians).
+    ``t_weight |t - t_gt|_1 / d`` with ``d`` the median reference depth (a translation's parallax,
+    in radians).
     The ground-truth rotation vector is ``so3_log(R_gt)`` (no gradient needed)."""
     from gvnn_warp import so3_log
 
@@ -120,7 +121,7 @@ def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor) -> Tensor:
         omega_gt = so3_log(T_gt[:, :3, :3].contiguous().to(pred.dtype))
     out = (pred[:, :3] - omega_gt).abs().sum(1)
     if pred.shape[1] == 6:
-        out = out + (pred[:, 3:] - T_gt[:, :3, 3].to(pred.dtype)).abs().sum(1) / median_depth(ref_depth)
+        out = out + t_weight * (pred[:, 3:] - T_gt[:, :3, 3].to(pred.dtype)).abs().sum(1) / median_depth(ref_depth)
     return out
 
 

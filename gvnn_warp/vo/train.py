@@ -54,7 +54,8 @@ class VOConfig:
     loss: str = DEFAULT_LOSS
     loss_scale: float = 0.1  # M-estimator epsilon / c (intensity units)
     loss_levels: int = 1  # >1: also compare 2x2, 4x4, ... means of the two warps
-    pose_weight: float = 0.0  # weight of the pose term (.loss.pose_loss) added to the photometric cost
+    pose_weight: float = 0.0  # weight of the pose term (.loss.pose_loss) added to the photometric cost ...
+    pose_t_weight: float = 1.0  # ... and of its translation part relative to its rotation part
     batch_size: int = 16  # global batch (split between DDP ranks)
     lr: float = 1e-3
     warmup: int = 20  # linear lr warm-up steps, then cosine decay to lr_final_frac * lr
@@ -515,7 +516,9 @@ def train(cfg: VOConfig) -> dict:
                 for p in preds
             ).mean() / len(preds)
             if cfg.pose_weight > 0:
-                loss = loss + cfg.pose_weight * sum(pose_loss(p, pose, ref_d) for p in preds).mean() / len(preds)
+                loss = loss + cfg.pose_weight * sum(
+                    pose_loss(p, pose, ref_d, cfg.pose_t_weight) for p in preds
+                ).mean() / len(preds)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
