@@ -353,3 +353,148 @@ def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch
     np.testing.assert_array_equal(made[-1]["dist"], [0.2624, -0.9531, -0.0054, 0.0026, 1.1633])
     aligner = real(read_tum(data).K, dist=[0.1, -0.2, 0.01, 0.02, 0.3])
     assert aligner.model == "radtan" and aligner.dist[4] == 0.3
+
+
+# ------------------------------------------------------------------------------------------------
+# gvnn-warp track --method vo | vo+direct (the trained network as the front end)
+
+
+def _vo_checkpoint(path, K, bias=None, size=(64, 48)):
+    """A format-3 checkpoint of a 2-stage se3 network at ``size`` whose first stage predicts ``bias``
+    ([omega, t], metres: no depth normalisation) for every pair, the second stage the identity."""
+    import dataclasses
+
+    import torch
+
+    from gvnn_warp.vo import default_config
+    from gvnn_warp.vo.checkpoint import CHECKPOINT_FORMAT, build_network, network_spec
+
+    cfg = default_config("se3", str(path.parent), size=size, stage_scales=(1, 1), refine=1, depth_normalised_t=False,
+                         widths=(4, 8, 8, 8))
+    spec = network_spec(cfg, torch.as_tensor(K))
+    net = build_network(spec)
+    if bias is not None:
+        with torch.no_grad():
+            net.stages[0].tail[-1].bias.copy_(torch.as_tensor(bias, dtype=torch.float32) / net.stages[0].out_scale)
+    torch.save({"format": CHECKPOINT_FORMAT, "config": dataclasses.asdict(cfg), "network": spec,
+                "model": net.state_dict(), "step": 0}, path)
+    return path
+
+
+def test_track_cli_vo_chains_the_network_pose_and_vo_direct_refines_it(tmp_path):
+    import torch
+
+    from gvnn_warp import se3_to_matrix
+    from gvnn_warp.cli import main
+
+    data = _render(tmp_path, frames=3, size="80x60")  # resized to the network's 64x48
+    seq = read_tum(data)
+    xi = [0.01, -0.02, 0.005, 0.01, 0.0, -0.02]
+    T = np.eye(4)
+    T[:3] = se3_to_matrix(torch.tensor([xi], dtype=torch.float64))[0].numpy()
+    ckpt = _vo_checkpoint(tmp_path / "biased.pt", seq.K, bias=xi)
+    assert main(["track", str(data), "--out", str(tmp_path / "vo"), "--method", "vo", "--checkpoint", str(ckpt),
+                 "--no-progress"]) == 0
+    m = json.loads((tmp_path / "vo" / "metrics.json").read_text())
+    assert m["settings"]["method"] == "vo" and m["settings"]["init"] == "network" and m["frames"] == 3
+    _, poses = read_trajectory(tmp_path / "vo" / "trajectory.txt")
+    # every step is the network's T_live_ref = T: T_world_live = T_world_ref inv(T)
+    expect = [seq.gt_poses[0]]
+    for _ in range(2):
+        expect.append(expect[-1] @ np.linalg.inv(T))
+    np.testing.assert_allclose(poses, np.stack(expect), atol=2e-5)
+    # an untrained network predicts the identity: vo+direct is then the direct method (the aligner from
+    # the identity, on the same frames), up to the grey conversion of the colour images
+    zero = _vo_checkpoint(tmp_path / "zero.pt", seq.K)
+    for method, extra in (("vo+direct", ["--checkpoint", str(zero)]), ("direct", [])):
+        assert main(["track", str(data), "--out", str(tmp_path / method), "--method", method, *extra,
+                     "--no-progress"]) == 0
+    _, refined = read_trajectory(tmp_path / "vo+direct" / "trajectory.txt")
+    _, direct = read_trajectory(tmp_path / "direct" / "trajectory.txt")
+    np.testing.assert_allclose(refined, direct, atol=1e-4)
+    assert json.loads((tmp_path / "vo+direct" / "metrics.json").read_text())["settings"]["method"] == "vo+direct"
+
+
+def test_network_aligner_gives_the_network_pose_to_the_direct_aligner_as_init(tmp_path):
+    from gvnn_warp.vo.checkpoint import load_network
+    from gvnn_warp.vo.frontend import NetworkAligner
+
+    class Recorder:
+        def __init__(self):
+            self.inits = []
+
+        def prepare(self, image, depth):
+            return image.shape
+
+        def align_frames(self, ref, live, init=None):
+            self.inits.append(np.array(init))
+            return np.eye(4), {"converged": False}
+
+    K = np.array([[60.0, 0, 39.5], [0, 60.0, 29.5], [0, 0, 1]])
+    xi = [0.0, 0.03, 0.0, 0.02, 0.0, 0.0]
+    net, spec = load_network(_vo_checkpoint(tmp_path / "c.pt", K, bias=xi))
+    rec = Recorder()
+    al = NetworkAligner(net, K, (80, 60), refine=spec["refine"], direct=rec)
+    rng = np.random.default_rng(0)
+    frames = [al.prepare(rng.random((3, 60, 80), dtype=np.float32), np.full((1, 60, 80), 2.0, np.float32))
+              for _ in range(2)]
+    assert frames[0].image.shape == (1, 3, 48, 64) and frames[0].direct == (3, 60, 80)
+    T, info = al.align_frames(frames[0], frames[1], init=np.eye(4))
+    assert not info["converged"] and np.array_equal(T, np.eye(4))  # the direct aligner's answer ...
+    np.testing.assert_allclose(rec.inits[0], info["network_pose"])  # ... from the network's pose
+    np.testing.assert_allclose(info["network_pose"][:3, 3], [0.02, 0, 0], atol=1e-6)
+    with pytest.raises(ValueError, match="must be 80x60"):
+        al.prepare(np.zeros((3, 48, 64), np.float32), np.ones((1, 48, 64), np.float32))
+
+
+def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
+    import torch
+
+    from gvnn_warp.cli import main
+
+    data = _render(tmp_path, frames=2, size="32x24")
+    old = tmp_path / "old.pt"
+    torch.save({"format": 2, "config": {}, "model": {}}, old)
+    text = tmp_path / "notes.txt"
+    text.write_text("not a checkpoint\n")
+    cases = [
+        (["--method", "vo"], "--method vo needs --checkpoint CKPT"),
+        (["--method", "vo+direct", "--checkpoint", str(tmp_path / "none.pt")], "none.pt: no such file"),
+        (["--method", "vo", "--checkpoint", str(old)], "checkpoint format 2, this gvnn_warp reads format 3"),
+        (["--method", "vo", "--checkpoint", str(text)], "notes.txt: not a gvnn-warp vo checkpoint"),
+        (["--checkpoint", str(old)], "--checkpoint is used by --method vo and vo+direct only"),
+        (["--method", "vo", "--checkpoint", str(tmp_path)], "not a file"),
+    ]
+    for extra, message in cases:
+        with pytest.raises(SystemExit) as e:
+            main(["track", str(data), "--out", str(tmp_path / "o"), *extra])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("gvnn-warp track: error: ") and message in err[-1], (extra, err)
+        assert sum("error" in line for line in err) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_vo_tracking_benchmark_end_to_end(tmp_path):
+    """benchmarks/vo_tracking.py on a tiny rendered sequence with an untrained (identity) network: vo is
+    then the identity (same failures), vo+direct the direct method, and the identity's failures are the
+    pairs whose true motion passes 2 deg or 5 cm."""
+    from benchmarks import vo_tracking
+    from gvnn_warp.synthetic import default_intrinsics, smooth_se3_trajectory
+
+    ckpt = _vo_checkpoint(tmp_path / "zero.pt", default_intrinsics(80, 60))
+    out = tmp_path / "r.json"
+    assert vo_tracking.main(["--se3", str(ckpt), "--motions", "se3", "--frames", "8", "--size", "80x60", "--gaps",
+                             "1,4", "--seed", "901", "--no-progress", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())["results"]["se3"]
+    gt = smooth_se3_trajectory(8, 901)
+    for g in (1, 4):
+        dt, dr = pose_error(np.eye(4), relative_pose(gt[g:], gt[:-g]))
+        expect = int(((dr > 2.0) | (dt > 0.05)).sum())
+        assert r["pairs"]["identity"][str(g)]["failed"] == r["pairs"]["vo"][str(g)]["failed"] == expect
+        assert r["pairs"]["vo+direct"][str(g)]["failed"] == r["pairs"]["direct"][str(g)]["failed"]
+    assert r["pairs"]["identity"]["4"]["failed"] > 0 and r["pairs"]["identity"]["1"]["pairs"] == 7
+    t = r["tracking"]
+    assert t["vo+direct"]["ate_m"] == pytest.approx(t["direct"]["ate_m"], rel=1e-3, abs=1e-5)
+    assert t["vo"]["ate_rot_deg"] == pytest.approx(t["identity"]["ate_rot_deg"], abs=1e-3)
+    assert t["identity"]["fps"] is None and t["direct"]["fps"] > 0

@@ -26,7 +26,7 @@ TINY = (64, 48)
 def _tiny_config(out: Path, **kw):
     base = dict(
         steps=30, size=TINY, batch_size=8, lr=2e-3, warmup=5, n_train_traj=2, n_eval_traj=1, n_frames=16,
-        n_eval=16, n_panel=2, checkpoint_every=10, progress=False,
+        n_eval=16, n_panel=2, checkpoint_every=10, progress=False, stage_scales=(1,),
     )
     base.update(kw)
     return default_config("so3", str(out), **base)
@@ -345,19 +345,25 @@ def test_resume_refuses_a_run_on_other_data(tiny_run, change):
     assert (out / "checkpoint.pt").stat().st_mtime_ns == before
 
 
-@pytest.mark.parametrize("old", ["pickled numpy", "no format"])
+@pytest.mark.parametrize("old", ["pickled numpy", "no format", "format 2"])
 def test_resume_refuses_checkpoints_of_other_versions(tmp_path, old):
     """Checkpoints load with weights_only=True; one written by an older version (numpy arrays
-    pickled inside, or no format number) gets a clear error, not a traceback or a silent resume."""
+    pickled inside, no format number, or format 2 without the network's description) gets a clear
+    one-line error, not a traceback or a silent resume."""
     from gvnn_warp.vo.train import ConfigError
 
     cfg = _tiny_config(tmp_path, resume=True)
     ck = {"config": dataclasses.asdict(cfg), "step": 3, "train_loss": [1.0, 1.0, 1.0]}
     if old == "pickled numpy":
         ck["rng"] = {"numpy": np.random.get_state()}
+    if old == "format 2":
+        ck.update(format=2, model=CascadeVO("so3", size=TINY).state_dict())
     torch.save(ck, tmp_path / "checkpoint.pt")
-    with pytest.raises(ConfigError, match="cannot resume: .*checkpoint.pt .*(older|another gvnn_warp) version"):
+    with pytest.raises(ConfigError, match="cannot resume: .*checkpoint.pt: .*(older|another) version") as e:
         train(cfg)
+    assert "\n" not in str(e.value)
+    if old != "pickled numpy":
+        assert f"checkpoint format {1 if old == 'no format' else 2}, this gvnn_warp reads format 3" in str(e.value)
 
 
 def test_training_curve_legend_and_panel_text(tiny_pairs):
@@ -445,3 +451,86 @@ def test_ddp_two_ranks(tmp_path):
     assert metrics["distributed"]["max_param_diff_between_ranks"] == 0.0
     assert len(metrics["train_loss"]) == 6
     assert metrics["steps"] == 6
+
+
+# ----------------------------------------------------------------------------- TUM folders, checkpoint format
+
+
+def _render_tum(root: Path, seed: int, frames: int = 6, size: str = "96x72") -> Path:
+    from gvnn_warp.cli import main
+
+    out = root / f"seq{seed}"
+    assert main(["render", "--out", str(out), "--frames", str(frames), "--size", size, "--seed", str(seed),
+                 "--scene-seed", "0", "--no-progress"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def tum_folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("vo_tum")
+    return [_render_tum(root, s) for s in (3, 4)]
+
+
+def test_read_split_resizes_frames_and_scales_intrinsics(tum_folders):
+    """Pairs read from TUM folders at 96x72 and resized to 64x48: K is the renderer's K at 64x48 (pixel
+    centres kept), and the ground-truth pose warps the resized live frame onto the resized reference."""
+    from gvnn_warp.synthetic import default_intrinsics
+    from gvnn_warp.vo.data import read_split
+
+    ps = read_split(tum_folders[:1], TINY, gaps=(1, 3), both_directions=True)
+    torch.testing.assert_close(ps.K, torch.from_numpy(default_intrinsics(*TINY)).float())
+    assert len(ps) == 2 * (5 + 3) and ps.images.shape == (6, 3, 48, 64) and ps.depths.shape == (6, 1, 48, 64)
+    assert sorted({int(g) for g in (ps.live - ps.ref).abs()}) == [1, 3]
+    ref, live, ref_d, _, pose, xi = ps.batch(torch.arange(len(ps)))
+    warped, valid = warp_live(live, ref_d, pose, ps.K)
+    m = valid.expand_as(warped)
+    err = (warped - ref).abs()[m].mean()
+    assert valid.float().mean() > 0.5 and err < 0.02, err  # PNG quantisation and resampling, not geometry
+    assert (live - ref).abs().mean() > 4 * err
+    # the resized frames are the frames rendered at 64x48 directly up to texture filtering and PNG
+    # rounding, and better than with the pixel grid half a pixel off either way
+    import torch.nn.functional as F
+
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.synthetic import make_room_scene, render_rgbd
+
+    img, dep = render_rgbd(make_room_scene(0), read_tum(tum_folders[0]).gt_poses, default_intrinsics(*TINY), *TINY)
+    img = torch.from_numpy(img)
+
+    def off(dx):
+        theta = torch.tensor([[1.0, 0.0, 2 * dx / TINY[0]], [0.0, 1.0, 0.0]]).repeat(len(img), 1, 1)
+        grid = F.affine_grid(theta, list(img.shape), align_corners=False)
+        moved = F.grid_sample(ps.images, grid, align_corners=False, padding_mode="border")
+        return (moved - img)[..., 4:-4, 4:-4].abs().mean()
+
+    assert off(0.0) < 0.8 * min(off(-0.5), off(0.5)), (off(0.0), off(-0.5), off(0.5))
+    dep = torch.from_numpy(dep)
+    near = (ps.depths - dep).abs() < 0.03 * dep  # the depth of a source pixel within half a pixel
+    assert near.float().mean() > 0.9, near.float().mean()  # everywhere but at depth edges
+
+
+def test_train_on_tum_folders_holds_out_the_last(tum_folders, tmp_path):
+    from gvnn_warp.vo.checkpoint import CHECKPOINT_FORMAT, load_network
+    from gvnn_warp.vo.train import ConfigError
+
+    cfg = _tiny_config(tmp_path, steps=3, data=tuple(tum_folders), gaps=(1, 2), n_eval=64)
+    assert cfg.data == (str(tum_folders[0]),) and cfg.eval_data == (str(tum_folders[1]),)
+    metrics = train(cfg)
+    assert metrics["n_train_pairs"] == metrics["n_eval_pairs_total"] == 2 * (5 + 4)
+    assert set(metrics["eval_by_gap"]) == {"1", "2"}
+    by_gap = metrics["eval_by_gap"]
+    assert by_gap["2"]["identity"]["rot_deg"] > by_gap["1"]["identity"]["rot_deg"]  # twice the motion
+    # the checkpoint: plain tensors, this format, and the network it describes is the trained one
+    ck = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    assert ck["format"] == CHECKPOINT_FORMAT and ck["network"]["kwargs"]["size"] == TINY
+    net, spec = load_network(tmp_path / "checkpoint.pt")
+    assert not net.training and spec["refine"] == cfg.refine
+    for k, v in net.state_dict().items():
+        assert torch.equal(v, ck["model"][k]), k
+    with pytest.raises(ConfigError, match="--data with one folder needs --eval-data"):
+        _tiny_config(tmp_path, data=tuple(tum_folders[:1]))
+    with pytest.raises(ConfigError, match="groundtruth.txt: missing"):
+        bare = tmp_path / "bare"
+        shutil.copytree(tum_folders[0], bare)
+        (bare / "groundtruth.txt").unlink()
+        train(_tiny_config(tmp_path / "o2", data=(str(bare), str(tum_folders[1]))))

@@ -88,6 +88,19 @@ seed = bounded_int(0, MAX_SEED)
 seed.__doc__ = "``type=`` for ``--seed``: an integer from 0 to 2**32 - 1."
 
 
+def bounded_int_list(minimum: int, maximum: int | None = None) -> Callable[[str], tuple[int, ...]]:
+    """``type=`` for a comma-separated list of integers in [minimum, maximum] (e.g. ``1,2,5``)."""
+    one = bounded_int(minimum, maximum)
+
+    def parse(text: str) -> tuple[int, ...]:
+        parts = [t.strip() for t in text.split(",")]
+        if not parts or any(not t for t in parts):
+            raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
+        return tuple(one(t) for t in parts)
+
+    return parse
+
+
 def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: str = "") -> Callable[[str], float]:
     """``type=`` for a finite number in [minimum, maximum] (NaN and inf are refused)."""
     u = f" {unit}" if unit else ""

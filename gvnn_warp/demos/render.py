@@ -2,7 +2,7 @@
 
 Usage::
 
-    gvnn-warp render --out DIR [--motion so3|se3] [--frames N] [--size WxH] [--seed S]
+    gvnn-warp render --out DIR [--motion so3|se3] [--frames N] [--size WxH] [--seed S] [--scene-seed S]
 
 Writes ``DIR/rgb/*.png`` (8-bit colour), ``DIR/depth/*.png`` (16-bit, metres * 5000, 0 = no
 depth), ``DIR/rgb.txt``, ``DIR/depth.txt``, ``DIR/groundtruth.txt`` (``T_world_cam`` as
@@ -46,6 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=bounded_int(1, MAX_FRAMES), default=200, metavar="N", help="number of frames")
     p.add_argument("--size", type=image_size(16, MAX_SIDE), default="320x240", metavar="WxH", help="image size WxH")
     p.add_argument("--seed", type=seed, default=0, metavar="S", help="seed of the room and the trajectory")
+    p.add_argument("--scene-seed", type=seed, default=None, metavar="S",
+                   help="seed of the room, if another than --seed (gvnn-warp vo trains in room 0: another trajectory "
+                        "in that room is --scene-seed 0 --seed S; default: --seed)")
     p.add_argument("--overwrite", action="store_true", help="replace a TUM sequence already in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -80,8 +83,9 @@ def check(args: argparse.Namespace) -> None:
 
 
 def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], seed: int,
-                    progress: bool = True) -> float:
-    """Render and write the sequence; returns the seconds spent rendering (not writing)."""
+                    progress: bool = True, scene_seed: int | None = None) -> float:
+    """Render and write the sequence (the room of ``scene_seed``, default ``seed``); returns the
+    seconds spent rendering (not writing)."""
     import numpy as np
     from tqdm import tqdm
 
@@ -91,7 +95,7 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
     width, height = size
     K = default_intrinsics(width, height)
     poses = trajectory(motion, frames, seed)
-    scene = make_room_scene(seed)
+    scene = make_room_scene(seed if scene_seed is None else scene_seed)
     stamps = T0 + np.arange(frames) / FPS
     chunk = max(1, min(CHUNK, CHUNK_BYTES // (16 * width * height)))  # 4 float32 channels per pixel
     if out.is_dir():  # --overwrite: drop the old images so no stale frame is left beside the new lists
@@ -99,6 +103,8 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
             for f in (out / kind).glob("*.png"):
                 f.unlink()
     comment = f"gvnn-warp render --motion {motion} --frames {frames} --size {width}x{height} --seed {seed}"
+    if scene_seed is not None and scene_seed != seed:
+        comment += f" --scene-seed {scene_seed}"
     render_s = 0.0
     with TUMWriter(out, K, comment=comment) as writer, tqdm(
         total=frames, unit="frame", disable=not progress, desc="render"
@@ -119,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
     render_s = render_sequence(args.out, args.motion, args.frames, args.size, args.seed,
-                               progress=not args.no_progress)
+                               progress=not args.no_progress, scene_seed=getattr(args, "scene_seed", None))
     total = time.perf_counter() - t
     width, height = args.size
     print(f"render {args.motion}: {args.frames} frames {width}x{height} in {total:.1f} s "

@@ -2,7 +2,8 @@
 
 Usage::
 
-    gvnn-warp track DIR --out OUT [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
+    gvnn-warp track DIR --out OUT [--method direct|vo|vo+direct [--checkpoint CKPT]]
+                    [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
                     [--max-frames N] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
                     [--keyframe-valid F]] [--init identity|velocity] [--levels L] [--robust KIND]
                     [--depth-weight W] [--color]
@@ -12,7 +13,10 @@ groundtruth.txt when present) to the previous one - or, with ``--keyframes``, to
 until the motion or the valid fraction passes a threshold - with ``gvnn_warp.odometry.DirectAligner``
 on grey images (``--color``: RGB) - through the camera's radial-tangential distortion when the
 intrinsics have one (the fr1/fr2 presets, nine numbers in ``--intrinsics`` or intrinsics.txt) -
-and writes:
+or, with ``--method vo``, by the network of a ``gvnn-warp vo``
+checkpoint (``--checkpoint``; frames are resized to the network's size and the intrinsics scaled),
+or with ``--method vo+direct`` by the direct aligner starting from the network's estimate (instead
+of the identity or ``--init``) - and writes:
 
 - ``OUT/trajectory.txt``: the estimate in the TUM format (``timestamp tx ty tz qx qy qz qw``,
   ``T_world_cam``), one pose per frame, starting at the ground truth's first pose (identity
@@ -43,6 +47,7 @@ REQUIRES = ("evo", "matplotlib", "tqdm")
 
 ROBUST = ("huber", "l2", "cauchy", "geman_mcclure", "tukey")  # DirectAligner's
 PRESETS = ("fr1", "fr2", "fr3", "icl")
+METHODS = ("direct", "vo", "vo+direct")
 MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
 MAX_ITERATIONS = 1000
 
@@ -69,6 +74,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", type=Path, metavar="DIR", help="TUM RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])")
     p.add_argument("--out", type=output_dir, required=True, metavar="OUT",
                    help="output folder for trajectory.txt, metrics.json and the figures (made if missing)")
+    p.add_argument("--method", choices=METHODS, default="direct",
+                   help="direct: the direct aligner; vo: the trained network of --checkpoint alone; vo+direct: the "
+                        "direct aligner starting from the network's estimate")
+    p.add_argument("--checkpoint", type=Path, default=None, metavar="CKPT",
+                   help="checkpoint.pt of gvnn-warp vo (needed by --method vo and vo+direct; default: none)")
     p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY[,K1,K2,P1,P2,K3]",
                    help="fr1, fr2, fr3, icl (published 640x480 values; fr1, fr2 with their radial-tangential "
                         "distortion) or fx,fy,cx,cy[,k1,k2,p1,p2,k3] (default: DIR/intrinsics.txt, "
@@ -150,12 +160,43 @@ def check(args: argparse.Namespace):
     return seq, n
 
 
+def check_method(args: argparse.Namespace):
+    """--method and --checkpoint (raises UsageError before any work); returns the network and its
+    checkpoint entry ``network`` for --method vo / vo+direct, else None."""
+    method = getattr(args, "method", "direct")
+    ckpt = getattr(args, "checkpoint", None)
+    if method == "direct":
+        if ckpt is not None:
+            raise UsageError("--checkpoint is used by --method vo and vo+direct only (this run is --method direct)")
+        return None
+    if ckpt is None:
+        raise UsageError(f"--method {method} needs --checkpoint CKPT (the checkpoint.pt written by gvnn-warp vo)")
+    from ..cli import INSTALL_HINTS, missing_packages
+
+    if missing_packages(("torch",)):
+        raise UsageError(f"--method {method} needs {INSTALL_HINTS['torch']}")
+    from ..vo.checkpoint import CheckpointError, load_network
+
+    try:
+        return load_network(ckpt)
+    except CheckpointError as e:
+        raise UsageError(str(e)) from None
+
+
 def run(args: argparse.Namespace) -> int:
     from ..datasets.tum import DatasetError
 
     seq, n = check(args)
-    aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
-                           depth_weight=args.depth_weight, color=args.color, dist=seq.dist)
+    network = check_method(args)
+    aligner = None
+    if getattr(args, "method", "direct") != "vo":
+        aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
+                               depth_weight=args.depth_weight, color=args.color, dist=seq.dist)
+    if network is not None:
+        from ..vo.frontend import NetworkAligner
+
+        net, spec = network
+        aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner)
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         return _track_and_report(args, seq, n, aligner)
@@ -171,7 +212,8 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
     from ..evaluation import ATE_ALIGNMENT, FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, plot_errors, plot_top_view
     from ..tracking import KeyframePolicy, track
 
-    gray = not args.color
+    method = getattr(args, "method", "direct")
+    gray = not args.color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
     has_gt = seq.gt_poses is not None and int(seq.gt_valid[:n].sum()) >= 2
     start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
     policy = (KeyframePolicy(args.keyframe_trans, args.keyframe_rot, args.keyframe_valid)
@@ -191,7 +233,10 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
         "intrinsics": {"fx": seq.K[0, 0], "fy": seq.K[1, 1], "cx": seq.K[0, 2], "cy": seq.K[1, 2],
                        "radtan": None if seq.dist is None else [float(v) for v in seq.dist],
                        "source": seq.intrinsics_source},
-        "settings": {"mode": "keyframe" if policy else "frame-to-frame", "init": args.init,
+        "settings": {"method": method,
+                     "checkpoint": str(args.checkpoint) if getattr(args, "checkpoint", None) else None,
+                     "mode": "keyframe" if policy else "frame-to-frame",
+                     "init": args.init if method == "direct" else "network",
                      "levels": args.levels or "auto", "iterations": args.iterations, "robust": args.robust,
                      "depth_weight": args.depth_weight,
                      "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale},
@@ -202,7 +247,7 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
         "unconverged_frames": unconverged,
         "ground_truth": has_gt,
     }
-    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']})"),
+    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method})"),
             ("ms per pair", f"{result.ms_per_pair:.2f}"),
             ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {_frames_text(unconverged)})" if unconverged
                                                            else ""))]

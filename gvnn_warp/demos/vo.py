@@ -2,8 +2,16 @@
 
 Usage::
 
-    gvnn-warp vo --motion so3|se3 --out DIR [--steps N] [--size WxH] [--seed S] [--resume]
+    gvnn-warp vo --motion so3|se3 --out DIR [--data DIR [DIR ...] [--eval-data DIR ...]] [--gaps G,G,...]
+                 [--steps N] [--size WxH] [--seed S] [--resume]
                  [--loss l1|l2|huber|cauchy|geman_mcclure|tukey] [--batch-size B] [--lr LR]
+
+Trains on frame pairs (k, k + g) for every gap g of ``--gaps``, in both directions. By default the
+pairs come from trajectories it renders itself in a synthetic room (no downloads) and it is
+evaluated on trajectories of other seeds in the same room; with ``--data`` from TUM-format folders
+(``gvnn-warp render`` writes them; TUM RGB-D and ICL-NUIM downloads with ground truth are read the
+same way), resized to ``--size`` with the intrinsics scaled, evaluated on ``--eval-data`` (default:
+the last ``--data`` folder, held out).
 
 Writes ``DIR/checkpoint.pt`` (atomically, every 50 steps / 30 s, on Ctrl-C / SIGTERM and at the
 end; ``--resume`` continues from it), ``DIR/metrics.json`` (training loss per step, held-out
@@ -19,6 +27,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 # Idle OpenMP threads sleep instead of spinning: on 2 shared cores (Warp launches, other processes)
 # spinning threads made training steps several times slower. Only effective if set before torch
@@ -28,7 +37,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from ._args import (
     UsageError,
     bounded_int,
+    bounded_int_list,
     description,
+    finite_float,
     image_size,
     output_dir,
     positive_float,
@@ -56,8 +67,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="so3: pure rotation (3 outputs); se3: rotation and translation (6 outputs)")
     p.add_argument("--out", type=output_dir, required=True, metavar="DIR",
                    help="output directory (checkpoint, metrics.json, figures; made if missing)")
+    p.add_argument("--data", type=Path, nargs="+", default=None, metavar="DIR",
+                   help="train on these TUM-format folders (with groundtruth.txt) instead of rendered trajectories; "
+                        "the last one is held out for evaluation unless --eval-data is given (default: render)")
+    p.add_argument("--eval-data", type=Path, nargs="+", default=None, metavar="DIR",
+                   help="TUM-format folders to evaluate on (with --data; default: the last --data folder)")
+    p.add_argument("--gaps", type=bounded_int_list(1, 1000), default=None, metavar="G,G,...",
+                   help="frame gaps of the training and evaluation pairs (default: 1 for so3, "
+                        "1,2,3,5,7,10 for se3)")
     p.add_argument("--steps", type=bounded_int(1, 10_000_000), default=None, metavar="N",
-                   help="total training steps (default: 2800 for so3, 1800 for se3)")
+                   help="total training steps (default: 1400 for so3, 1800 for se3)")
     p.add_argument("--size", type=_SIZE, default=None, metavar="WxH", help="image size WxH (default: 128x96)")
     p.add_argument("--seed", type=seed, default=None, metavar="S",
                    help="seed of weights, trajectories and batches (default: 0)")
@@ -66,6 +85,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-pixel penalty: l1, l2, or an M-estimator of gvnn_warp.perpixel (default: l1)")
     p.add_argument("--loss-scale", type=positive_float, default=None, metavar="X",
                    help="M-estimator scale, intensity units (default: 0.1)")
+    p.add_argument("--pose-weight", type=finite_float(0, 1e6), default=None, metavar="W",
+                   help="weight of a pose term (L1 distance of the rotation vector, radians, and of the translation "
+                        "over the median depth, from the truth) added to the photometric cost (default: 1 for se3 "
+                        "and so3; 0: the paper's photometric cost alone)")
+    p.add_argument("--pose-t-weight", type=finite_float(0, 1e6), default=None, metavar="W",
+                   help="weight of the pose term's translation part relative to its rotation part (default: 1; 3 "
+                        "did not lower the se3 translation error)")
     p.add_argument("--batch-size", type=positive_int, default=None, metavar="B",
                    help="global batch size, split between torchrun's ranks (default: 16)")
     p.add_argument("--lr", type=positive_float, default=None, metavar="LR",
@@ -73,13 +99,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trajectories", type=bounded_int(1, 1000), default=None, metavar="N",
                    help="training trajectories to render (default: 8 for so3, 16 for se3; held-out: 2 others)")
     p.add_argument("--frames", type=bounded_int(2, 10_000), default=None, metavar="N",
-                   help="frames per trajectory; se3 pairs frames up to 3 apart, so it needs at least 4 (default: 80)")
+                   help="frames per rendered trajectory, more than the largest gap (default: 80); with --data: "
+                        "the first N frames of each folder (default: all)")
     p.add_argument("--stages", type=bounded_int(1, 8), default=None, metavar="N",
                    help="networks in the cascade; each later one refines the pose on the live image warped by "
-                        "the pose so far (default: 1 for so3, 2 for se3)")
+                        "the pose so far (default: 2)")
     p.add_argument("--refine", type=bounded_int(0, 20), default=None, metavar="N",
                    help="when predicting, apply the last stage this many more times to the re-warped live image "
-                        "(default: 0 for so3, 2 for se3)")
+                        "(default: 2)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -108,9 +135,15 @@ def _config(args: argparse.Namespace):
         batch_size=args.batch_size,
         lr=args.lr,
         n_train_traj=getattr(args, "trajectories", None),
-        n_frames=getattr(args, "frames", None),
+        n_frames=None if getattr(args, "data", None) else getattr(args, "frames", None),
+        data_max_frames=getattr(args, "frames", None) if getattr(args, "data", None) else None,
+        data=tuple(str(d) for d in args.data) if getattr(args, "data", None) else None,
+        eval_data=tuple(str(d) for d in args.eval_data) if getattr(args, "eval_data", None) else None,
+        gaps=getattr(args, "gaps", None),
         stage_scales=(1,) * args.stages if getattr(args, "stages", None) else None,
         refine=getattr(args, "refine", None),
+        pose_weight=getattr(args, "pose_weight", None),
+        pose_t_weight=getattr(args, "pose_t_weight", None),
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )

@@ -8,6 +8,8 @@ points of the reference camera frame into the live one, so ``warp_frame_depth(li
 T_live_ref, K)`` reproduces the reference image wherever it is valid.
 
 Training and evaluation splits use different trajectory seeds (see :func:`split_seeds`).
+:func:`read_split` makes the same pairs from TUM-format folders (``gvnn-warp render`` writes them;
+TUM RGB-D and ICL-NUIM downloads are read the same way), resized to the network's size.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["PairSet", "make_pairs", "render_split", "split_seeds"]
+__all__ = ["PairSet", "make_pairs", "read_split", "render_split", "split_seeds", "tum_frames"]
 
 
 @dataclass
@@ -102,7 +104,6 @@ def render_split(
     ``motion`` picks the trajectory family: ``so3`` = ``rotation_trajectory`` (pure rotation,
     several degrees per frame), ``se3`` = ``smooth_se3_trajectory`` (6-DoF, a few cm per frame).
     """
-    from gvnn_warp import so3_log
     from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd
 
     W, H = size
@@ -120,15 +121,78 @@ def render_split(
         lives.append(lv + offset)
         poses.append(P)
         offset += T.shape[0]
+    return _pair_set(images, depths, refs, lives, poses, K)
+
+
+def tum_frames(root, max_frames: int | None = None):
+    """The TUM sequence in folder ``root`` (``gvnn_warp.datasets.tum.read_tum``) and the indices of
+    its first ``max_frames`` frames that have ground truth; ``DatasetError`` if it has none."""
+    from gvnn_warp.datasets.tum import DatasetError, read_tum
+
+    seq = read_tum(root)
+    if seq.gt_poses is None:
+        raise DatasetError(f"{seq.root / 'groundtruth.txt'}: missing (training and evaluation need ground truth)")
+    n = len(seq) if max_frames is None else min(max_frames, len(seq))
+    frames = np.flatnonzero(seq.gt_valid[:n])
+    if frames.size < 2:
+        raise DatasetError(f"{seq.root / 'groundtruth.txt'}: fewer than 2 frames with ground truth")
+    return seq, frames
+
+
+def read_split(
+    roots: list,
+    size: tuple[int, int],
+    gaps: tuple[int, ...] = (1,),
+    both_directions: bool = True,
+    max_frames: int | None = None,
+) -> PairSet:
+    """Frame pairs of the TUM-format folders ``roots``, resized to ``size`` = (W, H) (colour:
+    antialiased bilinear; depth: nearest pixel centre; the intrinsics scaled to match, see
+    :func:`gvnn_warp.vo.frontend.resize_frame`). A pair is (frame k, frame k + g) of one folder
+    for g in ``gaps`` (in both directions when ``both_directions``), among its first ``max_frames``
+    frames with ground truth; its pose is ``T_live_ref`` from the ground truth. The folders must
+    have the same intrinsics once resized (the network is trained for one camera).
+    """
+    from gvnn_warp.datasets.tum import DatasetError
+
+    from .frontend import resize_frame, scale_intrinsics
+
+    images, depths, refs, lives, poses = [], [], [], [], []
+    K = None
+    offset = 0
+    for root in roots:
+        seq, frames = tum_frames(root, max_frames)
+        K_seq = scale_intrinsics(seq.K, (seq.width, seq.height), size)
+        if K is None:
+            K, K_root = K_seq, seq.root
+        elif not np.allclose(K_seq, K, rtol=1e-4, atol=1e-3):
+            raise DatasetError(f"{seq.root}: intrinsics {K_seq[0, 0]:.6g}, {K_seq[1, 1]:.6g}, {K_seq[0, 2]:.6g}, "
+                               f"{K_seq[1, 2]:.6g} at {size[0]}x{size[1]} differ from {K_root}'s {K[0, 0]:.6g}, "
+                               f"{K[1, 1]:.6g}, {K[0, 2]:.6g}, {K[1, 2]:.6g} (train on one camera)")
+        for i in frames:
+            img, dep = resize_frame(seq.image(int(i)), seq.depth(int(i)), size)
+            images.append(img[0].numpy())
+            depths.append(dep[0].numpy())
+        r, lv, P = make_pairs(seq.gt_poses[frames], gaps, both_directions)
+        refs.append(r + offset)
+        lives.append(lv + offset)
+        poses.append(P)
+        offset += frames.size
+    return _pair_set(images, depths, refs, lives, poses, K)
+
+
+def _pair_set(images, depths, refs, lives, poses, K) -> PairSet:
+    from gvnn_warp import so3_log
+
     pose = torch.from_numpy(np.concatenate(poses))
     omega = so3_log(pose[:, :3, :3].contiguous())
     xi = torch.cat([omega, pose[:, :3, 3]], dim=1)
     return PairSet(
-        images=torch.from_numpy(np.concatenate(images)),
-        depths=torch.from_numpy(np.concatenate(depths)),
+        images=torch.from_numpy(np.stack(images) if images[0].ndim == 3 else np.concatenate(images)).float(),
+        depths=torch.from_numpy(np.stack(depths) if depths[0].ndim == 3 else np.concatenate(depths)).float(),
         ref=torch.from_numpy(np.concatenate(refs)).long(),
         live=torch.from_numpy(np.concatenate(lives)).long(),
         pose=pose.float(),
         xi=xi.float(),
-        K=torch.from_numpy(K).float(),
+        K=torch.from_numpy(np.asarray(K)).float(),
     )

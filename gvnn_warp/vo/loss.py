@@ -26,6 +26,7 @@ __all__ = [
     "penalty",
     "photometric_loss",
     "pose_errors",
+    "pose_loss",
     "warp_live",
 ]
 
@@ -104,6 +105,24 @@ def photometric_loss(
         n = (m.sum(dim=(1, 2, 3)) * live.shape[1]).clamp_min(1.0)
         total = total + per_pixel.sum(dim=(1, 2, 3)) / n
     return total / levels, pred_warp, valid
+
+
+def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor, t_weight: float = 1.0) -> Tensor:
+    """(B,) L1 distance of predicted pose vectors ``pred`` ((B, 3) omega or (B, 6) [omega, t]) from
+    the ground truth ``T_gt`` (B, 4, 4): ``|omega - omega_gt|_1`` (radians) plus, for (B, 6),
+    ``t_weight |t - t_gt|_1 / d`` with ``d`` the median reference depth (a translation's parallax,
+    in radians).
+    The ground-truth rotation vector is ``so3_log(R_gt)`` (no gradient needed)."""
+    from gvnn_warp import so3_log
+
+    from .model import median_depth
+
+    with torch.no_grad():
+        omega_gt = so3_log(T_gt[:, :3, :3].contiguous().to(pred.dtype))
+    out = (pred[:, :3] - omega_gt).abs().sum(1)
+    if pred.shape[1] == 6:
+        out = out + t_weight * (pred[:, 3:] - T_gt[:, :3, 3].to(pred.dtype)).abs().sum(1) / median_depth(ref_depth)
+    return out
 
 
 def pose_errors(pred: Tensor, T_gt: Tensor) -> tuple[Tensor, Tensor]:

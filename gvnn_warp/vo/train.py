@@ -29,18 +29,16 @@ import torch
 import torch.distributed as dist
 from torch import Tensor
 
-from .data import PairSet, render_split, split_seeds
-from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, warp_live
+from .checkpoint import CHECKPOINT_FORMAT, CheckpointError, network_spec, read_checkpoint
+from .data import PairSet, read_split, render_split, split_seeds, tum_frames
+from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors, pose_loss, warp_live
 from .model import CascadeVO
 
 __all__ = ["CHECKPOINT", "METRICS", "VOConfig", "check_config", "default_config", "evaluate", "train"]
 
 CHECKPOINT = "checkpoint.pt"
 METRICS = "metrics.json"
-# Checkpoints hold only tensors, dicts, lists, tuples, str, int, float, bool and None, so that they
-# load with torch.load(weights_only=True) (no pickled code). Format 1 (no "format" key) held numpy
-# arrays and is refused with a message.
-CHECKPOINT_FORMAT = 2
+# the checkpoint's format (CHECKPOINT_FORMAT) and contents: .checkpoint and docs/vo_checkpoint.md
 MAX_DATA_BYTES = 8 * 2**30  # rendered frames and ground-truth warps kept in memory
 
 
@@ -56,6 +54,8 @@ class VOConfig:
     loss: str = DEFAULT_LOSS
     loss_scale: float = 0.1  # M-estimator epsilon / c (intensity units)
     loss_levels: int = 1  # >1: also compare 2x2, 4x4, ... means of the two warps
+    pose_weight: float = 0.0  # weight of the pose term (.loss.pose_loss) added to the photometric cost ...
+    pose_t_weight: float = 1.0  # ... and of its translation part relative to its rotation part
     batch_size: int = 16  # global batch (split between DDP ranks)
     lr: float = 1e-3
     warmup: int = 20  # linear lr warm-up steps, then cosine decay to lr_final_frac * lr
@@ -64,7 +64,7 @@ class VOConfig:
     n_train_traj: int = 8
     n_eval_traj: int = 2
     n_frames: int = 80
-    gaps: tuple[int, ...] = (1,)
+    gaps: tuple[int, ...] = (1,)  # pairs (k, k + g) for every g
     both_directions: bool = True
     flip_augment: bool = True  # random left-right / up-down mirroring of training pairs
     scene_seed: int = 0
@@ -86,6 +86,9 @@ class VOConfig:
     resume: bool = False
     progress: bool = True
     threads: int = 0  # torch threads (and render threads) per process; 0: cores / ranks
+    data: tuple[str, ...] = ()  # TUM-format folders to train on instead of rendered trajectories ...
+    eval_data: tuple[str, ...] = ()  # ... and to evaluate on (default: the last of ``data``, held out)
+    data_max_frames: int = 0  # frames used per folder (0: all)
     extra: dict = field(default_factory=dict)
 
 
@@ -99,23 +102,39 @@ class ConfigError(ValueError):
 RESUME_KEYS = (
     "motion", "size", "depth_input", "widths", "n_head_layers", "depth_normalised_t", "stage_scales",
     "seed", "n_train_traj", "n_eval_traj", "n_frames", "gaps", "both_directions", "scene_seed", "n_boxes",
-    "supersample", "trajectory_kwargs",
+    "supersample", "trajectory_kwargs", "data", "eval_data", "data_max_frames",
 )
 
 
 def default_config(motion: str, out: str, **overrides) -> VOConfig:
     """The tuned defaults for ``motion`` (``so3`` or ``se3``), with ``overrides`` (None = keep)."""
     per_motion: dict[str, dict] = {
-        # steps: fit well inside 5 minutes on 2 cores (measured: so3 167 s, se3 199 s wall).
-        # se3: a second network refines the pose on the warped live image (CascadeVO); a single
-        # network learned the rotation but left the translation error at the identity's.
-        "so3": dict(gaps=(1,), steps=2800),
-        "se3": dict(gaps=(1, 2, 3), steps=1800, stage_scales=(1, 1), n_train_traj=16, refine=2),
+        # steps: fit inside 5 minutes on 2 cores. A second network refines the pose on the live image
+        # warped with the first estimate (CascadeVO), applied twice more when predicting (refine):
+        # for se3 a single network learned the rotation but left the translation error at the
+        # identity's; for so3 it took the held-out rotation error from 22% to 17% of the identity's.
+        # The pose term (pose_weight) adds the distance of the estimate from the truth to the
+        # photometric cost. se3 pairs span gaps up to 10 frames (15-40 cm, 6-16 deg), where the
+        # direct aligner's basin ends (gvnn-warp track --method vo+direct).
+        "so3": dict(gaps=(1,), steps=1400, stage_scales=(1, 1), refine=2, pose_weight=1.0),
+        "se3": dict(gaps=(1, 2, 3, 5, 7, 10), steps=1800, stage_scales=(1, 1), n_train_traj=16, refine=2,
+                    pose_weight=1.0),
     }
     if motion not in per_motion:
         raise ConfigError(f"motion must be one of {sorted(per_motion)}, got {motion!r}")
     kw = {**per_motion[motion], **{k: v for k, v in overrides.items() if v is not None}}
     cfg = VOConfig(motion=motion, out=out, **kw)
+    cfg.gaps = tuple(sorted({int(g) for g in cfg.gaps}))
+    cfg.data, cfg.eval_data = tuple(str(d) for d in cfg.data), tuple(str(d) for d in cfg.eval_data)
+    if cfg.data and not cfg.eval_data:
+        if len(cfg.data) < 2:
+            raise ConfigError("--data with one folder needs --eval-data DIR (a held-out sequence to evaluate on), "
+                              "or give at least two folders (the last one is held out)")
+        cfg.data, cfg.eval_data = cfg.data[:-1], cfg.data[-1:]
+    if cfg.eval_data and not cfg.data:
+        raise ConfigError("--eval-data needs --data (training folders)")
+    if not cfg.gaps or min(cfg.gaps) < 1:
+        raise ConfigError(f"--gaps must be positive frame gaps, got {cfg.gaps!r}")
     if cfg.loss not in LOSSES:
         raise ConfigError(f"loss must be one of {LOSSES}, got {cfg.loss!r}")
     if len(cfg.stage_scales) < 2 and overrides.get("refine") is None:
@@ -132,11 +151,30 @@ def n_pairs(cfg: VOConfig, n_traj: int) -> int:
     return n_traj * per_traj * (2 if cfg.both_directions else 1)
 
 
-def _data_bytes(cfg: VOConfig) -> int:
+def _folder_frames(cfg: VOConfig, roots) -> list[int]:
+    """Frames with ground truth used from each TUM folder (DatasetError as ConfigError)."""
+    from gvnn_warp.datasets.tum import DatasetError
+
+    out = []
+    for root in roots:
+        try:
+            _, frames = tum_frames(root, cfg.data_max_frames or None)
+        except DatasetError as e:
+            raise ConfigError(str(e)) from None
+        out.append(int(frames.size))
+    return out
+
+
+def _pairs_of(cfg: VOConfig, frames: list[int]) -> int:
+    return sum(max(0, n - g) for n in frames for g in cfg.gaps) * (2 if cfg.both_directions else 1)
+
+
+def _data_bytes(cfg: VOConfig, frames: int | None = None, pairs: int | None = None) -> int:
     """Memory of the rendered frames (RGB + depth, float32) and ground-truth warps (RGB + mask)."""
     W, H = cfg.size
-    frames = (cfg.n_train_traj + cfg.n_eval_traj) * cfg.n_frames
-    pairs = n_pairs(cfg, cfg.n_train_traj) + n_pairs(cfg, cfg.n_eval_traj)
+    if frames is None:
+        frames = (cfg.n_train_traj + cfg.n_eval_traj) * cfg.n_frames
+        pairs = n_pairs(cfg, cfg.n_train_traj) + n_pairs(cfg, cfg.n_eval_traj)
     return W * H * (frames * 4 * 4 + pairs * (3 * 4 + 1))
 
 
@@ -146,19 +184,29 @@ def check_config(cfg: VOConfig, world: int | None = None) -> dict | None:
     ``cfg.out``. Raises :class:`ConfigError`; returns the checkpoint to resume from (or None)."""
     world = world if world is not None else int(os.environ.get("WORLD_SIZE", "1"))
     gap = max(cfg.gaps)
-    if cfg.n_frames <= gap:
-        raise ConfigError(f"--frames {cfg.n_frames} is too few: {cfg.motion} pairs frames up to {gap} apart, so "
-                          f"each trajectory needs at least {gap + 1} frames")
     if cfg.batch_size % world:
         raise ConfigError(f"--batch-size {cfg.batch_size} must be divisible by the {world} ranks")
-    n_train = n_pairs(cfg, cfg.n_train_traj)
+    if cfg.data:
+        train_frames, eval_frames = _folder_frames(cfg, cfg.data), _folder_frames(cfg, cfg.eval_data)
+        n_train, n_eval = _pairs_of(cfg, train_frames), _pairs_of(cfg, eval_frames)
+        if n_eval == 0:
+            raise ConfigError(f"--eval-data {' '.join(cfg.eval_data)}: no frame pairs {gap} or fewer frames apart "
+                              "with ground truth")
+        nbytes = _data_bytes(cfg, sum(train_frames) + sum(eval_frames), n_train + n_eval)
+        more = "more or longer --data folders"
+    else:
+        if cfg.n_frames <= gap:
+            raise ConfigError(f"--frames {cfg.n_frames} is too few: pairs are up to {gap} frames apart (--gaps), so "
+                              f"each trajectory needs at least {gap + 1} frames")
+        n_train, nbytes = n_pairs(cfg, cfg.n_train_traj), _data_bytes(cfg)
+        more = "render more (--trajectories, --frames)"
     if n_train < cfg.batch_size:
         raise ConfigError(f"{n_train} training pairs are fewer than --batch-size {cfg.batch_size}: "
-                          "render more (--trajectories, --frames) or use a smaller batch")
-    if _data_bytes(cfg) > MAX_DATA_BYTES:
-        raise ConfigError(f"this run would keep {_data_bytes(cfg) / 2**30:.0f} GiB of rendered frames and warps in "
-                          f"memory (at most {MAX_DATA_BYTES / 2**30:.0f}): use a smaller --size, fewer --frames "
-                          "or --trajectories")
+                          f"{more} or use a smaller batch")
+    if nbytes > MAX_DATA_BYTES:
+        raise ConfigError(f"this run would keep {nbytes / 2**30:.0f} GiB of frames and warps in "
+                          f"memory (at most {MAX_DATA_BYTES / 2**30:.0f}): use a smaller --size, fewer --frames, "
+                          "--trajectories or --data folders")
     return _resume_checkpoint(cfg)
 
 
@@ -169,15 +217,9 @@ def _resume_checkpoint(cfg: VOConfig) -> dict | None:
     if not (cfg.resume and path.exists()):
         return None
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # pickle.UnpicklingError for pickled objects other than tensors and containers
-        raise ConfigError(f"cannot resume: {path} is not a checkpoint this gvnn_warp can load safely "
-                          f"({type(e).__name__}; written by an older version?): start a new run in another "
-                          "directory") from None
-    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
-        raise ConfigError(f"cannot resume: {path} was written by another gvnn_warp version (checkpoint format "
-                          f"{ck.get('format', 1) if isinstance(ck, dict) else '?'}, this one reads "
-                          f"{CHECKPOINT_FORMAT}): start a new run in another directory")
+        ck = read_checkpoint(path)
+    except CheckpointError as e:
+        raise ConfigError(f"cannot resume: {e}; start a new run in another directory") from None
     for key in RESUME_KEYS:
         if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
             raise ConfigError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "
@@ -246,15 +288,15 @@ def _lr_at(cfg: VOConfig, step: int) -> float:
 
 def _gt_warps(ps: PairSet, chunk: int = 64) -> tuple[Tensor, Tensor]:
     """Live images warped with the ground-truth poses (and valid masks) for every pair."""
-    warps, valids = [], []
+    n, (C, H, W) = len(ps), ps.images.shape[1:]
+    warps = torch.empty(n, C, H, W, dtype=ps.images.dtype)  # filled in place: no second copy at the end
+    valids = torch.empty(n, 1, H, W, dtype=torch.bool)
     with torch.no_grad():
-        for i in range(0, len(ps), chunk):
-            idx = torch.arange(i, min(i + chunk, len(ps)))
+        for i in range(0, n, chunk):
+            idx = torch.arange(i, min(i + chunk, n))
             _, live, ref_d, _, pose, _ = ps.batch(idx)
-            w, v = warp_live(live, ref_d, pose, ps.K)
-            warps.append(w)
-            valids.append(v)
-    return torch.cat(warps), torch.cat(valids)
+            warps[idx], valids[idx] = warp_live(live, ref_d, pose, ps.K)
+    return warps, valids
 
 
 def _symmetric_intrinsics(K: Tensor, W: int, H: int) -> bool:
@@ -274,6 +316,15 @@ def _flip(f: Tensor, *images: Tensor) -> list[Tensor]:
         x = torch.where(f[:, 0].view(-1, 1, 1, 1), x.flip(-1), x)
         out.append(torch.where(f[:, 1].view(-1, 1, 1, 1), x.flip(-2), x))
     return out
+
+
+def _flip_pose(f: Tensor, pose: Tensor) -> Tensor:
+    """The poses ``M T M`` of the pairs :func:`_flip` mirrored (M = diag(-1, 1, 1, 1) left-right,
+    diag(1, -1, 1, 1) upside-down)."""
+    m = torch.ones(pose.shape[0], 4, dtype=pose.dtype)
+    m[f[:, 0], 0] = -1.0
+    m[f[:, 1], 1] = -1.0
+    return m[:, :, None] * pose * m[:, None, :]
 
 
 def _even_subset(n_total: int, n: int) -> Tensor:
@@ -364,8 +415,21 @@ def train(cfg: VOConfig) -> dict:
         scene_seed=cfg.scene_seed, supersample=cfg.supersample, n_threads=threads, n_boxes=cfg.n_boxes,
         trajectory_kwargs=dict(cfg.trajectory_kwargs),
     )
-    train_set = render_split(cfg.motion, split_seeds(cfg.seed, "train", cfg.n_train_traj), **common)
-    eval_set = render_split(cfg.motion, split_seeds(cfg.seed, "eval", cfg.n_eval_traj), **common)
+    if cfg.data:
+        from gvnn_warp.datasets.tum import DatasetError
+
+        kw = dict(size=cfg.size, gaps=tuple(cfg.gaps), both_directions=cfg.both_directions,
+                  max_frames=cfg.data_max_frames or None)
+        try:
+            train_set, eval_set = read_split(list(cfg.data), **kw), read_split(list(cfg.eval_data), **kw)
+        except DatasetError as e:
+            raise ConfigError(str(e)) from None
+        if not torch.allclose(train_set.K, eval_set.K, rtol=1e-4, atol=1e-3):
+            raise ConfigError(f"--eval-data {' '.join(cfg.eval_data)}: intrinsics differ from the training "
+                              f"folders' once resized to {W}x{H} (evaluate on the camera trained for)")
+    else:
+        train_set = render_split(cfg.motion, split_seeds(cfg.seed, "train", cfg.n_train_traj), **common)
+        eval_set = render_split(cfg.motion, split_seeds(cfg.seed, "eval", cfg.n_eval_traj), **common)
     train_gt, train_valid = _gt_warps(train_set)
     eval_gt, eval_valid = _gt_warps(eval_set)
     t_data = time.perf_counter() - t0
@@ -404,6 +468,7 @@ def train(cfg: VOConfig) -> dict:
             {
                 "format": CHECKPOINT_FORMAT,
                 "config": dataclasses.asdict(cfg),
+                "network": network_spec(cfg, train_set.K),
                 "model": model.state_dict(),
                 "optimizer": opt.state_dict(),
                 "step": step,
@@ -438,17 +503,22 @@ def train(cfg: VOConfig) -> dict:
             idx = gidx[rank * local_batch : (rank + 1) * local_batch]
             for g in opt.param_groups:
                 g["lr"] = _lr_at(cfg, step)
-            ref, live, ref_d, live_d, _, _ = train_set.batch(idx)
+            ref, live, ref_d, live_d, pose, _ = train_set.batch(idx)
             gt_w, gt_v = train_gt[idx], train_valid[idx]
             if flips:
                 f = torch.from_numpy(rng.random((cfg.batch_size, 2)) < 0.5)[rank * local_batch :][:local_batch]
                 ref, live, ref_d, live_d, gt_w, gt_v = _flip(f, ref, live, ref_d, live_d, gt_w, gt_v)
+                pose = _flip_pose(f, pose)
             preds = net(ref, live, ref_d, live_d, train_set.K, all_stages=True)
             # every stage's estimate is scored (deep supervision); the last one is the output
             loss = sum(
                 photometric_loss(p, live, ref_d, gt_w, gt_v, train_set.K, cfg.loss, cfg.loss_scale, cfg.loss_levels)[0]
                 for p in preds
             ).mean() / len(preds)
+            if cfg.pose_weight > 0:
+                loss = loss + cfg.pose_weight * sum(
+                    pose_loss(p, pose, ref_d, cfg.pose_t_weight) for p in preds
+                ).mean() / len(preds)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -518,6 +588,14 @@ def _evaluate_and_report(
         "identity": evaluate(zero, eval_set, eval_gt, eval_valid, eval_idx),
         "trained": evaluate(trained, eval_set, eval_gt, eval_valid, eval_idx),
     }
+    gap = (eval_set.live[eval_idx] - eval_set.ref[eval_idx]).abs()
+    by_gap = {}
+    for g in sorted({int(v) for v in gap}):
+        sel = gap == g
+        by_gap[str(g)] = {
+            "identity": evaluate(zero[sel], eval_set, eval_gt, eval_valid, eval_idx[sel]),
+            "trained": evaluate(trained[sel], eval_set, eval_gt, eval_valid, eval_idx[sel]),
+        }
     ev_train = {
         "identity": evaluate(
             torch.zeros(len(train_idx), model.out_dim, dtype=torch.float32), train_set, train_gt, train_valid, train_idx
@@ -535,6 +613,7 @@ def _evaluate_and_report(
         "train_loss_first": float(np.mean(history[:n])) if history else None,
         "train_loss_last": float(np.mean(history[-n:])) if history else None,
         "eval": ev,
+        "eval_by_gap": by_gap,
         "eval_train_pairs": ev_train,
         "ratios": {
             "rot_deg": ev["trained"]["rot_deg"] / max(ev["identity"]["rot_deg"], 1e-12),

@@ -1,0 +1,85 @@
+"""The checkpoint of ``gvnn-warp vo`` (format 3, documented in ``docs/vo_checkpoint.md``) and the
+trained network it holds.
+
+A checkpoint holds only tensors, dicts, lists, tuples, str, int, float, bool and None, so it loads
+with ``torch.load(path, weights_only=True)`` (no pickled code). Its ``"format"`` number changes
+whenever what is stored changes; a file of another format is refused with a one-line
+:class:`CheckpointError` (format 1 had no ``"format"`` key and held pickled numpy arrays; format 2
+had no ``"network"`` entry, so the network could not be rebuilt without the training code's
+defaults).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from .model import CascadeVO
+
+__all__ = ["CHECKPOINT_FORMAT", "CheckpointError", "build_network", "load_network", "network_spec", "read_checkpoint"]
+
+CHECKPOINT_FORMAT = 3
+
+# the CascadeVO constructor arguments stored under "network" -> "kwargs"
+_NETWORK_KEYS = ("motion", "scales", "size", "widths", "depth_input", "n_head_layers", "omega_scale", "t_scale",
+                 "depth_normalised_t")
+
+
+class CheckpointError(ValueError):
+    """A file that is not a checkpoint this gvnn_warp can use; the message is one line naming the file."""
+
+
+def network_spec(cfg, K: torch.Tensor) -> dict:
+    """The ``"network"`` entry of a checkpoint of a run with config ``cfg`` whose training frames have
+    intrinsics ``K`` (3, 3) at the network's size."""
+    kwargs = {
+        "motion": cfg.motion, "scales": tuple(int(s) for s in cfg.stage_scales), "size": tuple(cfg.size),
+        "widths": tuple(cfg.widths), "depth_input": bool(cfg.depth_input), "n_head_layers": int(cfg.n_head_layers),
+        "omega_scale": float(cfg.omega_scale), "t_scale": float(cfg.t_scale),
+        "depth_normalised_t": bool(cfg.depth_normalised_t),
+    }
+    return {"class": "CascadeVO", "kwargs": kwargs, "refine": int(cfg.refine),
+            "intrinsics": K.detach().to(torch.float64).clone()}
+
+
+def build_network(spec: dict) -> CascadeVO:
+    """An untrained :class:`CascadeVO` of the shape ``spec`` (a checkpoint's ``"network"`` entry) describes."""
+    kw = dict(spec["kwargs"])
+    return CascadeVO(kw.pop("motion"), scales=tuple(kw.pop("scales")), size=tuple(kw.pop("size")),
+                     widths=tuple(kw.pop("widths")), **kw)
+
+
+def read_checkpoint(path: str | Path, what: str = "checkpoint") -> dict:
+    """Load a checkpoint with ``weights_only=True`` and check its format; :class:`CheckpointError` otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{what} {path}: no such file" if not path.exists() else f"{what} {path}: not a file")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # pickle.UnpicklingError for pickled objects other than tensors and containers,
+        # RuntimeError / EOFError for a file that is not a torch save at all
+        raise CheckpointError(f"{what} {path}: not a gvnn-warp vo checkpoint this version can load safely "
+                              f"({type(e).__name__}; written by an older version, or not a checkpoint)") from None
+    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+        found = ck.get("format", 1) if isinstance(ck, dict) else "?"
+        raise CheckpointError(f"{what} {path}: checkpoint format {found}, this gvnn_warp reads format "
+                              f"{CHECKPOINT_FORMAT} (written by another version: train it again with gvnn-warp vo)")
+    missing = [k for k in ("config", "model", "network", "step") if k not in ck]
+    if missing:
+        raise CheckpointError(f"{what} {path}: format {CHECKPOINT_FORMAT} checkpoint without {', '.join(missing)}")
+    return ck
+
+
+def load_network(path: str | Path) -> tuple[CascadeVO, dict]:
+    """The trained network of a checkpoint (in eval mode) and the checkpoint's ``"network"`` entry."""
+    ck = read_checkpoint(path)
+    spec = ck["network"]
+    try:
+        net = build_network(spec)
+        net.load_state_dict(ck["model"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+        raise CheckpointError(f"checkpoint {path}: its network cannot be rebuilt ({type(e).__name__}: "
+                              f"{str(e).splitlines()[0] if str(e) else ''})") from None
+    net.eval()
+    return net, spec
