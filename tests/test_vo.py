@@ -406,7 +406,8 @@ def test_cli_interrupt_and_resume(tmp_path):
     """SIGINT mid-run saves a checkpoint and exits 130; --resume continues from its step."""
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "gvnn_warp.demos.vo", "--motion", "se3", "--out", str(out), "--size", "64x48",
-           "--batch-size", "4", "--frames", "12", "--trajectories", "1", "--no-progress"]
+           "--batch-size", "4", "--frames", "12", "--trajectories", "1", "--no-progress",
+           "--stages", "1", "--refine", "0", "--gaps", "1"]  # the smallest network: the test is about the CLI
     proc = subprocess.Popen([*cmd, "--steps", "100000"], env=_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     ck_path = out / "checkpoint.pt"
@@ -443,7 +444,7 @@ def test_ddp_two_ranks(tmp_path):
     out = tmp_path / "ddp"
     cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.demos.vo", "--motion", "se3",
            "--out", str(out), "--size", "64x48", "--batch-size", "8", "--frames", "12", "--trajectories", "1",
-           "--steps", "6", "--no-progress"]
+           "--steps", "6", "--no-progress", "--stages", "1", "--refine", "0", "--gaps", "1"]
     res = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr[-3000:]
     metrics = json.loads((out / "metrics.json").read_text())
