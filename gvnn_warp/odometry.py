@@ -220,10 +220,11 @@ class _Pyramid:
         f32 = wp.float32
         self.weights = aligner._channel_weights(C)
         # the 8-lane kernels where the rows are whole vectors (one output channel for the base level)
-        lanes0 = Co == 1 and W % 8 == 0
+        lanes0 = self.lanes0 = Co == 1 and W % 8 == 0
         self.level0 = _launch.RecordedLaunch(
             _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
-            [empty, self.weights.flatten(), empty, H, W, int(with_depth), aligner.depth_tolerance],
+            [empty, self.weights.flatten(), empty, *([_out_view(empty, True)] if lanes0 else []), H, W,
+             int(with_depth), aligner.depth_tolerance],
             [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
         )
         self.down = []
@@ -241,7 +242,10 @@ class _Pyramid:
     def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
         self.level0.set_arg(0, wp.array(image.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
         if depth is not None:
-            self.level0.set_arg(2, wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
+            d = wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False)
+            self.level0.set_arg(2, d)
+            if self.lanes0:  # the 8-lane kernel also reads the depth as vec8
+                self.level0.set_arg(3, _out_view(d, True))
         self.level0()
         for run in self.down:
             run()

@@ -276,6 +276,7 @@ def _make_level0_lanes(C: int):
         image: wp.array(dtype=Any),
         weights: wp.array(dtype=Any),
         depth: wp.array(dtype=Any),
+        depth8: wp.array(dtype=Any),
         H: int,
         W: int,
         has_depth: int,
@@ -301,26 +302,45 @@ def _make_level0_lanes(C: int):
             q = (b * HW + p) // 8
             out_image[q] = ph.select8(finite, v, zeros)
             if has_depth != 0:
-                d = ph.load8(depth, b * HW + p, 0, 7)
-                # the scalar kernel's depth-edge test, lane by lane (1 = no edge)
+                d = depth8[q]
+                # the scalar kernel's depth-edge test (1 = no edge). Shortcut: when the block's
+                # depths and their 4-neighbours all lie in [lo, hi] with 0 < lo, hi < 3e38 and
+                # hi - lo <= tol * lo, no pair is a jump (rounding is monotone: fl|d - e| <=
+                # fl(hi - lo) <= fl(tol lo) <= fl(tol min(d, e))); a NaN that min/max skip is an
+                # invalid depth, never a jump, and one they keep fails the test. Otherwise lane by
+                # lane, exactly as the scalar kernel. The rows above and below are read as vec8
+                # (W % 8 == 0: one array access each; a neighbour outside the image is read as the
+                # pixel itself, which is never a jump).
                 x = k8 * 8
                 e = b * HW + p
-                smooth = type(d)(
-                    wp.where(_at_depth_edge(depth, e, x, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 1, x + 1, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 2, x + 2, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 3, x + 3, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 4, x + 4, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 5, x + 5, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 6, x + 6, y, H, W, tol), zero, one),
-                    wp.where(_at_depth_edge(depth, e + 7, x + 7, y, H, W, tol), zero, one),
-                )
+                up = depth8[q - wp.where(y > 0, W // 8, 0)]
+                down = depth8[q + wp.where(y < H - 1, W // 8, 0)]
+                side_l = depth[e - wp.where(x > 0, 1, 0)]
+                side_r = depth[e + 7 + wp.where(x + 8 < W, 1, 0)]
+                mn = wp.min(wp.min(d, up), down)
+                mx = wp.max(wp.max(d, up), down)
+                lo = wp.min(wp.min(wp.min(wp.min(mn[0], mn[1]), wp.min(mn[2], mn[3])),
+                                   wp.min(wp.min(mn[4], mn[5]), wp.min(mn[6], mn[7]))), wp.min(side_l, side_r))
+                hi = wp.max(wp.max(wp.max(wp.max(mx[0], mx[1]), wp.max(mx[2], mx[3])),
+                                   wp.max(wp.max(mx[4], mx[5]), wp.max(mx[6], mx[7]))), wp.max(side_l, side_r))
+                smooth = ph.splat8(one)
+                if not (lo > zero and hi < weights.dtype(3.0e38) and hi - lo <= tol * lo):
+                    smooth = type(d)(
+                        wp.where(_at_depth_edge(depth, e, x, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 1, x + 1, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 2, x + 2, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 3, x + 3, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 4, x + 4, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 5, x + 5, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 6, x + 6, y, H, W, tol), zero, one),
+                        wp.where(_at_depth_edge(depth, e + 7, x + 7, y, H, W, tol), zero, one),
+                    )
                 out_depth[q] = ph.select8(wp.cw_mul(wp.cw_mul(finite, _valid8(d)), smooth), d, zeros)
 
     kernel = wp.kernel(level0_lanes, module="unique", enable_backward=False)
     return FloatKernel(
-        kernel, image="scalar", weights="scalar", depth="scalar", out_image="vec8", out_depth="vec8"
-    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any"}, grain=_row_grain)
+        kernel, image="scalar", weights="scalar", depth="scalar", depth8="vec8", out_image="vec8", out_depth="vec8"
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any", "depth8": "any"}, grain=_row_grain)
 
 
 def _make_downsample_lanes(C: int):

@@ -146,6 +146,34 @@ def test_prepared_pyramid_lanes_kernels_equal_scalar_kernels(C):
         np.testing.assert_array_equal(no_depth.images[level].numpy(), want_i)
 
 
+def test_prepared_base_level_edge_shortcut_equals_scalar_kernel():
+    # the 8-lane base level skips the per-pixel edge test for blocks whose depths and neighbours
+    # span less than the tolerance: surfaces without holes whose spread straddles it (ratios just
+    # below, at and above 1 + tolerance), a few NaN / inf / 0 depths, two frames: bitwise the
+    # scalar kernel's depths
+    rng = np.random.default_rng(5)
+    B, H, W = 2, 24, 64
+    aligner = DirectAligner(np.array([[40.0, 0, 31.5], [0, 40.0, 11.5], [0, 0, 1]]))
+    tol = np.float32(aligner.depth_tolerance)
+    depth = (2.0 * (1.0 + rng.uniform(0.0, 0.3 * tol, (B, 1, H, W)))).astype(np.float32)
+    depth[:, :, 15:] = (2.0 * (1.0 + rng.uniform(0.0, 1.6 * tol, (B, 1, H - 15, W)))).astype(np.float32)
+    depth[0, 0, 4:7, :] = np.float32(2.0)
+    depth[0, 0, 5, 9::8] = np.float32(2.0) * (np.float32(1.0) + tol)  # exactly at the tolerance
+    depth[0, 0, 5, 17] = np.nextafter(np.float32(2.0) * (np.float32(1.0) + tol), np.float32(9.0))
+    depth[0, 0, 8, 12], depth[1, 0, 0, 40], depth[1, 0, 23, 63] = np.nan, np.inf, 0.0
+    depth[1, 0, 10:14, 16:24] = 2.0  # a flat block: the shortcut
+    image = rng.random((B, 1, H, W)).astype(np.float32)
+    img = wp.empty((B, 1, H, W), dtype=wp.float32, device="cpu")
+    dep = wp.empty((B, 1, H, W), dtype=wp.float32, device="cpu")
+    pyramid.prepare_level0(wp.array(image, device="cpu"), aligner._channel_weights(1), wp.array(depth, device="cpu"),
+                           img, dep, tolerance=aligner.depth_tolerance)
+    want = dep.numpy()
+    assert 0 < (want == 0).sum() < 0.5 * want.size  # some edges dropped, not all
+    frame = aligner.prepare(image, depth)
+    np.testing.assert_array_equal(frame.images[0].numpy(), img.numpy())
+    np.testing.assert_array_equal(frame.depths[0].numpy(), want)
+
+
 def test_pyramid_errors():
     img = wp.zeros((1, 1, 8, 8), dtype=wp.float32, device="cpu")
     with pytest.raises(ValueError, match="downsample: argument 'out_image'"):
