@@ -212,16 +212,22 @@ def unproject_points(pixels: Tensor, depth: Tensor, camera: Camera | Tensor) -> 
     return _unproject(ArgCheck("unproject_points"), pixels, depth, camera)[0]
 
 
-def _pixels_op(fn: str, op, pixels: Tensor, camera) -> tuple[Tensor, Tensor]:
-    chk = ArgCheck(fn)
-    chk.tensor("pixels", pixels, "B ... 2")
+def _camera_object_args(chk: ArgCheck, camera) -> tuple[int, Tensor, Tensor]:
+    """:func:`camera_args` for functions whose ``camera`` must be a camera object (a bare K has no
+    distortion to apply or undo)."""
     if not isinstance(camera, Camera):
         chk._fail(
             TypeError,
             "argument 'camera' must be a camera from gvnn_warp.cameras (PinholeCamera, RadTanCamera, "
             f"FisheyeCamera), got {type(camera).__name__}",
         )
-    model, Kb, dist = camera_args(chk, camera, "camera")
+    return camera_args(chk, camera, "camera")
+
+
+def _pixels_op(fn: str, op, pixels: Tensor, camera) -> tuple[Tensor, Tensor]:
+    chk = ArgCheck(fn)
+    chk.tensor("pixels", pixels, "B ... 2")
+    model, Kb, dist = _camera_object_args(chk, camera)
     P = math.prod(pixels.shape[1:-1])
     out, valid = op(_flat(pixels, 1), Kb, dist, P, model)
     return out.reshape(pixels.shape), valid.reshape(pixels.shape[:-1])
@@ -279,13 +285,7 @@ def undistort_image(image: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
     """
     chk = ArgCheck("undistort_image")
     chk.tensor("image", image, "B C H W")
-    if not isinstance(camera, Camera):
-        chk._fail(
-            TypeError,
-            "argument 'camera' must be a camera from gvnn_warp.cameras (PinholeCamera, RadTanCamera, "
-            f"FisheyeCamera), got {type(camera).__name__}",
-        )
-    model, Kb, dist = camera_args(chk, camera, "camera")
+    model, Kb, dist = _camera_object_args(chk, camera)
     B, C, H, W = image.shape
     if H < 2 or W < 2:
         chk._fail(ValueError, f"argument 'image' must be at least 2 x 2 pixels, got {tuple(image.shape)}")

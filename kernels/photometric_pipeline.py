@@ -99,6 +99,23 @@ def _check_penalty(fn, robust, scale, kinds):
             "a positive finite number", repr(scale))
 
 
+def _normal_equations_out(fn, out, B: int, H: int, ft) -> NormalEquations:
+    """``out`` checked (a NormalEquations of an earlier call with the same B and float type), or new
+    zeroed buffers; with its per-row sums sized for B x H rows."""
+    if out is not None:
+        ok = isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft
+        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B} and {ft.__name__}",
+                "another" if isinstance(out, NormalEquations) else type(out).__name__, TypeError)
+    else:
+        out = NormalEquations(
+            wp.zeros((B, 6, 6), dtype=ft, device="cpu"), wp.zeros((B, 6), dtype=ft, device="cpu"),
+            wp.zeros(B, dtype=ft, device="cpu"), wp.zeros(B, dtype=ft, device="cpu"),
+        )
+    if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
+        out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
+    return out
+
+
 def photometric_normal_equations(
     ref_image: wp.array,
     ref_depth: wp.array,
@@ -209,17 +226,7 @@ def photometric_normal_equations(
                 TypeError)
         _expect(fn, "live_depth", live_depth.is_contiguous and live_depth.device.is_cpu, "contiguous, on the CPU",
                 str(live_depth.device))
-    if out is not None:
-        ok = (isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft)
-        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B} and {ft.__name__}",
-                "another" if isinstance(out, NormalEquations) else type(out).__name__, TypeError)
-    else:
-        out = NormalEquations(
-            wp.zeros((B, 6, 6), dtype=ft, device="cpu"), wp.zeros((B, 6), dtype=ft, device="cpu"),
-            wp.zeros(B, dtype=ft, device="cpu"), wp.zeros(B, dtype=ft, device="cpu"),
-        )
-    if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
-        out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
+    out = _normal_equations_out(fn, out, B, H, ft)
     acc_type = _launch.element_type("vec8", ft)
     if out._acc is None or out._acc.shape[0] != B * H * pk.ROW_STRIDE or out._acc.dtype != acc_type:
         out._acc = wp.empty(B * H * pk.ROW_STRIDE, dtype=acc_type, device="cpu")
@@ -349,17 +356,7 @@ def _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, sc
         _expect(fn, "live_depth", isinstance(live_depth, wp.array) and tuple(live_depth.shape) == (B, 1, H, W)
                 and live_depth.dtype == ft, f"a ({B}, 1, {H}, {W}) {ft.__name__} wp.array or None",
                 getattr(live_depth, "shape", type(live_depth).__name__))
-    if out is not None:
-        ok = isinstance(out, NormalEquations) and out.JtWJ.shape == (B, 6, 6) and out.JtWJ.dtype == ft
-        _expect(fn, "out", ok, f"a NormalEquations of an earlier call with B={B} and {ft.__name__}",
-                "another" if isinstance(out, NormalEquations) else type(out).__name__, TypeError)
-    else:
-        out = NormalEquations(
-            wp.zeros((B, 6, 6), dtype=ft, device="cpu"), wp.zeros((B, 6), dtype=ft, device="cpu"),
-            wp.zeros(B, dtype=ft, device="cpu"), wp.zeros(B, dtype=ft, device="cpu"),
-        )
-    if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
-        out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
+    out = _normal_equations_out(fn, out, B, H, ft)
     if rays is None:
         rays = pixel_rays(K, dist, H, W, m)  # computed once per recording (Newton's method per pixel)
     else:
