@@ -316,6 +316,11 @@ class DirectAligner:
             :mod:`gvnn_warp.kernels.pyramid`).
     """
 
+    # prepare() may run on one thread while align_frames() runs on another (on other frames): they
+    # share no buffers (a frame's pyramid comes from the pool of dead frames' pyramids), so
+    # gvnn_warp.tracking pipelines them
+    concurrent_prepare = True
+
     def __init__(
         self,
         K,

@@ -8,13 +8,23 @@ live_depth=None, init=None) -> (T_live_ref, info)`` (``gvnn_warp.odometry.Direct
 camera; ``info`` may hold ``converged`` (bool) and the valid fraction of the finest level.
 
 Poses are chained as ``T_world_live = T_world_ref @ inv(T_live_ref)``.
+
+Pipelining: an aligner whose ``concurrent_prepare`` attribute is true (``DirectAligner``) may
+``prepare`` one frame while it aligns other, already prepared frames. The tracker then prepares
+frame i on a helper thread while it aligns frame i - 1 to its reference, so the core that the
+alignment's serial parts leave idle builds the next pyramid; each frame's pose is known one
+:meth:`Tracker.add` later (:meth:`Tracker.result` aligns the last one). The poses are those of the
+sequential order, bit for bit (the same calls on the same frames); only the time changes, and every
+call returns only when its work is done, so nothing of it runs during another tracker's turn.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,7 +64,9 @@ class TrackResult:
             was used instead).
         valid_fraction: (N,) the finest level's valid fraction (NaN when unknown / frame 0).
         seconds: (N,) time per frame in ``prepare`` + ``align_frames`` (file reading excluded;
-            ``seconds[0]`` is frame 0's ``prepare``).
+            ``seconds[0]`` is frame 0's ``prepare``). When pipelined, ``seconds[i]`` is the time of
+            the step that prepared frame i and aligned frame i - 1 (and the last entry also the
+            last frame's alignment): the sum, hence ``ms_per_pair``, is the whole time.
         keyframes: frames used as references, in order.
         infos: the aligner's ``info`` per frame (None for frame 0).
     """
@@ -148,20 +160,39 @@ def _motion(T: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(T[:3, 3])), math.degrees(math.acos(cos))
 
 
+_PREPARE_POOL: ThreadPoolExecutor | None = None
+_PREPARE_POOL_LOCK = threading.Lock()
+
+
+def _prepare_pool() -> ThreadPoolExecutor:
+    """The one helper thread that pipelined trackers prepare frames on (made on first use)."""
+    global _PREPARE_POOL
+    with _PREPARE_POOL_LOCK:
+        if _PREPARE_POOL is None:
+            _PREPARE_POOL = ThreadPoolExecutor(1, thread_name_prefix="gvnn_warp-prepare")
+        return _PREPARE_POOL
+
+
 class Tracker:
     """Odometry one frame at a time: :meth:`add` each frame in order, then :meth:`result`.
 
     Arguments as :func:`track` (which is a loop over this); ``n_frames`` sizes the result arrays.
-    Stepping two trackers alternately compares two aligners under the same machine load.
+    Stepping two trackers alternately compares two aligners under the same machine load (each
+    :meth:`add` returns only when its work is done, pipelined or not).
     """
 
     def __init__(self, aligner, n_frames: int, *, start_pose: np.ndarray | None = None,
-                 keyframes: KeyframePolicy | None = None, init: str = "identity", warmup: bool = True):
+                 keyframes: KeyframePolicy | None = None, init: str = "identity", warmup: bool = True,
+                 pipeline: bool | None = None):
         if init not in ("identity", "velocity"):
             raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
         if n_frames < 1:
             raise ValueError(f"track: need at least one frame, got {n_frames}")
         self.fa = frame_aligner(aligner)
+        if pipeline is None:
+            pipeline = bool(getattr(self.fa, "concurrent_prepare", False))
+        self.pipeline = pipeline
+        self.pending = None  # pipelined: (index, prepared frame) not aligned yet
         self.keyframes, self.init, self.warmup = keyframes, init, warmup
         self.n = 0
         self.poses = np.empty((n_frames, 4, 4))
@@ -175,10 +206,24 @@ class Tracker:
         self.kf: list[int] = []
 
     def add(self, image, depth) -> None:
-        """Process the next frame: prepare it and (from the second frame on) align it to the reference."""
+        """Process the next frame: prepare it and (from the second frame on) align it to the
+        reference; pipelined, align the previous frame while this one is prepared."""
         fa, i = self.fa, self.n
         if i >= self.poses.shape[0]:
             raise IndexError(f"track: more than the {self.poses.shape[0]} frames announced")
+        if i > 0 and self.pipeline:
+            t = time.perf_counter()
+            job = _prepare_pool().submit(fa.prepare, image, depth)
+            pending, self.pending = self.pending, None
+            try:
+                if pending is not None:
+                    self._align(*pending)
+            finally:
+                live_frame = job.result()  # also when the alignment failed: no work left running
+            self.pending = (i, live_frame)
+            self.seconds[i] = time.perf_counter() - t
+            self.n += 1
+            return
         if i == 0:
             if self.warmup:
                 fa.align_frames(fa.prepare(image, depth), fa.prepare(image, depth), init=np.eye(4))
@@ -192,11 +237,15 @@ class Tracker:
             self.infos.append(None)
             self.n = 1
             return
-        guess = self.T_prev_ref if self.init == "identity" else self.step @ self.T_prev_ref
         t = time.perf_counter()
-        live_frame = fa.prepare(image, depth)
-        T_live_ref, info = fa.align_frames(self.ref_frame, live_frame, init=guess)
+        self._align(i, fa.prepare(image, depth))
         self.seconds[i] = time.perf_counter() - t
+        self.n += 1
+
+    def _align(self, i: int, live_frame) -> None:
+        """Align prepared frame i to the reference; its pose, flags and the next reference."""
+        guess = self.T_prev_ref if self.init == "identity" else self.step @ self.T_prev_ref
+        T_live_ref, info = self.fa.align_frames(self.ref_frame, live_frame, init=guess)
         T_live_ref = np.asarray(T_live_ref, dtype=np.float64).reshape(4, 4)
         self.infos.append(info)
         self.reference[i] = self.ref_index
@@ -220,14 +269,23 @@ class Tracker:
             self.T_prev_ref = np.eye(4)
             if kf is not None:
                 self.kf.append(i)
-        self.n += 1
 
     @property
     def ms_per_pair(self) -> float:
         return 1e3 * float(self.seconds[: self.n].sum()) / max(self.n - 1, 1)
 
+    def finish(self) -> None:
+        """Pipelined: align the last frame added (its time joins that frame's). Called by :meth:`result`."""
+        if self.pending is not None:
+            i, live_frame = self.pending
+            self.pending = None
+            t = time.perf_counter()
+            self._align(i, live_frame)
+            self.seconds[i] += time.perf_counter() - t
+
     def result(self) -> TrackResult:
         """The result over the frames added so far."""
+        self.finish()
         n = self.n
         kf = list(range(max(n - 1, 1))) if self.keyframes is None else list(self.kf)
         return TrackResult(self.poses[:n].copy(), self.reference[:n].copy(), self.converged[:n].copy(),
@@ -246,6 +304,7 @@ def track(
     progress: bool = True,
     desc: str = "track",
     warmup: bool = True,
+    pipeline: bool | None = None,
 ) -> TrackResult:
     """Estimate the camera trajectory of ``n_frames`` frames by aligning each to a reference frame.
 
@@ -262,10 +321,14 @@ def track(
         progress: show a tqdm progress bar (frames per second, ms per pair).
         warmup: first align frame 0 with itself, untimed, so that one-off costs (loading compiled
             kernels, allocating buffers) are not counted as the first pair's time.
+        pipeline: prepare each frame on a helper thread while the previous one is aligned (see the
+            module docstring; the same poses). None (default): when the aligner allows it
+            (``concurrent_prepare``).
     """
     from tqdm import tqdm
 
-    tracker = Tracker(aligner, n_frames, start_pose=start_pose, keyframes=keyframes, init=init, warmup=warmup)
+    tracker = Tracker(aligner, n_frames, start_pose=start_pose, keyframes=keyframes, init=init, warmup=warmup,
+                      pipeline=pipeline)
     with tqdm(total=n_frames, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
         for i in range(n_frames):
             tracker.add(*read_frame(i))

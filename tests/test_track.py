@@ -18,7 +18,7 @@ from gvnn_warp.evaluation import (
     pose_error,
 )
 from gvnn_warp.synthetic import relative_pose
-from gvnn_warp.tracking import KeyframePolicy, track
+from gvnn_warp.tracking import KeyframePolicy, Tracker, track
 
 
 def _circle_trajectory(n=8, radius=1.0, seed=0):
@@ -185,6 +185,58 @@ def test_track_survives_a_non_finite_pose_and_reports_it():
     res = track(_nothing, 4, NaNOnce(gt), progress=False)
     assert np.all(np.isfinite(res.poses)) and res.unconverged_frames == [2]
     np.testing.assert_allclose(res.poses[2], res.poses[1])  # the identity guess was kept
+
+
+@pytest.mark.parametrize("keyframes", [None, KeyframePolicy(max_trans_m=0.05, max_rot_deg=5, min_valid=0.5)])
+def test_pipelined_tracking_makes_the_same_calls_and_poses(keyframes):
+    gt = _circle_trajectory(9, seed=5)
+    gt[:, 0, 3] += 0.03 * np.arange(9)  # keyframes switch now and then
+    runs = []
+    for pipeline in (False, True):
+        al = TrueMotion(gt, perturb={(2, 3): _shift(0.02)}, unconverged=[5])
+        res = track(_nothing, 9, al, start_pose=gt[0], keyframes=keyframes, init="velocity", progress=False,
+                    pipeline=pipeline)
+        runs.append((al, res))
+    (a0, r0), (a1, r1) = runs
+    assert a1.pairs == a0.pairs
+    np.testing.assert_array_equal(np.array(a1.inits), np.array(a0.inits))
+    np.testing.assert_array_equal(r1.poses, r0.poses)
+    np.testing.assert_array_equal(r1.reference, r0.reference)
+    assert r1.keyframes == r0.keyframes and r1.unconverged_frames == r0.unconverged_frames == [5]
+    assert r1.seconds.shape == (9,) and np.all(r1.seconds[1:] > 0)
+
+
+def test_pipelined_tracking_reports_a_failing_prepare_and_keeps_working():
+    class BadFrame(TrueMotion):
+        def prepare(self, image, depth):
+            if np.asarray(image).flat[0] == 3:
+                raise ValueError("prepare: frame 3 is bad")
+            return super().prepare(image, depth)
+
+    gt = _circle_trajectory(5, seed=1)
+    tracker = Tracker(BadFrame(gt), 5, pipeline=True, warmup=False)
+    for i in range(3):
+        tracker.add(*_nothing(i))
+    with pytest.raises(ValueError, match="frame 3 is bad"):
+        tracker.add(*_nothing(3))
+    # the frame before it was aligned in the same step; the helper thread is free again
+    res = Tracker(TrueMotion(gt), 5, pipeline=True, warmup=False)
+    for i in range(5):
+        res.add(*_nothing(i))
+    np.testing.assert_allclose(res.result().poses, np.linalg.inv(gt[0]) @ gt, atol=1e-12)
+
+
+def test_direct_aligner_pipelines_with_bitwise_the_sequential_poses(tmp_path):
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.odometry import DirectAligner
+
+    seq = read_tum(_render(tmp_path, frames=6, size="80x60", seed=3))
+    frames = [(seq.image(i, gray=True), seq.depth(i)) for i in range(len(seq))]
+    al = DirectAligner(seq.K, levels=2)
+    assert al.concurrent_prepare
+    poses = [track(lambda i: frames[i], len(frames), al, progress=False, pipeline=p).poses for p in (False, True)]
+    np.testing.assert_array_equal(poses[1], poses[0])
+    assert Tracker(al, 2).pipeline  # the default for an aligner that allows it
 
 
 # ------------------------------------------------------------------------------------------------
