@@ -211,7 +211,7 @@ class Tracker:
         fa, i = self.fa, self.n
         if i >= self.poses.shape[0]:
             raise IndexError(f"track: more than the {self.poses.shape[0]} frames announced")
-        if i > 0 and self.pipeline:
+        if i > 1 and self.pipeline:  # (frame 1 alone: its alignment loads the kernels, which is not thread-safe)
             t = time.perf_counter()
             job = _prepare_pool().submit(fa.prepare, image, depth)
             pending, self.pending = self.pending, None
@@ -225,8 +225,19 @@ class Tracker:
             self.n += 1
             return
         if i == 0:
-            if self.warmup:
-                fa.align_frames(fa.prepare(image, depth), fa.prepare(image, depth), init=np.eye(4))
+            if self.warmup:  # untimed: one-off costs (compiled kernels, buffers) out of the first pairs' times
+                eye = np.eye(4)
+                frames = [fa.prepare(image, depth), fa.prepare(image, depth)]
+                fa.align_frames(frames[0], frames[1], init=eye)  # loads the kernels (not thread-safe): alone
+                if self.pipeline:  # the helper thread, and a third frame's buffers as the pipeline has it
+                    job = _prepare_pool().submit(fa.prepare, image, depth)
+                    fa.align_frames(frames[1], frames[0], init=eye)
+                    frames.append(job.result())
+                for ref in frames:  # what the aligner keeps per pair of frame buffers, for every pair
+                    for live in frames:
+                        if live is not ref:
+                            fa.align_frames(ref, live, init=eye)
+                del frames
             t = time.perf_counter()
             self.ref_frame = fa.prepare(image, depth)
             self.seconds[0] = time.perf_counter() - t
