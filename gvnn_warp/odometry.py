@@ -74,6 +74,7 @@ from .kernels import _compat
 from .kernels import launch as _launch
 from .kernels import lens as _lens
 from .kernels import lm as _lm
+from .kernels import photometric_kernels as _pk
 from .kernels import pyramid as _pyramid
 from .kernels.camera import MIN_DEPTH
 
@@ -651,13 +652,22 @@ class _State:
             kw.update(dist=self.dist, model=al.model, rays=self._rays[level])
         ne = photometric_normal_equations(*args, **kw)
         cmds = getattr(ne, "_cmds", None)
-        if not cmds:  # no recorded launches to replay: the public call with out= each time
-            cmds = [functools.partial(photometric_normal_equations, *args, out=ne, **kw)]
+        rows = getattr(ne, "_rows", None)
+        if cmds and len(cmds) == 2 and rows is not None:
+            # the row kernel only: the LM step reduces its per-row sums itself (one launch fewer per trial)
+            cmds = cmds[:1]
+            system = [rows, rows.shape[0] // (self.B * _pk.ROW_STRIDE), _pk.ROW_STRIDE]
+            step_kernel = _lm.lm_step_rows
+        else:
+            if not cmds:  # no recorded launches to replay: the public call with out= each time
+                cmds = [functools.partial(photometric_normal_equations, *args, out=ne, **kw)]
+            system = [ne.JtWJ.flatten(), ne.JtWr.flatten(), ne.cost, ne.count]
+            step_kernel = _lm.lm_step
         lm = []
         for first in (1, 0):
             lm.append(wp.launch(
-                _lm.lm_step, dim=self.B,
-                inputs=[ne.JtWJ.flatten(), ne.JtWr.flatten(), ne.cost, ne.count, self.zmean, first,
+                step_kernel, dim=self.B,
+                inputs=[*system, self.zmean, first,
                         self.min_count[level], self.f[level], al.tolerance, max(al.tolerance, al.take_step / 2**level),
                         al.lm_lambda, al.lm_up, al.lm_down,
                         _LAMBDA_MAX, al.min_decrease],

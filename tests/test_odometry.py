@@ -212,6 +212,58 @@ def _check(T, T_true, max_deg, max_m):
     assert deg < max_deg and m < max_m, (deg, m)
 
 
+def test_lm_step_on_row_sums_equals_reduction_then_lm_step():
+    """The aligner's LM step reduces the normal equations' per-row sums itself (one launch fewer per
+    trial): bitwise the normal equations' own reduction followed by the step, for a first and a
+    next call, accepted and rejected trials, an item that stopped and one without enough pixels."""
+    from gvnn_warp.kernels import lm
+    from gvnn_warp.kernels import photometric_kernels as pk
+    from gvnn_warp.kernels.launch import mat34d, mat34f
+
+    B, H, S = 4, 7, int(pk.ROW_STRIDE)
+    rng = np.random.default_rng(0)
+    J = rng.normal(size=(B, H, 40, 6))
+    r = rng.normal(size=(B, H, 40))
+    rows = np.zeros((B, H, S))
+    iu = np.triu_indices(6)
+    for b in range(B):
+        for h in range(H):
+            rows[b, h, :21] = (J[b, h].T @ J[b, h])[iu]
+            rows[b, h, 21:27] = J[b, h].T @ r[b, h]
+            rows[b, h, 27] = 0.5 * (r[b, h] ** 2).sum()
+            rows[b, h, 28] = 40.0 if b != 3 else 1.0  # item 3: too few pixels
+    wrows = wp.array(rows.reshape(-1), dtype=wp.float64, device="cpu")
+
+    def state():
+        T = np.tile(np.eye(4)[:3], (B, 1, 1))
+        return dict(
+            T=wp.array(T, dtype=mat34d, device="cpu"), Tn=wp.array(T, dtype=mat34d, device="cpu"),
+            pose=wp.zeros(B, dtype=mat34f, device="cpu"), H=wp.zeros(B * 36, dtype=wp.float64, device="cpu"),
+            g=wp.zeros(B * 6, dtype=wp.float64, device="cpu"), mean=wp.zeros(B, dtype=wp.float64, device="cpu"),
+            count=wp.zeros(B, dtype=wp.float64, device="cpu"), lam=wp.zeros(B, dtype=wp.float64, device="cpu"),
+            step=wp.zeros(B, dtype=wp.float64, device="cpu"), trials=wp.zeros(B, dtype=wp.int32, device="cpu"),
+            active=wp.zeros(B, dtype=wp.int32, device="cpu"), ok=wp.zeros(B, dtype=wp.int32, device="cpu"),
+        )
+
+    zmean = wp.array(np.full(B, 2.0), dtype=wp.float64, device="cpu")
+    outs = [wp.zeros(n, dtype=wp.float32, device="cpu") for n in (B * 36, B * 6, B, B)]
+    wp.launch(pk.normal_equations_reduce[wp.float32], dim=B * 29, inputs=[0, wrows, H, *outs], device="cpu")
+    a, b_ = state(), state()
+    for first, scale in ((1, 1.0), (0, 0.5), (0, 2.0), (0, 0.9)):  # cost halved: accepted; doubled: rejected
+        if first == 0:
+            rows[..., 27] *= scale
+            wrows.assign(rows.reshape(-1))
+            wp.launch(pk.normal_equations_reduce[wp.float32], dim=B * 29, inputs=[0, wrows, H, *outs], device="cpu")
+            a["active"].numpy()[1] = 0  # item 1 stopped
+            b_["active"].numpy()[1] = 0
+        common = [zmean, first, 20.0, 500.0, 1e-6, 1e-6, 1e-3, 10.0, 0.1, 1e8, 0.0]
+        wp.launch(lm.lm_step, dim=B, inputs=[*outs, *common], outputs=list(a.values()), device="cpu")
+        wp.launch(lm.lm_step_rows, dim=B, inputs=[wrows, H, S, *common], outputs=list(b_.values()), device="cpu")
+        for k in a:
+            np.testing.assert_array_equal(b_[k].numpy(), a[k].numpy(), err_msg=k)
+    assert a["trials"].numpy()[0] == 3 and a["ok"].numpy()[3] == 0
+
+
 @pytest.mark.parametrize(
     "relative",
     [
