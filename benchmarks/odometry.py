@@ -21,15 +21,17 @@ through ``gvnn_warp.datasets.tum`` (or ``--data DIR`` is read: one existing TUM 
    the fraction whose relative pose is within 0.25 deg and 1 cm.
 
 The two trackers run in lockstep, frame by frame, in alternating order, so that both see the same
-machine load (the machine is shared and noisy: compare the ratio). ms per pair is the mean over
-the sequence (as ``gvnn-warp track`` reports it) and, in the JSON, also the median. Idle OpenMP
-threads sleep (``OMP_WAIT_POLICY=PASSIVE`` unless set): Open3D's spinning threads would otherwise
-steal the cores from the other method's, and torch is not imported.
+machine load (the machine is shared and noisy: compare the ratio), with Python's cyclic garbage
+collector paused (a full collection took ~0.2 s here, charged to whichever tracker allocated).
+ms per pair is the mean over the sequence (as ``gvnn-warp track`` reports it) and, in the JSON,
+also the median. Idle OpenMP threads sleep (``OMP_WAIT_POLICY=PASSIVE`` unless set): Open3D's
+spinning threads would otherwise steal the cores from the other method's, and torch is not imported.
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import platform
@@ -144,11 +146,18 @@ def run_size(seq, methods: dict, strides: list[int], progress: bool) -> dict:
         raise SystemExit("benchmarks.odometry: the sequence needs ground truth for every frame")
     names = list(methods)
     trackers = {name: Tracker(methods[name][0], n, start_pose=gt[0]) for name in names}
-    for i in tqdm(range(n), unit="frame", desc="tracking", disable=not progress):
-        frames = {name: methods[name][1](i) for name in names}  # file reading: not timed
-        for k in range(len(names)):
-            name = names[(k + i) % len(names)]
-            trackers[name].add(*frames[name])
+    # the cyclic garbage collector paused while the trackers run (as timeit does): a full collection
+    # of this process's heap took ~0.2 s, charged to whichever tracker happened to allocate
+    gc.collect()
+    gc.disable()
+    try:
+        for i in tqdm(range(n), unit="frame", desc="tracking", disable=not progress):
+            frames = {name: methods[name][1](i) for name in names}  # file reading: not timed
+            for k in range(len(names)):
+                name = names[(k + i) % len(names)]
+                trackers[name].add(*frames[name])
+    finally:
+        gc.enable()
     results = {}
     for name in names:
         res = trackers[name].result()
