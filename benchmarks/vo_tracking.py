@@ -74,11 +74,13 @@ def make_methods(seq, network, spec) -> dict:
 
     size = (seq.width, seq.height)
     refine = spec.get("refine", 0)
+    symmetries = tuple(spec.get("symmetries", ()))
     return {
         "identity": Identity(),
         "direct": make_aligner(seq.K),
-        "vo": NetworkAligner(network, seq.K, size, refine=refine),
-        "vo+direct": NetworkAligner(network, seq.K, size, refine=refine, direct=make_aligner(seq.K)),
+        "vo": NetworkAligner(network, seq.K, size, refine=refine, symmetries=symmetries),
+        "vo+direct": NetworkAligner(network, seq.K, size, refine=refine, direct=make_aligner(seq.K),
+                                    symmetries=symmetries),
     }
 
 

@@ -411,9 +411,10 @@ def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch
 # gvnn-warp track --method vo | vo+direct (the trained network as the front end)
 
 
-def _vo_checkpoint(path, K, bias=None, size=(64, 48)):
-    """A format-3 checkpoint of a 2-stage se3 network at ``size`` whose first stage predicts ``bias``
-    ([omega, t], metres: no depth normalisation) for every pair, the second stage the identity."""
+def _vo_checkpoint(path, K, bias=None, size=(64, 48), symmetries=()):
+    """A checkpoint of a 2-stage se3 network at ``size`` whose first stage predicts ``bias``
+    ([omega, t], metres: no depth normalisation) for every pair, the second stage the identity;
+    its predictions averaged over ``symmetries``."""
     import dataclasses
 
     import torch
@@ -422,7 +423,7 @@ def _vo_checkpoint(path, K, bias=None, size=(64, 48)):
     from gvnn_warp.vo.checkpoint import CHECKPOINT_FORMAT, build_network, network_spec
 
     cfg = default_config("se3", str(path.parent), size=size, stage_scales=(1, 1), refine=1, depth_normalised_t=False,
-                         widths=(4, 8, 8, 8))
+                         widths=(4, 8, 8, 8), symmetries=symmetries)
     spec = network_spec(cfg, torch.as_tensor(K))
     net = build_network(spec)
     if bias is not None:
@@ -455,6 +456,18 @@ def test_track_cli_vo_chains_the_network_pose_and_vo_direct_refines_it(tmp_path)
     for _ in range(2):
         expect.append(expect[-1] @ np.linalg.inv(T))
     np.testing.assert_allclose(poses, np.stack(expect), atol=2e-5)
+    # the checkpoint's symmetries reach the prediction: with "swap", the constant estimate is averaged
+    # with the inverse of itself (what the reversed pair predicts)
+    from gvnn_warp.vo import invert_pose
+
+    swap = _vo_checkpoint(tmp_path / "swap.pt", seq.K, bias=xi, symmetries=("swap",))
+    assert main(["track", str(data), "--out", str(tmp_path / "vo_swap"), "--method", "vo", "--checkpoint", str(swap),
+                 "--no-progress"]) == 0
+    _, poses = read_trajectory(tmp_path / "vo_swap" / "trajectory.txt")
+    x = torch.tensor([xi], dtype=torch.float64)
+    T2 = np.eye(4)
+    T2[:3] = se3_to_matrix((x + invert_pose(x)) / 2)[0].numpy()
+    np.testing.assert_allclose(poses[1], seq.gt_poses[0] @ np.linalg.inv(T2), atol=2e-5)
     # an untrained network predicts the identity: vo+direct is then the direct method (the aligner from
     # the identity, on the same frames), up to the grey conversion of the colour images
     zero = _vo_checkpoint(tmp_path / "zero.pt", seq.K)
@@ -512,7 +525,7 @@ def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
     cases = [
         (["--method", "vo"], "--method vo needs --checkpoint CKPT"),
         (["--method", "vo+direct", "--checkpoint", str(tmp_path / "none.pt")], "none.pt: no such file"),
-        (["--method", "vo", "--checkpoint", str(old)], "checkpoint format 2, this gvnn_warp reads format 3"),
+        (["--method", "vo", "--checkpoint", str(old)], "checkpoint format 2, this gvnn_warp reads format 4"),
         (["--method", "vo", "--checkpoint", str(text)], "notes.txt: not a gvnn-warp vo checkpoint"),
         (["--checkpoint", str(old)], "--checkpoint is used by --method vo and vo+direct only"),
         (["--method", "vo", "--checkpoint", str(tmp_path)], "not a file"),

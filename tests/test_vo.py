@@ -192,6 +192,67 @@ def test_cascade_refine_reapplies_the_last_stage(tiny_pairs):
         default_config("se3", "x", stage_scales=(1,), refine=2)
 
 
+@pytest.mark.parametrize("dim", [3, 6])
+def test_invert_and_mirror_pose_match_the_matrices(dim):
+    """invert_pose is the matrix inverse and mirror_pose is M T M (M = diag(-1, 1, 1) or diag(1, -1, 1))."""
+    from gvnn_warp import se3_to_matrix
+    from gvnn_warp.vo import invert_pose, mirror_pose
+    from gvnn_warp.vo.loss import full_xi
+
+    xi = torch.randn(5, dim, dtype=torch.float64, generator=torch.Generator().manual_seed(dim)) * 0.4
+
+    def mat(x):
+        T = torch.eye(4, dtype=torch.float64).repeat(x.shape[0], 1, 1)
+        T[:, :3, :] = se3_to_matrix(full_xi(x))
+        return T
+
+    torch.testing.assert_close(mat(invert_pose(xi)), torch.linalg.inv(mat(xi)), atol=1e-12, rtol=0)
+    for axis in (0, 1):
+        M = torch.eye(4, dtype=torch.float64)
+        M[axis, axis] = -1.0
+        torch.testing.assert_close(mat(mirror_pose(xi, axis)), M @ mat(xi) @ M, atol=1e-12, rtol=0)
+
+
+def test_predict_averages_over_the_symmetries(tiny_pairs):
+    """CascadeVO.predict: no symmetry is forward(); "swap" averages with the inverse of the reversed
+    pair's estimate; a mirror averages with the mirrored pair's estimate mirrored back, and is
+    skipped when the principal point is off the centre; an exactly symmetric estimate is unchanged."""
+    from gvnn_warp.vo import invert_pose, mirror_pose
+
+    ps = tiny_pairs
+    ref, live, ref_d, live_d, _, _ = ps.batch(torch.arange(3))
+    torch.manual_seed(1)
+    net = CascadeVO("se3", scales=(1, 1), size=TINY)
+    with torch.no_grad():
+        for st in net.stages:
+            st.tail[-1].weight.normal_(0.0, 0.05)
+        net.eval()
+        xi = net(ref, live, ref_d, live_d, ps.K, refine=1)
+        torch.testing.assert_close(net.predict(ref, live, ref_d, live_d, ps.K, refine=1), xi)
+        back = invert_pose(net(live, ref, live_d, ref_d, ps.K, refine=1))
+        torch.testing.assert_close(net.predict(ref, live, ref_d, live_d, ps.K, refine=1, symmetries=("swap",)),
+                                   (xi + back) / 2)
+        assert (xi - back).abs().max() > 1e-3  # the two estimates differ: the average is a real one
+        up = mirror_pose(net(ref.flip(-2), live.flip(-2), ref_d.flip(-2), live_d.flip(-2), ps.K, refine=1), 1)
+        torch.testing.assert_close(net.predict(ref, live, ref_d, live_d, ps.K, refine=1, symmetries=("mirror_y",)),
+                                   (xi + up) / 2)
+        K_off = ps.K.clone()
+        K_off[1, 2] += 0.5
+        torch.testing.assert_close(
+            net.predict(ref, live, ref_d, live_d, K_off, refine=1, symmetries=("mirror_y",)),
+            net(ref, live, ref_d, live_d, K_off, refine=1))
+        # the identity network (zero last layers) predicts 0 whatever the symmetries
+        zero = CascadeVO("se3", scales=(1, 1), size=TINY).eval()
+        out = zero.predict(ref, live, ref_d, live_d, ps.K, refine=1, symmetries=("swap", "mirror_x", "mirror_y"))
+        assert out.abs().max() == 0
+    with pytest.raises(ValueError, match="unknown symmetries"):
+        net.predict(ref, live, ref_d, live_d, ps.K, symmetries=("rotate",))
+    with pytest.raises(ValueError, match="--symmetries: unknown rotate"):
+        default_config("se3", "x", symmetries=("rotate",))
+    assert default_config("se3", "x").symmetries == ("swap", "mirror_y")
+    assert default_config("so3", "x").symmetries == ()
+
+
 # ----------------------------------------------------------------------------- data and loss
 
 
@@ -345,10 +406,11 @@ def test_resume_refuses_a_run_on_other_data(tiny_run, change):
     assert (out / "checkpoint.pt").stat().st_mtime_ns == before
 
 
-@pytest.mark.parametrize("old", ["pickled numpy", "no format", "format 2"])
+@pytest.mark.parametrize("old", ["pickled numpy", "no format", "format 2", "format 3"])
 def test_resume_refuses_checkpoints_of_other_versions(tmp_path, old):
     """Checkpoints load with weights_only=True; one written by an older version (numpy arrays
-    pickled inside, no format number, or format 2 without the network's description) gets a clear
+    pickled inside, no format number, format 2 without the network's description, format 3 without
+    its symmetries) gets a clear
     one-line error, not a traceback or a silent resume."""
     from gvnn_warp.vo.train import ConfigError
 
@@ -356,14 +418,15 @@ def test_resume_refuses_checkpoints_of_other_versions(tmp_path, old):
     ck = {"config": dataclasses.asdict(cfg), "step": 3, "train_loss": [1.0, 1.0, 1.0]}
     if old == "pickled numpy":
         ck["rng"] = {"numpy": np.random.get_state()}
-    if old == "format 2":
-        ck.update(format=2, model=CascadeVO("so3", size=TINY).state_dict())
+    if old in ("format 2", "format 3"):
+        ck.update(format=int(old[-1]), model=CascadeVO("so3", size=TINY).state_dict())
     torch.save(ck, tmp_path / "checkpoint.pt")
     with pytest.raises(ConfigError, match="cannot resume: .*checkpoint.pt: .*(older|another) version") as e:
         train(cfg)
     assert "\n" not in str(e.value)
     if old != "pickled numpy":
-        assert f"checkpoint format {1 if old == 'no format' else 2}, this gvnn_warp reads format 3" in str(e.value)
+        found = 1 if old == "no format" else int(old[-1])
+        assert f"checkpoint format {found}, this gvnn_warp reads format 4" in str(e.value)
 
 
 def test_training_curve_legend_and_panel_text(tiny_pairs):

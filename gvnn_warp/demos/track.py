@@ -196,7 +196,8 @@ def run(args: argparse.Namespace) -> int:
         from ..vo.frontend import NetworkAligner
 
         net, spec = network
-        aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner)
+        aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner,
+                                 symmetries=tuple(spec.get("symmetries", ())))
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         return _track_and_report(args, seq, n, aligner)

@@ -62,6 +62,18 @@ def _losses() -> tuple[str, ...]:
     return ("l1", "l2", *KINDS)
 
 
+def _symmetries(text: str) -> tuple[str, ...]:
+    from ..vo.model import SYMMETRIES
+
+    names = () if text.strip() == "none" else tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in SYMMETRIES]
+    if bad:
+        raise argparse.ArgumentTypeError(
+            f"unknown {', '.join(bad)}: expected 'none' or some of {', '.join(SYMMETRIES)}"
+        )
+    return names
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--motion", required=True, choices=("so3", "se3"),
                    help="so3: pure rotation (3 outputs); se3: rotation and translation (6 outputs)")
@@ -107,6 +119,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine", type=bounded_int(0, 20), default=None, metavar="N",
                    help="when predicting, apply the last stage this many more times to the re-warped live image "
                         "(default: 2)")
+    p.add_argument("--symmetries", type=_symmetries, default=None, metavar="S,S,...|none",
+                   help="when predicting, average the pose over these exact symmetries of a pair: swap (the "
+                        "pair reversed), mirror_x, mirror_y (both frames mirrored; only with the principal point "
+                        "at the image centre) (default: swap,mirror_y for se3, none for so3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -142,6 +158,7 @@ def _config(args: argparse.Namespace):
         gaps=getattr(args, "gaps", None),
         stage_scales=(1,) * args.stages if getattr(args, "stages", None) else None,
         refine=getattr(args, "refine", None),
+        symmetries=getattr(args, "symmetries", None),
         pose_weight=getattr(args, "pose_weight", None),
         pose_t_weight=getattr(args, "pose_t_weight", None),
         resume=bool(args.resume),

@@ -13,17 +13,20 @@ The command line is ``gvnn-warp vo`` (:mod:`gvnn_warp.demos.vo`).
 from __future__ import annotations
 
 from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors
-from .model import CascadeVO, SiameseVO, compose_pose, pose_dim
+from .model import SYMMETRIES, CascadeVO, SiameseVO, compose_pose, invert_pose, mirror_pose, pose_dim
 from .train import VOConfig, default_config, train
 
 __all__ = [
     "DEFAULT_LOSS",
     "LOSSES",
+    "SYMMETRIES",
     "CascadeVO",
     "SiameseVO",
     "VOConfig",
     "compose_pose",
     "default_config",
+    "invert_pose",
+    "mirror_pose",
     "photometric_loss",
     "pose_dim",
     "pose_errors",

@@ -1,4 +1,4 @@
-"""The checkpoint of ``gvnn-warp vo`` (format 3, documented in ``docs/vo_checkpoint.md``) and the
+"""The checkpoint of ``gvnn-warp vo`` (format 4, documented in ``docs/vo_checkpoint.md``) and the
 trained network it holds.
 
 A checkpoint holds only tensors, dicts, lists, tuples, str, int, float, bool and None, so it loads
@@ -19,7 +19,7 @@ from .model import CascadeVO
 
 __all__ = ["CHECKPOINT_FORMAT", "CheckpointError", "build_network", "load_network", "network_spec", "read_checkpoint"]
 
-CHECKPOINT_FORMAT = 3
+CHECKPOINT_FORMAT = 4
 
 # the CascadeVO constructor arguments stored under "network" -> "kwargs"
 _NETWORK_KEYS = ("motion", "scales", "size", "widths", "depth_input", "n_head_layers", "omega_scale", "t_scale",
@@ -40,7 +40,7 @@ def network_spec(cfg, K: torch.Tensor) -> dict:
         "depth_normalised_t": bool(cfg.depth_normalised_t),
     }
     return {"class": "CascadeVO", "kwargs": kwargs, "refine": int(cfg.refine),
-            "intrinsics": K.detach().to(torch.float64).clone()}
+            "symmetries": [str(n) for n in cfg.symmetries], "intrinsics": K.detach().to(torch.float64).clone()}
 
 
 def build_network(spec: dict) -> CascadeVO:

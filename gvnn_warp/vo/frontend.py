@@ -74,6 +74,8 @@ class NetworkAligner:
         K: (3, 3) intrinsics of the frames as they are given (their full size).
         image_size: (W, H) of the frames as they are given.
         refine: extra applications of the network's last stage (the checkpoint's ``refine``).
+        symmetries: the pair's symmetries the estimate is averaged over (the checkpoint's
+            ``symmetries``; ``CascadeVO.predict``).
         direct: None (the network alone) or a ``gvnn_warp.odometry.DirectAligner`` built for ``K``,
             which refines the network's estimate on the full-size frames (``align_frames(..., init=)``).
 
@@ -83,12 +85,14 @@ class NetworkAligner:
     ``"network_pose"`` added), or ``{"converged": True, "network_pose": T}`` for the network alone.
     """
 
-    def __init__(self, network, K, image_size: tuple[int, int], refine: int = 0, direct=None):
+    def __init__(self, network, K, image_size: tuple[int, int], refine: int = 0, direct=None,
+                 symmetries: tuple[str, ...] = ()):
         self.net = network
         self.size = tuple(network.size)
         self.image_size = tuple(int(v) for v in image_size)
         self.K_net = torch.from_numpy(scale_intrinsics(K, self.image_size, self.size)).float()
         self.refine = int(refine)
+        self.symmetries = tuple(symmetries)
         self.direct = direct
 
     def prepare(self, image, depth) -> VOFrame:
@@ -110,7 +114,8 @@ class NetworkAligner:
         from gvnn_warp import se3_to_matrix
 
         with torch.no_grad():
-            xi = self.net(ref.image, live.image, ref.depth, live.depth, self.K_net, refine=self.refine)
+            xi = self.net.predict(ref.image, live.image, ref.depth, live.depth, self.K_net, refine=self.refine,
+                                  symmetries=self.symmetries)
             T34 = se3_to_matrix(full_xi(xi).double())[0]
         T = np.eye(4)
         T[:3, :] = T34.numpy()

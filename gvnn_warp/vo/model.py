@@ -20,9 +20,15 @@ from torch import Tensor, nn
 
 from .loss import full_xi
 
-__all__ = ["MOTIONS", "CascadeVO", "SiameseVO", "compose_pose", "pose_dim"]
+__all__ = ["MOTIONS", "SYMMETRIES", "CascadeVO", "SiameseVO", "compose_pose", "invert_pose", "mirror_pose", "pose_dim"]
 
 MOTIONS = {"so3": 3, "se3": 6}
+
+#: the exact symmetries of a pair that :meth:`CascadeVO.predict` can average over: ``"swap"`` (the
+#: pair in reverse order predicts the inverse pose), ``"mirror_x"`` / ``"mirror_y"`` (both frames
+#: mirrored left-right / upside-down predict the mirrored pose; exact only when the principal point
+#: is the image centre along that axis and the skew is 0, else skipped)
+SYMMETRIES = ("swap", "mirror_x", "mirror_y")
 
 
 def pose_dim(motion: str) -> int:
@@ -184,6 +190,29 @@ def compose_pose(a: Tensor, b: Tensor) -> Tensor:
     return torch.cat([omega, t], dim=1)
 
 
+def invert_pose(xi: Tensor) -> Tensor:
+    """Pose vector of ``T^-1`` for ``T`` = (omega) or ([omega, t]): ``-omega`` and ``-R^T t``."""
+    if xi.shape[1] == 3:
+        return -xi
+    from gvnn_warp import so3_exp
+
+    R = so3_exp(xi[:, :3].contiguous())
+    return torch.cat([-xi[:, :3], -(R.transpose(1, 2) @ xi[:, 3:, None])[:, :, 0]], dim=1)
+
+
+def mirror_pose(xi: Tensor, axis: int) -> Tensor:
+    """Pose vector of ``M T M`` with M the reflection of camera axis ``axis`` (0: x, left-right; 1: y,
+    upside-down): the pose of a pair whose images are both mirrored along that axis. The rotation
+    axis of ``M R M`` is ``det(M) M a = -M a``, so omega keeps its ``axis`` component and negates the
+    other two; t negates its ``axis`` component."""
+    sign = torch.full((xi.shape[1],), -1.0, dtype=xi.dtype)
+    sign[axis] = 1.0
+    if xi.shape[1] == 6:
+        sign[3:] = 1.0
+        sign[3 + axis] = -1.0
+    return xi * sign
+
+
 class CascadeVO(nn.Module):
     """:class:`SiameseVO` networks refining one pose coarse to fine (iterative alignment through the
     3D spatial transformer).
@@ -255,6 +284,47 @@ class CascadeVO(nn.Module):
             xi = compose_pose(xi, self._stage(k, ref, warped, ref_depth, ref_depth))
             out.append(xi)
         return out if all_stages else xi
+
+    def predict(
+        self,
+        ref: Tensor,
+        live: Tensor,
+        ref_depth: Tensor | None = None,
+        live_depth: Tensor | None = None,
+        K: Tensor | None = None,
+        refine: int = 0,
+        symmetries: tuple[str, ...] = (),
+    ) -> Tensor:
+        """:meth:`forward`'s pose, averaged over the pair's exact symmetries (:data:`SYMMETRIES`,
+        test-time augmentation): with ``("swap", "mirror_y")`` the network sees the pair, the pair
+        in reverse order, and both mirrored upside down, and the four poses, brought back to the
+        pair's, are averaged (pose vectors; the estimates differ by a few degrees at most). A mirror
+        whose axis the intrinsics are not symmetric about (principal point off the image centre
+        by more than 1e-4 px, or skew) is skipped. Needs depth for both frames with ``"swap"``."""
+        unknown = [n for n in symmetries if n not in SYMMETRIES]
+        if unknown:
+            raise ValueError(f"CascadeVO.predict: unknown symmetries {unknown}, expected some of {SYMMETRIES}")
+        W, H = self.size
+        Kc = None if K is None else (K if K.dim() == 2 else K[0])
+        axes = [0]
+        for axis, name in ((1, "mirror_x"), (2, "mirror_y")):
+            if name in symmetries and Kc is not None and float(Kc[0, 1]) == 0.0 and abs(
+                float(Kc[axis - 1, 2]) - ((W if axis == 1 else H) - 1) / 2
+            ) < 1e-4:
+                axes += [a | axis for a in axes]  # every combination of the mirrors
+        orders = (False, True) if "swap" in symmetries else (False,)
+        total = 0
+        for swap in orders:
+            a, b, ad, bd = (live, ref, live_depth, ref_depth) if swap else (ref, live, ref_depth, live_depth)
+            for m in axes:
+                dims = [d for d, bit in ((-1, 1), (-2, 2)) if m & bit]
+                xs = [None if x is None else (x.flip(dims) if dims else x) for x in (a, b, ad, bd)]
+                xi = self(*xs, K, refine=refine)
+                for axis, bit in ((0, 1), (1, 2)):
+                    if m & bit:
+                        xi = mirror_pose(xi, axis)
+                total = total + (invert_pose(xi) if swap else xi)
+        return total / (len(orders) * len(axes))
 
     def _stage(self, k: int, ref: Tensor, live: Tensor, ref_depth: Tensor | None, live_depth: Tensor | None) -> Tensor:
         s = self.scales[k]
