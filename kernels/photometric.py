@@ -337,11 +337,14 @@ def iota8(x0: int, one: Any):
 
 @wp.func
 def load8(a: wp.array(dtype=Any), base: int, x0: int, last: int):
-    """a[base + min(x0 + k, last)] for k in 0..7 (lanes past ``last`` repeat it)."""
+    """a[base + min(x0 + k, last)] for k in 0..7 (lanes past ``last`` repeat it; x0 <= last). The
+    indices are written as max(., 0) + k, so the compiler knows they are not negative and drops
+    Warp's negative-index wrap (a compare and add per access)."""
+    i = wp.max(base + x0, 0)
+    n = wp.max(wp.min(last - x0, 7), 0)
     return wp.vector(
-        a[base + wp.min(x0, last)], a[base + wp.min(x0 + 1, last)], a[base + wp.min(x0 + 2, last)],
-        a[base + wp.min(x0 + 3, last)], a[base + wp.min(x0 + 4, last)], a[base + wp.min(x0 + 5, last)],
-        a[base + wp.min(x0 + 6, last)], a[base + wp.min(x0 + 7, last)],
+        a[i], a[i + wp.min(1, n)], a[i + wp.min(2, n)], a[i + wp.min(3, n)],
+        a[i + wp.min(4, n)], a[i + wp.min(5, n)], a[i + wp.min(6, n)], a[i + wp.min(7, n)],
     )
 
 

@@ -130,34 +130,6 @@ def store8(a: wp.array(dtype=Any), base: int, x0: int, W: int, v: Any):
 
 
 @wp.func
-def load8(a: wp.array(dtype=Any), base: int, x0: int, last: int):
-    """a[base + min(x0 + k, last)] for k in 0..7 (lanes past ``last`` repeat it); see store8."""
-    i = wp.max(base + x0, 0)
-    n = wp.max(wp.min(last - x0, 7), 0)
-    return wp.vector(
-        a[i], a[i + wp.min(1, n)], a[i + wp.min(2, n)], a[i + wp.min(3, n)],
-        a[i + wp.min(4, n)], a[i + wp.min(5, n)], a[i + wp.min(6, n)], a[i + wp.min(7, n)],
-    )
-
-
-@wp.func
-def gather8(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
-    """:func:`.sampler.gather_lanes` with indices the compiler knows are not negative."""
-    zero = type(idx[0])(0.0)
-    b = wp.max(base, 0)
-    return type(idx)(
-        wp.where(mask[0] != zero, a[b + wp.max(int(idx[0]), 0)], zero),
-        wp.where(mask[1] != zero, a[b + wp.max(int(idx[1]), 0)], zero),
-        wp.where(mask[2] != zero, a[b + wp.max(int(idx[2]), 0)], zero),
-        wp.where(mask[3] != zero, a[b + wp.max(int(idx[3]), 0)], zero),
-        wp.where(mask[4] != zero, a[b + wp.max(int(idx[4]), 0)], zero),
-        wp.where(mask[5] != zero, a[b + wp.max(int(idx[5]), 0)], zero),
-        wp.where(mask[6] != zero, a[b + wp.max(int(idx[6]), 0)], zero),
-        wp.where(mask[7] != zero, a[b + wp.max(int(idx[7]), 0)], zero),
-    )
-
-
-@wp.func
 def channel8(
     live_image: wp.array(dtype=Any), base: int, ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
     i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any, m11: Any, wx1: Any, wy1: Any, ok: Any,
@@ -170,11 +142,11 @@ def channel8(
     zeros = ph.splat8(type(c)(0.0))
     big = type(c)(1.0e30)
     val, gx, gy = ph.interpolate8(
-        gather8(live_image, base, i00, m00), gather8(live_image, base, i10, m10),
-        gather8(live_image, base, i01, m01), gather8(live_image, base, i11, m11),
+        sampler.gather_lanes(live_image, base, i00, m00), sampler.gather_lanes(live_image, base, i10, m10),
+        sampler.gather_lanes(live_image, base, i01, m01), sampler.gather_lanes(live_image, base, i11, m11),
         wx1, wy1,
     )
-    res = val - load8(ref_image, ref_i, x0, last)
+    res = val - ph.load8(ref_image, ref_i, x0, last)
     # finite residual and derivatives (NaN and inf fail the compare)
     m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gx, -gx) + wp.max(gy, -gy), -one, big))
     rr = ph.select8(m, res, zeros)
@@ -253,7 +225,7 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
         for k8 in range((W + 7) // 8):
             x0 = k8 * 8
             x = ph.iota8(x0, one)
-            d = load8(ref_depth, row, x0, last)
+            d = ph.load8(ref_depth, row, x0, last)
             # lanes past the row's end and invalid depths are masked; their depth is replaced by 1
             mdep = ph.open_mask8(d, zmin, big)
             if x0 + 8 > W:  # the row's last, partial block

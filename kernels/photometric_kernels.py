@@ -347,7 +347,7 @@ def _make_normal_equations_lanes(
         kindc = kind
         if wp.static(static_kind >= 0):  # the penalty compiled in: its branches fold away (~30% faster)
             kindc = wp.static(static_kind)
-        a_row = r * ROW_STRIDE
+        a_row = wp.max(r, 0) * ROW_STRIDE  # non-negative: the slot accesses need no negative-index wrap
         for k in range(N_SUMS):
             acc[a_row + k] = zeros
         for k8 in range((W + 7) // 8):

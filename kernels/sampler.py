@@ -397,18 +397,21 @@ def inside_flag(x: Any, y: Any, H: int, W: int, padding: int):
 @wp.func
 def gather_lanes(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
     """(a[base + idx[k]] where mask[k] != 0, else 0) for the 8 lanes; ``idx`` holds float-valued
-    indices (valid addresses also where masked). A select, not a product with the mask, so a
-    NaN or inf pixel behind a masked tap gives 0, like :func:`sample_channels`'s ``wp.where``."""
+    indices (valid, non-negative addresses also where masked). A select, not a product with the
+    mask, so a NaN or inf pixel behind a masked tap gives 0, like :func:`sample_channels`'s
+    ``wp.where``. The indices are written as max(base, 0) + max(idx, 0): the compiler then knows
+    they are not negative and drops Warp's negative-index wrap (a compare and add per access)."""
     zero = type(idx[0])(0.0)
+    b = wp.max(base, 0)
     return type(idx)(
-        wp.where(mask[0] != zero, a[base + int(idx[0])], zero),
-        wp.where(mask[1] != zero, a[base + int(idx[1])], zero),
-        wp.where(mask[2] != zero, a[base + int(idx[2])], zero),
-        wp.where(mask[3] != zero, a[base + int(idx[3])], zero),
-        wp.where(mask[4] != zero, a[base + int(idx[4])], zero),
-        wp.where(mask[5] != zero, a[base + int(idx[5])], zero),
-        wp.where(mask[6] != zero, a[base + int(idx[6])], zero),
-        wp.where(mask[7] != zero, a[base + int(idx[7])], zero),
+        wp.where(mask[0] != zero, a[b + wp.max(int(idx[0]), 0)], zero),
+        wp.where(mask[1] != zero, a[b + wp.max(int(idx[1]), 0)], zero),
+        wp.where(mask[2] != zero, a[b + wp.max(int(idx[2]), 0)], zero),
+        wp.where(mask[3] != zero, a[b + wp.max(int(idx[3]), 0)], zero),
+        wp.where(mask[4] != zero, a[b + wp.max(int(idx[4]), 0)], zero),
+        wp.where(mask[5] != zero, a[b + wp.max(int(idx[5]), 0)], zero),
+        wp.where(mask[6] != zero, a[b + wp.max(int(idx[6]), 0)], zero),
+        wp.where(mask[7] != zero, a[b + wp.max(int(idx[7]), 0)], zero),
     )
 
 
