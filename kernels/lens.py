@@ -167,6 +167,56 @@ def pack_dist(model: int, coeffs=()) -> np.ndarray:
 # 10 ns per point, with its Jacobian 24 -> 14.5 ns (was: sqrt, atan and two or three divisions).
 
 
+# c(z) = atan(sqrt(z)) / sqrt(z) on z in [0, 1] as a polynomial in w = 2 z - 1: its coefficients
+# (_ATAN_H, lowest first, degree 20) and those of its derivative dc/dw (_ATAN_G, degree 19),
+# read by the scalar functions below and by the 8-lane one of kernels.lens_rays
+_ATAN_H = (
+    0.8704197513671031,
+    -0.10187654235021822,
+    0.020851851207106812,
+    -0.005030863660249582,
+    0.0013155859496792606,
+    -0.0003609820870445124,
+    0.00010227656045777358,
+    -2.9650040909502615e-05,
+    8.744943112043329e-06,
+    -2.614071510996734e-06,
+    7.898472870792878e-07,
+    -2.4080334783259967e-07,
+    7.398624793710959e-08,
+    -2.2799632063639697e-08,
+    7.027992040035036e-09,
+    -2.2748635121767786e-09,
+    7.602916554637715e-10,
+    -1.7481491269961626e-10,
+    3.2623164374142435e-11,
+    -3.868471560201312e-11,
+    1.6823203344941825e-11,
+)
+_ATAN_G = (
+    -0.10187654235021822,
+    0.041703702414213624,
+    -0.015092590980748746,
+    0.005262343798717042,
+    -0.001804910435222562,
+    0.0006136593627466414,
+    -0.0002075502863665183,
+    6.995954489634663e-05,
+    -2.3526643598970608e-05,
+    7.898472870792878e-06,
+    -2.6488368261585962e-06,
+    8.878349752453151e-07,
+    -2.963952168273161e-07,
+    9.83918885604905e-08,
+    -3.412295268265168e-08,
+    1.2164666487420344e-08,
+    -2.9718535158934765e-09,
+    5.872169587345639e-10,
+    -7.350095964382493e-10,
+    3.3646406689883653e-10,
+)
+
+
 @wp.func
 def _atan_ratio_poly_value(w: wp.float64):
     """c of c = atan(sqrt(z)) / sqrt(z) at w = 2 z - 1, z in [0, 1] (see _atan_ratio)."""
@@ -174,16 +224,16 @@ def _atan_ratio_poly_value(w: wp.float64):
     w4 = w2 * w2
     w8 = w4 * w4
     w16 = w8 * w8
-    h0_0 = wp.float64(0.8704197513671031) + wp.float64(-0.10187654235021822) * w
-    h0_1 = wp.float64(0.020851851207106812) + wp.float64(-0.005030863660249582) * w
-    h0_2 = wp.float64(0.0013155859496792606) + wp.float64(-0.0003609820870445124) * w
-    h0_3 = wp.float64(0.00010227656045777358) + wp.float64(-2.9650040909502615e-05) * w
-    h0_4 = wp.float64(8.744943112043329e-06) + wp.float64(-2.614071510996734e-06) * w
-    h0_5 = wp.float64(7.898472870792878e-07) + wp.float64(-2.4080334783259967e-07) * w
-    h0_6 = wp.float64(7.398624793710959e-08) + wp.float64(-2.2799632063639697e-08) * w
-    h0_7 = wp.float64(7.027992040035036e-09) + wp.float64(-2.2748635121767786e-09) * w
-    h0_8 = wp.float64(7.602916554637715e-10) + wp.float64(-1.7481491269961626e-10) * w
-    h0_9 = wp.float64(3.2623164374142435e-11) + wp.float64(-3.868471560201312e-11) * w
+    h0_0 = wp.float64(wp.static(_ATAN_H[0])) + wp.float64(wp.static(_ATAN_H[1])) * w
+    h0_1 = wp.float64(wp.static(_ATAN_H[2])) + wp.float64(wp.static(_ATAN_H[3])) * w
+    h0_2 = wp.float64(wp.static(_ATAN_H[4])) + wp.float64(wp.static(_ATAN_H[5])) * w
+    h0_3 = wp.float64(wp.static(_ATAN_H[6])) + wp.float64(wp.static(_ATAN_H[7])) * w
+    h0_4 = wp.float64(wp.static(_ATAN_H[8])) + wp.float64(wp.static(_ATAN_H[9])) * w
+    h0_5 = wp.float64(wp.static(_ATAN_H[10])) + wp.float64(wp.static(_ATAN_H[11])) * w
+    h0_6 = wp.float64(wp.static(_ATAN_H[12])) + wp.float64(wp.static(_ATAN_H[13])) * w
+    h0_7 = wp.float64(wp.static(_ATAN_H[14])) + wp.float64(wp.static(_ATAN_H[15])) * w
+    h0_8 = wp.float64(wp.static(_ATAN_H[16])) + wp.float64(wp.static(_ATAN_H[17])) * w
+    h0_9 = wp.float64(wp.static(_ATAN_H[18])) + wp.float64(wp.static(_ATAN_H[19])) * w
     h1_0 = h0_0 + h0_1 * w2
     h1_1 = h0_2 + h0_3 * w2
     h1_2 = h0_4 + h0_5 * w2
@@ -191,7 +241,7 @@ def _atan_ratio_poly_value(w: wp.float64):
     h1_4 = h0_8 + h0_9 * w2
     h2_0 = h1_0 + h1_1 * w4
     h2_1 = h1_2 + h1_3 * w4
-    h2_2 = h1_4 + wp.float64(1.6823203344941825e-11) * w4
+    h2_2 = h1_4 + wp.float64(wp.static(_ATAN_H[20])) * w4
     h3_0 = h2_0 + h2_1 * w8
     h4_0 = h3_0 + h2_2 * w16
     return h4_0
@@ -204,16 +254,16 @@ def _atan_ratio_poly(w: wp.float64):
     w4 = w2 * w2
     w8 = w4 * w4
     w16 = w8 * w8
-    h0_0 = wp.float64(0.8704197513671031) + wp.float64(-0.10187654235021822) * w
-    h0_1 = wp.float64(0.020851851207106812) + wp.float64(-0.005030863660249582) * w
-    h0_2 = wp.float64(0.0013155859496792606) + wp.float64(-0.0003609820870445124) * w
-    h0_3 = wp.float64(0.00010227656045777358) + wp.float64(-2.9650040909502615e-05) * w
-    h0_4 = wp.float64(8.744943112043329e-06) + wp.float64(-2.614071510996734e-06) * w
-    h0_5 = wp.float64(7.898472870792878e-07) + wp.float64(-2.4080334783259967e-07) * w
-    h0_6 = wp.float64(7.398624793710959e-08) + wp.float64(-2.2799632063639697e-08) * w
-    h0_7 = wp.float64(7.027992040035036e-09) + wp.float64(-2.2748635121767786e-09) * w
-    h0_8 = wp.float64(7.602916554637715e-10) + wp.float64(-1.7481491269961626e-10) * w
-    h0_9 = wp.float64(3.2623164374142435e-11) + wp.float64(-3.868471560201312e-11) * w
+    h0_0 = wp.float64(wp.static(_ATAN_H[0])) + wp.float64(wp.static(_ATAN_H[1])) * w
+    h0_1 = wp.float64(wp.static(_ATAN_H[2])) + wp.float64(wp.static(_ATAN_H[3])) * w
+    h0_2 = wp.float64(wp.static(_ATAN_H[4])) + wp.float64(wp.static(_ATAN_H[5])) * w
+    h0_3 = wp.float64(wp.static(_ATAN_H[6])) + wp.float64(wp.static(_ATAN_H[7])) * w
+    h0_4 = wp.float64(wp.static(_ATAN_H[8])) + wp.float64(wp.static(_ATAN_H[9])) * w
+    h0_5 = wp.float64(wp.static(_ATAN_H[10])) + wp.float64(wp.static(_ATAN_H[11])) * w
+    h0_6 = wp.float64(wp.static(_ATAN_H[12])) + wp.float64(wp.static(_ATAN_H[13])) * w
+    h0_7 = wp.float64(wp.static(_ATAN_H[14])) + wp.float64(wp.static(_ATAN_H[15])) * w
+    h0_8 = wp.float64(wp.static(_ATAN_H[16])) + wp.float64(wp.static(_ATAN_H[17])) * w
+    h0_9 = wp.float64(wp.static(_ATAN_H[18])) + wp.float64(wp.static(_ATAN_H[19])) * w
     h1_0 = h0_0 + h0_1 * w2
     h1_1 = h0_2 + h0_3 * w2
     h1_2 = h0_4 + h0_5 * w2
@@ -221,19 +271,19 @@ def _atan_ratio_poly(w: wp.float64):
     h1_4 = h0_8 + h0_9 * w2
     h2_0 = h1_0 + h1_1 * w4
     h2_1 = h1_2 + h1_3 * w4
-    h2_2 = h1_4 + wp.float64(1.6823203344941825e-11) * w4
+    h2_2 = h1_4 + wp.float64(wp.static(_ATAN_H[20])) * w4
     h3_0 = h2_0 + h2_1 * w8
     h4_0 = h3_0 + h2_2 * w16
-    g0_0 = wp.float64(-0.10187654235021822) + wp.float64(0.041703702414213624) * w
-    g0_1 = wp.float64(-0.015092590980748746) + wp.float64(0.005262343798717042) * w
-    g0_2 = wp.float64(-0.001804910435222562) + wp.float64(0.0006136593627466414) * w
-    g0_3 = wp.float64(-0.0002075502863665183) + wp.float64(6.995954489634663e-05) * w
-    g0_4 = wp.float64(-2.3526643598970608e-05) + wp.float64(7.898472870792878e-06) * w
-    g0_5 = wp.float64(-2.6488368261585962e-06) + wp.float64(8.878349752453151e-07) * w
-    g0_6 = wp.float64(-2.963952168273161e-07) + wp.float64(9.83918885604905e-08) * w
-    g0_7 = wp.float64(-3.412295268265168e-08) + wp.float64(1.2164666487420344e-08) * w
-    g0_8 = wp.float64(-2.9718535158934765e-09) + wp.float64(5.872169587345639e-10) * w
-    g0_9 = wp.float64(-7.350095964382493e-10) + wp.float64(3.3646406689883653e-10) * w
+    g0_0 = wp.float64(wp.static(_ATAN_G[0])) + wp.float64(wp.static(_ATAN_G[1])) * w
+    g0_1 = wp.float64(wp.static(_ATAN_G[2])) + wp.float64(wp.static(_ATAN_G[3])) * w
+    g0_2 = wp.float64(wp.static(_ATAN_G[4])) + wp.float64(wp.static(_ATAN_G[5])) * w
+    g0_3 = wp.float64(wp.static(_ATAN_G[6])) + wp.float64(wp.static(_ATAN_G[7])) * w
+    g0_4 = wp.float64(wp.static(_ATAN_G[8])) + wp.float64(wp.static(_ATAN_G[9])) * w
+    g0_5 = wp.float64(wp.static(_ATAN_G[10])) + wp.float64(wp.static(_ATAN_G[11])) * w
+    g0_6 = wp.float64(wp.static(_ATAN_G[12])) + wp.float64(wp.static(_ATAN_G[13])) * w
+    g0_7 = wp.float64(wp.static(_ATAN_G[14])) + wp.float64(wp.static(_ATAN_G[15])) * w
+    g0_8 = wp.float64(wp.static(_ATAN_G[16])) + wp.float64(wp.static(_ATAN_G[17])) * w
+    g0_9 = wp.float64(wp.static(_ATAN_G[18])) + wp.float64(wp.static(_ATAN_G[19])) * w
     g1_0 = g0_0 + g0_1 * w2
     g1_1 = g0_2 + g0_3 * w2
     g1_2 = g0_4 + g0_5 * w2

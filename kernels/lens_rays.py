@@ -13,11 +13,13 @@ depth d is ``d (xn, yn, 1)``) and ``w = 1`` where the undistortion converged ins
 domain, 0 where it did not (the pixel has no ray: treated as an invalid depth).
 """
 
+import math
 from typing import Any
 
 import warp as wp
 
 from . import camera, lens, sampler
+from . import photometric as ph
 from .kinds import vec8d, vec8f
 
 
@@ -28,6 +30,64 @@ def pixel_ray(model: int, K: Any, dist: Any, x: Any, y: Any):
     r = camera.pixel_ray(K, x, y)
     xn, ok = lens.undistort(model, dist, wp.vector(r[0], r[1]))
     return wp.vector(xn[0], xn[1], wp.where(ok, type(x)(1.0), type(x)(0.0)))
+
+
+mat33d = wp.types.matrix((3, 3), wp.float64)
+
+
+@wp.func
+def lens64(K: Any, dist: Any):
+    """(K, dist) in float64 for the ``*64`` functions below, which take them converted once (per
+    row or block of pixels) instead of per pixel. K's lower row is not read (set to 0 0 1)."""
+    K64 = mat33d(
+        wp.float64(K[0, 0]), wp.float64(K[0, 1]), wp.float64(K[0, 2]),
+        wp.float64(0.0), wp.float64(K[1, 1]), wp.float64(K[1, 2]),
+        wp.float64(0.0), wp.float64(0.0), wp.float64(1.0),
+    )
+    return K64, lens._to64(dist)
+
+
+@wp.func
+def project_ray_value64(model: int, R: Any, t: Any, K64: mat33d, d64: vec8d, ray: Any, depth: Any, min_depth: Any):
+    """The values of :func:`project_ray` for (K, dist) given by :func:`lens64`: (u, v, q, ok), q
+    the moved point (the kernel's float type). No adjoint (for hand-written ones)."""
+    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
+    front = q[2] > min_depth
+    # one division (two cost more than the lens)
+    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
+    x = wp.float64(q[0]) * iz
+    y = wp.float64(q[1]) * iz
+    ok = front and x * x + y * y < d64[lens.LIMIT]
+    xd, yd = lens._distort_value64(model, d64, wp.where(ok, x, wp.float64(0.0)), wp.where(ok, y, wp.float64(0.0)))
+    u = type(depth)(K64[0, 0] * xd + K64[0, 1] * yd + K64[0, 2])
+    v = type(depth)(K64[1, 1] * yd + K64[1, 2])
+    return u, v, q, ok
+
+
+@wp.func
+def project_ray_jacobian64(model: int, R: Any, t: Any, K64: mat33d, d64: vec8d, ray: Any, depth: Any, min_depth: Any):
+    """:func:`project_ray_jacobian` for (K, dist) given by :func:`lens64`."""
+    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
+    front = q[2] > min_depth
+    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
+    x = wp.float64(q[0]) * iz
+    y = wp.float64(q[1]) * iz
+    ok = front and x * x + y * y < d64[lens.LIMIT]
+    xs = wp.where(ok, x, wp.float64(0.0))
+    ys = wp.where(ok, y, wp.float64(0.0))
+    xd, yd, J = lens._distort64(model, d64, xs, ys)
+    fx = K64[0, 0]
+    s = K64[0, 1]
+    fy = K64[1, 1]
+    a00 = fx * J[0, 0] + s * J[1, 0]
+    a01 = fx * J[0, 1] + s * J[1, 1]
+    a10 = fy * J[1, 0]
+    a11 = fy * J[1, 1]
+    du = wp.vector(type(depth)(a00 * iz), type(depth)(a01 * iz), type(depth)(-(a00 * xs + a01 * ys) * iz))
+    dv = wp.vector(type(depth)(a10 * iz), type(depth)(a11 * iz), type(depth)(-(a10 * xs + a11 * ys) * iz))
+    u = type(depth)(fx * xd + s * yd + K64[0, 2])
+    v = type(depth)(fy * yd + K64[1, 2])
+    return u, v, q, ok, du, dv
 
 
 def _make_project_ray(T, project_ray=None):
@@ -47,16 +107,8 @@ def _make_project_ray(T, project_ray=None):
         evaluated as :func:`.lens.project` does (in float64, rounded; X/Z as X * (1/Z)), so (u, v)
         equals ``lens.project(model, K, dist, q)`` to rounding. Gradients (hand-written adjoint): to R, t, K, dist,
         the ray's (x, y) and depth; q_z passes its own gradient."""
-        q = R * vec3(ray[0] * depth, ray[1] * depth, depth) + t
-        front = q[2] > min_depth
-        iz = f64(1.0) / f64(wp.where(front, q[2], T(1.0)))  # one division (two cost more than the lens)
-        x = f64(q[0]) * iz
-        y = f64(q[1]) * iz
-        d = lens._to64(dist)
-        ok = front and x * x + y * y < d[lens.LIMIT]
-        xd, yd = lens._distort_value64(model, d, wp.where(ok, x, f64(0.0)), wp.where(ok, y, f64(0.0)))
-        u = T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2]))
-        v = T(f64(K[1, 1]) * yd + f64(K[1, 2]))
+        K64, d64 = lens64(K, dist)
+        u, v, q, ok = project_ray_value64(model, R, t, K64, d64, ray, depth, min_depth)
         return vec3(u, v, q[2]), ok
 
     @wp.func_grad(project_ray)
@@ -99,128 +151,372 @@ project_ray = _make_project_ray(wp.float64, _make_project_ray(wp.float32))
 
 
 
-def _make_warp_pixel(T, warp_pixel=None):
-    """float type ``T`` overload of warp_pixel (see _make_project_ray)."""
-    f64 = wp.float64
-    vec3 = wp.types.vector(3, T)
-    mat33 = wp.types.matrix((3, 3), T)
-    vec8 = vec8f if T == wp.float32 else vec8d
-
-    @wp.func
-    def warp_pixel(
-        image: wp.array(dtype=T), out: wp.array(dtype=T), valid: wp.array(dtype=wp.bool),
-        K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i: int, b: int, src: int, dst: int, C: int, H: int,
-        W: int, padding: int, model: int, R: mat33, t: vec3, Kb: mat33, db: vec8, ray: vec3, depth: T,
-        active: wp.bool, min_depth: T, tol: T,
-    ):
-        """One pixel of the 3D spatial transformer through the lens: the point ``depth (ray_x, ray_y,
-        1)`` moved by [R | t] and projected (:func:`project_ray`), ``valid[i]`` (``active``, in the
-        domain, inside the image within ``tol``) and the bilinear samples of the C channels of
-        ``image`` (plane ``src``) into ``out[dst + c H W]`` (0 where not active or in the domain).
-
-        Hand-written adjoint: the projection and its Jacobian once, the sampler's gradient
-        (:func:`.sampler.sample_channels_grad`), then the gradients to R, t, the ray and depth, and
-        to ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a wanted gradient); the
-        backward pass does not replay it (nothing the kernel computes after it reads its results)."""
-        uvz, in_domain = project_ray(model, R, t, Kb, db, ray, depth, min_depth)
-        ok = active and in_domain
-        u = uvz[0]
-        v = uvz[1]
-        valid[i] = ok and u >= -tol and u <= T(W - 1) + tol and v >= -tol and v <= T(H - 1) + tol
-        xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
-        sampler.sample_channels(image, out, src, dst, C, H * W, H * W, H, W, xs, ys, ok and reachable)
-
-    @wp.func_grad(warp_pixel)
-    def adj_warp_pixel(
-        image: wp.array(dtype=T), out: wp.array(dtype=T), valid: wp.array(dtype=wp.bool),
-        K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i: int, b: int, src: int, dst: int, C: int, H: int,
-        W: int, padding: int, model: int, R: mat33, t: vec3, Kb: mat33, db: vec8, ray: vec3, depth: T,
-        active: wp.bool, min_depth: T, tol: T,
-    ):
-        P = vec3(ray[0] * depth, ray[1] * depth, depth)
-        q = R * P + t
-        if active and q[2] > min_depth:
-            iz = f64(1.0) / f64(q[2])
-            x = f64(q[0]) * iz
-            y = f64(q[1]) * iz
-            d = lens._to64(db)
-            if x * x + y * y < d[lens.LIMIT]:
-                xd, yd, J = lens._distort64(model, d, x, y)
-                u = T(f64(Kb[0, 0]) * xd + f64(Kb[0, 1]) * yd + f64(Kb[0, 2]))
-                v = T(f64(Kb[1, 1]) * yd + f64(Kb[1, 2]))
-                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
-                if reachable:
-                    gxs, gys = sampler.sample_channels_grad(
-                        image, wp.adjoint[image], wp.adjoint[out], src, dst, C, H * W, H * W, H, W, xs, ys
-                    )
-                    # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
-                    gu = f64(gxs)
-                    gv = f64(gys)
-                    if padding == sampler.PADDING_BORDER:
-                        gu = wp.where(u <= T(0.0) or u >= T(W - 1), f64(0.0), gu)
-                        gv = wp.where(v <= T(0.0) or v >= T(H - 1), f64(0.0), gv)
-                    gxd = f64(Kb[0, 0]) * gu
-                    gyd = f64(Kb[0, 1]) * gu + f64(Kb[1, 1]) * gv
-                    gx = J[0, 0] * gxd + J[1, 0] * gyd
-                    gy = J[0, 1] * gxd + J[1, 1] * gyd
-                    gq = vec3(T(gx * iz), T(gy * iz), T(-(x * gx + y * gy) * iz))
-                    gK = wp.adjoint[K]
-                    if gK.shape[0] > 0:
-                        gK[b] = gK[b] + mat33(
-                            T(gu * xd), T(gu * yd), T(gu), T(0.0), T(gv * yd), T(gv), T(0.0), T(0.0), T(0.0)
-                        )
-                    gd = wp.adjoint[dist]
-                    if gd.shape[0] > 0:
-                        gd[b] = gd[b] + lens._from64(lens._distort_vjp_dist64(model, d, x, y, gxd, gyd), depth)
-                    wp.adjoint[t] += gq
-                    wp.adjoint[R] += wp.outer(gq, P)
-                    gP = wp.transpose(R) * gq
-                    wp.adjoint[ray] += vec3(gP[0] * depth, gP[1] * depth, T(0.0))
-                    wp.adjoint[depth] += gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
-
-    @wp.func_replay(warp_pixel)
-    def replay_warp_pixel(
-        image: wp.array(dtype=T), out: wp.array(dtype=T), valid: wp.array(dtype=wp.bool),
-        K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i: int, b: int, src: int, dst: int, C: int, H: int,
-        W: int, padding: int, model: int, R: mat33, t: vec3, Kb: mat33, db: vec8, ray: vec3, depth: T,
-        active: wp.bool, min_depth: T, tol: T,
-    ):
-        # the backward pass needs nothing the forward stored: skip projecting and sampling again
-        pass
-
-    return warp_pixel
-
-
-warp_pixel = _make_warp_pixel(wp.float64, _make_warp_pixel(wp.float32))
-
 @wp.func
 def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any, depth: Any, min_depth: Any):
     """:func:`project_ray`'s values with the projection's Jacobian, for Gauss-Newton (no adjoint):
     returns (u, v, q, ok, du/dq, dv/dq), q the moved point, du/dq and dv/dq (vec3) the rows of
     d(u, v)/dq = [[fx, s], [0, fy]] J_D (1 / q_z) [[1, 0, -x], [0, 1, -y]] (J_D the distortion's
     Jacobian at (x, y) = (q_x, q_y) / q_z). Where not ok the Jacobian is that of the stand-in."""
-    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
-    front = q[2] > min_depth
-    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
-    x = wp.float64(q[0]) * iz
-    y = wp.float64(q[1]) * iz
-    d = lens._to64(dist)
-    ok = front and x * x + y * y < d[lens.LIMIT]
-    xs = wp.where(ok, x, wp.float64(0.0))
-    ys = wp.where(ok, y, wp.float64(0.0))
-    xd, yd, J = lens._distort64(model, d, xs, ys)
-    fx = wp.float64(K[0, 0])
-    s = wp.float64(K[0, 1])
-    fy = wp.float64(K[1, 1])
-    a00 = fx * J[0, 0] + s * J[1, 0]
-    a01 = fx * J[0, 1] + s * J[1, 1]
-    a10 = fy * J[1, 0]
-    a11 = fy * J[1, 1]
-    du = wp.vector(type(depth)(a00 * iz), type(depth)(a01 * iz), type(depth)(-(a00 * xs + a01 * ys) * iz))
-    dv = wp.vector(type(depth)(a10 * iz), type(depth)(a11 * iz), type(depth)(-(a10 * xs + a11 * ys) * iz))
-    u = type(depth)(fx * xd + s * yd + wp.float64(K[0, 2]))
-    v = type(depth)(fy * yd + wp.float64(K[1, 2]))
-    return u, v, q, ok, du, dv
+    K64, d64 = lens64(K, dist)
+    return project_ray_jacobian64(model, R, t, K64, d64, ray, depth, min_depth)
 
 
-__all__ = ["pixel_ray", "project_ray", "project_ray_jacobian", "warp_pixel"]
+# ----------------------------------------------------------------------------- 8 lanes
+# The projection through the lens for 8 pixels at once, as length-8 vectors of the kernel's float
+# type (LLVM turns them into SIMD code; see photometric.py's lane helpers): warp_block computes a
+# block's projections with these before its samples. Unlike project_ray (float64 inside, rounded),
+# the lanes evaluate the lens in the kernel's float type: for float32, (u, v) within ~1e-4 px of
+# project_ray's (relative rounding ~1e-7 of coordinates up to ~1e3 px), for float64 equal to rounding.
+
+
+@wp.func
+def _poly_pair8(w: Any, c0: Any, c1: Any):
+    """c0 + c1 w per lane (c0, c1 scalars)."""
+    return ph.splat8(c0) + w * c1
+
+
+@wp.func
+def _atan_ratio_poly8(w: Any, one: Any):
+    """(c, dc/dw) of :func:`.lens._atan_ratio_poly` per lane (the same coefficients, Estrin's scheme)."""
+    w2 = wp.cw_mul(w, w)
+    w4 = wp.cw_mul(w2, w2)
+    w8 = wp.cw_mul(w4, w4)
+    w16 = wp.cw_mul(w8, w8)
+    h0 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[0])), type(one)(wp.static(lens._ATAN_H[1])))
+    h1 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[2])), type(one)(wp.static(lens._ATAN_H[3])))
+    h2 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[4])), type(one)(wp.static(lens._ATAN_H[5])))
+    h3 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[6])), type(one)(wp.static(lens._ATAN_H[7])))
+    h4 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[8])), type(one)(wp.static(lens._ATAN_H[9])))
+    h5 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[10])), type(one)(wp.static(lens._ATAN_H[11])))
+    h6 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[12])), type(one)(wp.static(lens._ATAN_H[13])))
+    h7 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[14])), type(one)(wp.static(lens._ATAN_H[15])))
+    h8 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[16])), type(one)(wp.static(lens._ATAN_H[17])))
+    h9 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[18])), type(one)(wp.static(lens._ATAN_H[19])))
+    a0 = h0 + wp.cw_mul(h1, w2)
+    a1 = h2 + wp.cw_mul(h3, w2)
+    a2 = h4 + wp.cw_mul(h5, w2)
+    a3 = h6 + wp.cw_mul(h7, w2)
+    a4 = h8 + wp.cw_mul(h9, w2)
+    b0 = a0 + wp.cw_mul(a1, w4)
+    b1 = a2 + wp.cw_mul(a3, w4)
+    b2 = a4 + w4 * type(one)(wp.static(lens._ATAN_H[20]))
+    h = b0 + wp.cw_mul(b1, w8) + wp.cw_mul(b2, w16)
+    g0 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[0])), type(one)(wp.static(lens._ATAN_G[1])))
+    g1 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[2])), type(one)(wp.static(lens._ATAN_G[3])))
+    g2 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[4])), type(one)(wp.static(lens._ATAN_G[5])))
+    g3 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[6])), type(one)(wp.static(lens._ATAN_G[7])))
+    g4 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[8])), type(one)(wp.static(lens._ATAN_G[9])))
+    g5 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[10])), type(one)(wp.static(lens._ATAN_G[11])))
+    g6 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[12])), type(one)(wp.static(lens._ATAN_G[13])))
+    g7 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[14])), type(one)(wp.static(lens._ATAN_G[15])))
+    g8 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[16])), type(one)(wp.static(lens._ATAN_G[17])))
+    g9 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[18])), type(one)(wp.static(lens._ATAN_G[19])))
+    e0 = g0 + wp.cw_mul(g1, w2)
+    e1 = g2 + wp.cw_mul(g3, w2)
+    e2 = g4 + wp.cw_mul(g5, w2)
+    e3 = g6 + wp.cw_mul(g7, w2)
+    e4 = g8 + wp.cw_mul(g9, w2)
+    f0 = e0 + wp.cw_mul(e1, w4)
+    f1 = e2 + wp.cw_mul(e3, w4)
+    g = f0 + wp.cw_mul(f1, w8) + wp.cw_mul(e4, w16)
+    return h, g
+
+
+@wp.func
+def _atan_ratio8(z: Any, one: Any):
+    """(c, dc/dz) of :func:`.lens._atan_ratio` per lane (z >= 0), the same formulas: the polynomial
+    on z <= 1, and for lanes with z > 1 (beyond 45 degrees off the axis) c(z) = pi / (2 sqrt(z)) -
+    c(1/z) / z, evaluated only when a lane needs it. (A lane-by-lane call of the scalar function
+    there instead made every block ~12 ns per pixel slower, taken or not.)"""
+    ones = ph.splat8(one)
+    two = type(one)(2.0)
+    h, g = _atan_ratio_poly8(wp.min(z, ones) * two - ones, one)
+    c = h
+    dc = g * two
+    zmax = wp.max(wp.max(wp.max(z[0], z[1]), wp.max(z[2], z[3])), wp.max(wp.max(z[4], z[5]), wp.max(z[6], z[7])))
+    if zmax > one:
+        zb = wp.max(z, ones)
+        iz = wp.cw_div(ones, zb)
+        hb, gb = _atan_ratio_poly8(iz * two - ones, one)
+        root = wp.vector(
+            wp.sqrt(zb[0]), wp.sqrt(zb[1]), wp.sqrt(zb[2]), wp.sqrt(zb[3]),
+            wp.sqrt(zb[4]), wp.sqrt(zb[5]), wp.sqrt(zb[6]), wp.sqrt(zb[7]),
+        )
+        a = wp.cw_mul(root, iz) * type(one)(wp.static(math.pi / 2.0))
+        big = ph.open_mask8(z, one, type(one)(3.0e38))
+        c = ph.select8(big, a - wp.cw_mul(hb, iz), c)
+        dc = ph.select8(big, wp.cw_mul(a * type(one)(-0.5) + wp.cw_mul(hb + wp.cw_mul(gb, iz) * two, iz), iz), dc)
+    return c, dc
+
+
+@wp.func
+def distort8(model: int, dist: Any, x: Any, y: Any, one: Any):
+    """The distortion of 8 lanes of normalized (x, y) and its Jacobian: (xd, yd, J00, J01, J10,
+    J11), the formulas of :func:`.lens._distort64` per lane in the float type of ``one``."""
+    two = type(one)(2.0)
+    xx = wp.cw_mul(x, x)
+    yy = wp.cw_mul(y, y)
+    xy = wp.cw_mul(x, y)
+    r2 = xx + yy
+    ones = ph.splat8(one)
+    xd = x
+    yd = y
+    J00 = ones
+    J01 = ph.splat8(type(one)(0.0))
+    J10 = J01
+    J11 = ones
+    if model == lens.RADTAN:
+        k1 = dist[0]
+        k2 = dist[1]
+        p1 = dist[2]
+        p2 = dist[3]
+        k3 = dist[4]
+        R = ones + wp.cw_mul(r2, ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(k2) + r2 * k3))
+        dR = ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(two * k2) + r2 * (type(one)(3.0) * k3))
+        xd = wp.cw_mul(x, R) + xy * (two * p1) + (r2 + xx * two) * p2
+        yd = wp.cw_mul(y, R) + (r2 + yy * two) * p1 + xy * (two * p2)
+        off = wp.cw_mul(xy * two, dR) + x * (two * p1) + y * (two * p2)
+        J00 = R + wp.cw_mul(xx * two, dR) + y * (two * p1) + x * (type(one)(6.0) * p2)
+        J01 = off
+        J10 = off
+        J11 = R + wp.cw_mul(yy * two, dR) + y * (type(one)(6.0) * p1) + x * (two * p2)
+    elif model == lens.FISHEYE:
+        # s = theta_d / r and q = 2 ds/d(r^2), as lens._fisheye_terms
+        c, dc = _atan_ratio8(r2, one)
+        cc = wp.cw_mul(c, c)
+        t = wp.cw_mul(r2, cc)
+        poly = ones + wp.cw_mul(t, ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(dist[1]) + wp.cw_mul(
+            t, ph.splat8(dist[2]) + t * dist[3])))
+        dpoly = ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(two * dist[1]) + wp.cw_mul(
+            t, ph.splat8(type(one)(3.0) * dist[2]) + t * (type(one)(4.0) * dist[3])))
+        s = wp.cw_mul(c, poly)
+        q = (wp.cw_mul(dc, poly) + wp.cw_mul(wp.cw_mul(c, dpoly), cc + wp.cw_mul(r2 * two, wp.cw_mul(c, dc)))) * two
+        xd = wp.cw_mul(s, x)
+        yd = wp.cw_mul(s, y)
+        qxy = wp.cw_mul(q, xy)
+        J00 = s + wp.cw_mul(q, xx)
+        J01 = qxy
+        J10 = qxy
+        J11 = s + wp.cw_mul(q, yy)
+    return xd, yd, J00, J01, J10, J11
+
+
+@wp.func
+def load_rays8(rays: wp.array(dtype=Any), base: int, last: int):
+    """The rays rays[base + min(k, last)], k = 0..7, as lanes (x, y, w) (see :func:`.photometric.load8`)."""
+    i = wp.max(base, 0)
+    n = wp.max(wp.min(last, 7), 0)
+    r0 = rays[i]
+    r1 = rays[i + wp.min(1, n)]
+    r2 = rays[i + wp.min(2, n)]
+    r3 = rays[i + wp.min(3, n)]
+    r4 = rays[i + wp.min(4, n)]
+    r5 = rays[i + wp.min(5, n)]
+    r6 = rays[i + wp.min(6, n)]
+    r7 = rays[i + wp.min(7, n)]
+    return (
+        wp.vector(r0[0], r1[0], r2[0], r3[0], r4[0], r5[0], r6[0], r7[0]),
+        wp.vector(r0[1], r1[1], r2[1], r3[1], r4[1], r5[1], r6[1], r7[1]),
+        wp.vector(r0[2], r1[2], r2[2], r3[2], r4[2], r5[2], r6[2], r7[2]),
+    )
+
+
+@wp.func
+def project_rays8(
+    model: int, R: Any, t: Any, K: Any, dist: Any, rx: Any, ry: Any, d: Any, min_depth: Any
+):
+    """:func:`project_ray_jacobian` for 8 lanes of rays (rx, ry) and depths d: returns (u, v, ok,
+    du0, du1, du2, dv0, dv1, dv2), ok 1 or 0 per lane (q_z > min_depth and inside the domain),
+    (du0, du1, du2) and (dv0, dv1, dv2) the rows d(u, v)/dq. Where not ok: the principal point
+    and the Jacobian there, for the caller to reject."""
+    one = type(min_depth)(1.0)
+    ones = ph.splat8(one)
+    zeros = ph.splat8(type(one)(0.0))
+    P0 = wp.cw_mul(rx, d)
+    P1 = wp.cw_mul(ry, d)
+    q0 = P0 * R[0, 0] + P1 * R[0, 1] + d * R[0, 2] + ph.splat8(t[0])
+    q1 = P0 * R[1, 0] + P1 * R[1, 1] + d * R[1, 2] + ph.splat8(t[1])
+    q2 = P0 * R[2, 0] + P1 * R[2, 1] + d * R[2, 2] + ph.splat8(t[2])
+    front = ph.open_mask8(q2, min_depth, type(one)(3.0e38))
+    iz = wp.cw_div(ones, ph.select8(front, q2, ones))
+    x = wp.cw_mul(q0, iz)
+    y = wp.cw_mul(q1, iz)
+    ok = wp.cw_mul(front, ph.open_mask8(wp.cw_mul(x, x) + wp.cw_mul(y, y), -one, dist[lens.LIMIT]))
+    x = ph.select8(ok, x, zeros)
+    y = ph.select8(ok, y, zeros)
+    xd, yd, J00, J01, J10, J11 = distort8(model, dist, x, y, one)
+    fx = K[0, 0]
+    s = K[0, 1]
+    fy = K[1, 1]
+    a00 = J00 * fx + J10 * s
+    a01 = J01 * fx + J11 * s
+    a10 = J10 * fy
+    a11 = J11 * fy
+    u = xd * fx + yd * s + ph.splat8(K[0, 2])
+    v = yd * fy + ph.splat8(K[1, 2])
+    du2 = -wp.cw_mul(wp.cw_mul(a00, x) + wp.cw_mul(a01, y), iz)
+    dv2 = -wp.cw_mul(wp.cw_mul(a10, x) + wp.cw_mul(a11, y), iz)
+    return u, v, ok, wp.cw_mul(a00, iz), wp.cw_mul(a01, iz), du2, wp.cw_mul(a10, iz), wp.cw_mul(a11, iz), dv2
+
+
+@wp.func
+def block_lanes(
+    depth: wp.array(dtype=Any), rays: wp.array(dtype=Any), i0: int, ray0: int, n: int, model: int, R: Any,
+    t: Any, K: Any, dist: Any, min_depth: Any,
+):
+    """The n <= 8 pixels of a block of :func:`warp_block` read and projected as lanes (lanes past n
+    repeat the last pixel): (u, v, ok, du0, du1, du2, dv0, dv1, dv2) of :func:`project_rays8`, ok
+    also 0 where the depth is invalid (<= min, NaN, inf; depth 1 stands in) or the pixel has no ray."""
+    one = type(min_depth)(1.0)
+    d = ph.load8(depth, i0, 0, n - 1)
+    rx, ry, rw = load_rays8(rays, ray0, n - 1)
+    has_ray = ph.open_mask8(rw, type(one)(0.0), type(one)(2.0))
+    depth_ok = wp.cw_mul(ph.open_mask8(d, min_depth, type(one)(1.0e30)), has_ray)
+    u, v, ok, du0, du1, du2, dv0, dv1, dv2 = project_rays8(
+        model, R, t, K, dist, rx, ry, ph.select8(depth_ok, d, ph.splat8(one)), min_depth
+    )
+    return u, v, wp.cw_mul(ok, depth_ok), du0, du1, du2, dv0, dv1, dv2
+
+
+# pixels per block of warp_block: the projections of a block are computed before any of its
+# samples, so the block's image reads are issued together instead of each waiting for its own
+# projection's division and lens polynomial (the one-pixel-at-a-time loop was latency-bound: the
+# kernel took ~1.4x the time per pixel of the two-phase block; measured in the issue-19 notes of
+# benchmarks/RESULTS.md)
+BLOCK = wp.constant(8)
+
+
+def _make_warp_block(T, warp_block=None):
+    """float type ``T`` overload of warp_block (see _make_project_ray)."""
+    f64 = wp.float64
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+    vec8 = vec8f if T == wp.float32 else vec8d
+
+    @wp.func
+    def warp_block(
+        image: wp.array(dtype=T), depth: wp.array(dtype=T), rays: wp.array(dtype=vec3), out: wp.array(dtype=T),
+        valid: wp.array(dtype=wp.bool), K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i0: int, ray0: int,
+        n: int, b: int, src: int, dst0: int, C: int, H: int, W: int, padding: int, model: int, R: mat33, t: vec3,
+        Kb: mat33, db: vec8, min_depth: T, tol: T,
+    ):
+        """``n`` <= BLOCK consecutive pixels of one row of the 3D spatial transformer through the lens:
+        pixel k (flat index ``i0 + k`` of ``depth`` and ``valid``, ray ``rays[ray0 + k]``) is the point
+        ``depth (ray_x, ray_y, 1)`` moved by [R | t] and projected (:func:`project_ray`); ``valid``
+        (valid depth, a ray, in the domain, inside the image within ``tol``) and the bilinear samples
+        of the C channels of ``image`` (plane ``src``) into ``out[dst0 + k + c H W]`` (0 where not
+        valid or out of the domain). Invalid depth (<= min, NaN, inf) or a pixel without a ray: depth
+        1 stands in before any arithmetic, so neither the values nor the adjoint see it.
+
+        All n projections come first, then the samples (see BLOCK). Hand-written adjoint, in the same
+        two phases: the projections and the sampler's gradients (:func:`.sampler.sample_channels_grad`),
+        then per pixel the projection's Jacobian and the gradients to R, t, depth, the ray, and to
+        ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a wanted gradient); the backward
+        pass does not replay it (nothing the kernel computes after it reads its results)."""
+        u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_lanes(
+            depth, rays, i0, ray0, n, model, R, t, Kb, db, min_depth
+        )
+        umax = T(W - 1) + tol
+        vmax = T(H - 1) + tol
+        for k in range(n):
+            u = u8[k]
+            v = v8[k]
+            ok = ok8[k] > T(0.0)
+            valid[wp.max(i0 + k, 0)] = ok and u >= -tol and u <= umax and v >= -tol and v <= vmax
+            xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+            sampler.sample_channels(image, out, src, dst0 + k, C, H * W, H * W, H, W, xs, ys, ok and reachable)
+
+    @wp.func_grad(warp_block)
+    def adj_warp_block(
+        image: wp.array(dtype=T), depth: wp.array(dtype=T), rays: wp.array(dtype=vec3), out: wp.array(dtype=T),
+        valid: wp.array(dtype=wp.bool), K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i0: int, ray0: int,
+        n: int, b: int, src: int, dst0: int, C: int, H: int, W: int, padding: int, model: int, R: mat33, t: vec3,
+        Kb: mat33, db: vec8, min_depth: T, tol: T,
+    ):
+        zero = T(0.0)
+        # phase 1: the projections and their Jacobians d(u, v)/dq (rows du, dv)
+        u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_lanes(
+            depth, rays, i0, ray0, n, model, R, t, Kb, db, min_depth
+        )
+        # phase 2: the sampler's gradients d loss / d(u, v) (0 where not sampled)
+        gu8 = vec8()
+        gv8 = vec8()
+        for k in range(n):
+            if ok8[k] > zero:
+                u = u8[k]
+                v = v8[k]
+                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+                if reachable:
+                    gxs, gys = sampler.sample_channels_grad(
+                        image, wp.adjoint[image], wp.adjoint[out], src, dst0 + k, C, H * W, H * W, H, W, xs, ys
+                    )
+                    # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
+                    if padding == sampler.PADDING_BORDER:
+                        gxs = wp.where(u <= zero or u >= T(W - 1), zero, gxs)
+                        gys = wp.where(v <= zero or v >= T(H - 1), zero, gys)
+                    gu8[k] = gxs
+                    gv8[k] = gys
+        # phase 3: through the projection and the motion, per pixel with a gradient (sampled)
+        g_depth = wp.adjoint[depth]
+        g_rays = wp.adjoint[rays]
+        gK = wp.adjoint[K]
+        gd = wp.adjoint[dist]
+        lens_wanted = gK.shape[0] > 0 or gd.shape[0] > 0
+        K64, d64 = lens64(Kb, db)
+        # the block's pose gradients summed in registers, added to the kernel's once
+        g_t = vec3()
+        g_R = mat33()
+        for k in range(n):
+            gu = gu8[k]
+            gv = gv8[k]
+            if gu != zero or gv != zero:
+                depth_i = depth[wp.max(i0 + k, 0)]
+                ray = rays[wp.max(ray0 + k, 0)]
+                P = vec3(ray[0] * depth_i, ray[1] * depth_i, depth_i)
+                gq = vec3(du0[k] * gu + dv0[k] * gv, du1[k] * gu + dv1[k] * gv, du2[k] * gu + dv2[k] * gv)
+                g_t = g_t + gq
+                g_R = g_R + wp.outer(gq, P)
+                gP = wp.transpose(R) * gq
+                if g_rays.shape[0] > 0:
+                    j = wp.max(ray0 + k, 0)
+                    g_rays[j] = g_rays[j] + vec3(gP[0] * depth_i, gP[1] * depth_i, zero)
+                if g_depth.shape[0] > 0:
+                    j = wp.max(i0 + k, 0)
+                    g_depth[j] = g_depth[j] + gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
+                if lens_wanted:
+                    # u = fx xd + s yd + cx, v = fy yd + cy with (xd, yd) = D(x, y), (x, y) = (q0, q1) / q2
+                    q = R * P + t
+                    iz = f64(1.0) / f64(q[2])
+                    x = f64(q[0]) * iz
+                    y = f64(q[1]) * iz
+                    xd, yd = lens._distort_value64(model, d64, x, y)
+                    gu64 = f64(gu)
+                    gv64 = f64(gv)
+                    if gK.shape[0] > 0:
+                        gK[b] = gK[b] + mat33(
+                            T(gu64 * xd), T(gu64 * yd), gu, zero, T(gv64 * yd), gv, zero, zero, zero
+                        )
+                    if gd.shape[0] > 0:
+                        gxd = K64[0, 0] * gu64
+                        gyd = K64[0, 1] * gu64 + K64[1, 1] * gv64
+                        gd[b] = gd[b] + lens._from64(lens._distort_vjp_dist64(model, d64, x, y, gxd, gyd), depth_i)
+        wp.adjoint[t] += g_t
+        wp.adjoint[R] += g_R
+
+    @wp.func_replay(warp_block)
+    def replay_warp_block(
+        image: wp.array(dtype=T), depth: wp.array(dtype=T), rays: wp.array(dtype=vec3), out: wp.array(dtype=T),
+        valid: wp.array(dtype=wp.bool), K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i0: int, ray0: int,
+        n: int, b: int, src: int, dst0: int, C: int, H: int, W: int, padding: int, model: int, R: mat33, t: vec3,
+        Kb: mat33, db: vec8, min_depth: T, tol: T,
+    ):
+        # the backward pass needs nothing the forward stored: skip projecting and sampling again
+        pass
+
+    return warp_block
+
+
+warp_block = _make_warp_block(wp.float64, _make_warp_block(wp.float32))
+
+
+__all__ = ["BLOCK", "pixel_ray", "project_ray", "project_ray_jacobian", "warp_block"]

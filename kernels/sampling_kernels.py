@@ -222,30 +222,20 @@ def _warp_frame_depth_lens(
     r = wp.tid() + offset  # flat (b, y)
     b = r // H
     py = r - b * H
-    hw = H * W
     Kb = K[b]
     Tb = pose[b]
     db = dist[b]
     zmin = type(Kb[0, 0])(min_depth)
-    one = type(zmin)(1.0)
-    zero = type(zmin)(0.0)
     tol = type(zmin)(INSIDE_TOLERANCE)
     R = lie.pose_rotation(Tb)
     t = lie.pose_translation(Tb)
-    src = b * C * hw
     row = r * W
-    dst = src + py * W
+    dst = b * C * H * W + py * W
     ray0 = b * ray_stride + py * W
-    for px in range(W):
-        i = wp.max(row + px, 0)
-        d = depth[i]
-        ray = rays[wp.max(ray0 + px, 0)]
-        # invalid depth (<= min, NaN, inf) or a pixel without a ray: depth 1 stands in before any
-        # arithmetic, so neither the values nor the adjoint see it
-        depth_ok = d > zmin and d < type(d)(1.0e30) and ray[2] > zero
-        lens_rays.warp_pixel(
-            image, out, valid, K, dist, i, b, src, dst + px, C, H, W, padding, model, R, t, Kb, db, ray,
-            wp.where(depth_ok, d, one), depth_ok, zmin, tol,
+    for x0 in range(0, W, wp.static(lens_rays.BLOCK)):
+        lens_rays.warp_block(
+            image, depth, rays, out, valid, K, dist, row + x0, ray0 + x0, wp.min(W - x0, wp.static(lens_rays.BLOCK)),
+            b, b * C * H * W, dst + x0, C, H, W, padding, model, R, t, Kb, db, zmin, tol,
         )
 
 

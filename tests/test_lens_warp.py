@@ -137,6 +137,56 @@ def test_gradcheck_every_input_and_coefficient(model):
     assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-7)
 
 
+def wide_fisheye_scene(dtype=f64):
+    """A 13 px wide image (one full block of 8 pixels and a partial one) behind a wide-angle fisheye:
+    the corners are ~55 degrees off the axis (r^2 = (X/Z)^2 + (Y/Z)^2 up to ~2, past the z > 1 branch
+    of the lanes' atan ratio)."""
+    image, depth, pose, _ = scene(B=2, C=2, H=9, W=13, seed=5, dtype=dtype)
+    K = torch.tensor([[4.5, 0.0, 6.0], [0.0, 4.5, 4.0], [0.0, 0.0, 1.0]], dtype=dtype)
+    return image, depth, pose, K
+
+
+def test_wide_angle_fisheye_matches_torch_reference_and_gradcheck():
+    image, depth, pose, K = wide_fisheye_scene()
+    warped, valid = G.warp_frame_depth(image, depth, pose, camera("fisheye", K))
+    ref, ref_valid, u, v = warp_ref(image, depth, pose, K, "fisheye", FISH)
+    r2 = ((torch.arange(13, dtype=f64) - 6.0) / 4.5) ** 2 + ((torch.arange(9, dtype=f64)[:, None] - 4.0) / 4.5) ** 2
+    assert r2.max() > 1.5  # the undistorted corners are wider still
+    assert torch.equal(valid, ref_valid) and valid.float().mean() > 0.5
+    assert torch.allclose(warped * valid, ref * valid, atol=1e-9, rtol=0)
+    c = torch.tensor(FISH, dtype=f64)
+
+    def f(image, depth, pose, K, c):
+        return G.warp_frame_depth(image, depth, pose, camera("fisheye", K, c))[0]
+
+    args = [t.clone().requires_grad_() for t in (image, depth, pose, K, c)]
+    assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("model", ["radtan", "fisheye", "wide fisheye"])
+def test_float32_warp_is_the_float64_one_to_float32_precision(model):
+    """float32 evaluates the lens in float32 (kernels.lens_rays, 8 lanes): values and gradients
+    within float32 rounding of the float64 op's, valid masks equal away from the image border."""
+    if model == "wide fisheye":
+        image, depth, pose, K = wide_fisheye_scene()
+        model = "fisheye"
+    else:
+        image, depth, pose, K = scene(B=2, C=3, H=24, W=29, seed=7)
+    out = {}
+    for dtype in (f64, torch.float32):
+        args = [t.detach().to(dtype).requires_grad_() for t in (image, depth, pose)]
+        cam = camera(model, K.to(dtype))
+        warped, valid = G.warp_frame_depth(*args, cam)
+        (warped * torch.linspace(0.5, 1.5, warped.numel(), dtype=dtype).reshape(warped.shape)).sum().backward()
+        out[dtype] = (warped.double(), valid, [a.grad.double() for a in args])
+    (w64, v64, g64), (w32, v32, g32) = out[f64], out[torch.float32]
+    assert (v64 == v32).float().mean() > 0.99
+    both = v64 & v32
+    torch.testing.assert_close(w32 * both, w64 * both, atol=2e-5, rtol=0)
+    for name, a, b in zip(("image", "depth", "pose"), g32, g64):
+        torch.testing.assert_close(a, b, atol=2e-3 * b.abs().max().item(), rtol=1e-3, msg=name)
+
+
 def test_gradcheck_batched_camera_and_border_padding():
     """A camera per batch item (rays per item) and border padding."""
     image, depth, pose, K = scene(B=2, C=1, H=6, W=8, seed=2)
