@@ -6,7 +6,13 @@ found by Newton's method. The fused kernels therefore read precomputed rays (:fu
 launched once per camera and image size, its gradient by the implicit function theorem through
 :func:`.lens.undistort`) and move and project them with :func:`project_ray`, whose hand-written
 adjoint computes the projection's Jacobian once per pixel (Warp's automatic adjoint would
-re-derive it term by term).
+re-derive it term by term), in float64 inside as :mod:`.lens` does.
+
+The spatial transformer's kernel instead works in blocks of 8 pixels (:func:`warp_block`): the
+block's rays are moved and projected as 8-lane vectors in the kernel's own float type
+(:func:`block_lanes`, SIMD code), and only then sampled, so that the image reads of the block are
+not each held up by its own projection. For float32 that projection is float32 arithmetic (within
+~1e-4 px of :func:`project_ray`'s), for float64 it is exact to rounding.
 
 A ray is stored as ``(xn, yn, w)``: the ideal normalized coordinates of the pixel (its point at
 depth d is ``d (xn, yn, 1)``) and ``w = 1`` where the undistortion converged inside the model's
@@ -167,6 +173,8 @@ def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any
 # block's projections with these before its samples. Unlike project_ray (float64 inside, rounded),
 # the lanes evaluate the lens in the kernel's float type: for float32, (u, v) within ~1e-4 px of
 # project_ray's (relative rounding ~1e-7 of coordinates up to ~1e3 px), for float64 equal to rounding.
+# Each function exists with the projection's Jacobian (the backward) and without it (the forward:
+# the lane functions are too large to be inlined, so unused results would still be computed).
 
 
 @wp.func
@@ -176,8 +184,8 @@ def _poly_pair8(w: Any, c0: Any, c1: Any):
 
 
 @wp.func
-def _atan_ratio_poly8(w: Any, one: Any):
-    """(c, dc/dw) of :func:`.lens._atan_ratio_poly` per lane (the same coefficients, Estrin's scheme)."""
+def _atan_ratio_h8(w: Any, one: Any):
+    """c of :func:`.lens._atan_ratio_poly` per lane (the same coefficients, Estrin's scheme)."""
     w2 = wp.cw_mul(w, w)
     w4 = wp.cw_mul(w2, w2)
     w8 = wp.cw_mul(w4, w4)
@@ -200,7 +208,16 @@ def _atan_ratio_poly8(w: Any, one: Any):
     b0 = a0 + wp.cw_mul(a1, w4)
     b1 = a2 + wp.cw_mul(a3, w4)
     b2 = a4 + w4 * type(one)(wp.static(lens._ATAN_H[20]))
-    h = b0 + wp.cw_mul(b1, w8) + wp.cw_mul(b2, w16)
+    return b0 + wp.cw_mul(b1, w8) + wp.cw_mul(b2, w16)
+
+
+@wp.func
+def _atan_ratio_g8(w: Any, one: Any):
+    """dc/dw of :func:`.lens._atan_ratio_poly` per lane."""
+    w2 = wp.cw_mul(w, w)
+    w4 = wp.cw_mul(w2, w2)
+    w8 = wp.cw_mul(w4, w4)
+    w16 = wp.cw_mul(w8, w8)
     g0 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[0])), type(one)(wp.static(lens._ATAN_G[1])))
     g1 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[2])), type(one)(wp.static(lens._ATAN_G[3])))
     g2 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[4])), type(one)(wp.static(lens._ATAN_G[5])))
@@ -218,87 +235,7 @@ def _atan_ratio_poly8(w: Any, one: Any):
     e4 = g8 + wp.cw_mul(g9, w2)
     f0 = e0 + wp.cw_mul(e1, w4)
     f1 = e2 + wp.cw_mul(e3, w4)
-    g = f0 + wp.cw_mul(f1, w8) + wp.cw_mul(e4, w16)
-    return h, g
-
-
-@wp.func
-def _atan_ratio8(z: Any, one: Any):
-    """(c, dc/dz) of :func:`.lens._atan_ratio` per lane (z >= 0), the same formulas: the polynomial
-    on z <= 1, and for lanes with z > 1 (beyond 45 degrees off the axis) c(z) = pi / (2 sqrt(z)) -
-    c(1/z) / z, evaluated only when a lane needs it. (A lane-by-lane call of the scalar function
-    there instead made every block ~12 ns per pixel slower, taken or not.)"""
-    ones = ph.splat8(one)
-    two = type(one)(2.0)
-    h, g = _atan_ratio_poly8(wp.min(z, ones) * two - ones, one)
-    c = h
-    dc = g * two
-    zmax = wp.max(wp.max(wp.max(z[0], z[1]), wp.max(z[2], z[3])), wp.max(wp.max(z[4], z[5]), wp.max(z[6], z[7])))
-    if zmax > one:
-        zb = wp.max(z, ones)
-        iz = wp.cw_div(ones, zb)
-        hb, gb = _atan_ratio_poly8(iz * two - ones, one)
-        root = wp.vector(
-            wp.sqrt(zb[0]), wp.sqrt(zb[1]), wp.sqrt(zb[2]), wp.sqrt(zb[3]),
-            wp.sqrt(zb[4]), wp.sqrt(zb[5]), wp.sqrt(zb[6]), wp.sqrt(zb[7]),
-        )
-        a = wp.cw_mul(root, iz) * type(one)(wp.static(math.pi / 2.0))
-        big = ph.open_mask8(z, one, type(one)(3.0e38))
-        c = ph.select8(big, a - wp.cw_mul(hb, iz), c)
-        dc = ph.select8(big, wp.cw_mul(a * type(one)(-0.5) + wp.cw_mul(hb + wp.cw_mul(gb, iz) * two, iz), iz), dc)
-    return c, dc
-
-
-@wp.func
-def distort8(model: int, dist: Any, x: Any, y: Any, one: Any):
-    """The distortion of 8 lanes of normalized (x, y) and its Jacobian: (xd, yd, J00, J01, J10,
-    J11), the formulas of :func:`.lens._distort64` per lane in the float type of ``one``."""
-    two = type(one)(2.0)
-    xx = wp.cw_mul(x, x)
-    yy = wp.cw_mul(y, y)
-    xy = wp.cw_mul(x, y)
-    r2 = xx + yy
-    ones = ph.splat8(one)
-    xd = x
-    yd = y
-    J00 = ones
-    J01 = ph.splat8(type(one)(0.0))
-    J10 = J01
-    J11 = ones
-    if model == lens.RADTAN:
-        k1 = dist[0]
-        k2 = dist[1]
-        p1 = dist[2]
-        p2 = dist[3]
-        k3 = dist[4]
-        R = ones + wp.cw_mul(r2, ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(k2) + r2 * k3))
-        dR = ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(two * k2) + r2 * (type(one)(3.0) * k3))
-        xd = wp.cw_mul(x, R) + xy * (two * p1) + (r2 + xx * two) * p2
-        yd = wp.cw_mul(y, R) + (r2 + yy * two) * p1 + xy * (two * p2)
-        off = wp.cw_mul(xy * two, dR) + x * (two * p1) + y * (two * p2)
-        J00 = R + wp.cw_mul(xx * two, dR) + y * (two * p1) + x * (type(one)(6.0) * p2)
-        J01 = off
-        J10 = off
-        J11 = R + wp.cw_mul(yy * two, dR) + y * (type(one)(6.0) * p1) + x * (two * p2)
-    elif model == lens.FISHEYE:
-        # s = theta_d / r and q = 2 ds/d(r^2), as lens._fisheye_terms
-        c, dc = _atan_ratio8(r2, one)
-        cc = wp.cw_mul(c, c)
-        t = wp.cw_mul(r2, cc)
-        poly = ones + wp.cw_mul(t, ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(dist[1]) + wp.cw_mul(
-            t, ph.splat8(dist[2]) + t * dist[3])))
-        dpoly = ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(two * dist[1]) + wp.cw_mul(
-            t, ph.splat8(type(one)(3.0) * dist[2]) + t * (type(one)(4.0) * dist[3])))
-        s = wp.cw_mul(c, poly)
-        q = (wp.cw_mul(dc, poly) + wp.cw_mul(wp.cw_mul(c, dpoly), cc + wp.cw_mul(r2 * two, wp.cw_mul(c, dc)))) * two
-        xd = wp.cw_mul(s, x)
-        yd = wp.cw_mul(s, y)
-        qxy = wp.cw_mul(q, xy)
-        J00 = s + wp.cw_mul(q, xx)
-        J01 = qxy
-        J10 = qxy
-        J11 = s + wp.cw_mul(q, yy)
-    return xd, yd, J00, J01, J10, J11
+    return f0 + wp.cw_mul(f1, w8) + wp.cw_mul(e4, w16)
 
 
 @wp.func
@@ -321,61 +258,164 @@ def load_rays8(rays: wp.array(dtype=Any), base: int, last: int):
     )
 
 
-@wp.func
-def project_rays8(
-    model: int, R: Any, t: Any, K: Any, dist: Any, rx: Any, ry: Any, d: Any, min_depth: Any
-):
-    """:func:`project_ray_jacobian` for 8 lanes of rays (rx, ry) and depths d: returns (u, v, ok,
-    du0, du1, du2, dv0, dv1, dv2), ok 1 or 0 per lane (q_z > min_depth and inside the domain),
-    (du0, du1, du2) and (dv0, dv1, dv2) the rows d(u, v)/dq. Where not ok: the principal point
-    and the Jacobian there, for the caller to reject."""
-    one = type(min_depth)(1.0)
-    ones = ph.splat8(one)
-    zeros = ph.splat8(type(one)(0.0))
-    P0 = wp.cw_mul(rx, d)
-    P1 = wp.cw_mul(ry, d)
-    q0 = P0 * R[0, 0] + P1 * R[0, 1] + d * R[0, 2] + ph.splat8(t[0])
-    q1 = P0 * R[1, 0] + P1 * R[1, 1] + d * R[1, 2] + ph.splat8(t[1])
-    q2 = P0 * R[2, 0] + P1 * R[2, 1] + d * R[2, 2] + ph.splat8(t[2])
-    front = ph.open_mask8(q2, min_depth, type(one)(3.0e38))
-    iz = wp.cw_div(ones, ph.select8(front, q2, ones))
-    x = wp.cw_mul(q0, iz)
-    y = wp.cw_mul(q1, iz)
-    ok = wp.cw_mul(front, ph.open_mask8(wp.cw_mul(x, x) + wp.cw_mul(y, y), -one, dist[lens.LIMIT]))
-    x = ph.select8(ok, x, zeros)
-    y = ph.select8(ok, y, zeros)
-    xd, yd, J00, J01, J10, J11 = distort8(model, dist, x, y, one)
-    fx = K[0, 0]
-    s = K[0, 1]
-    fy = K[1, 1]
-    a00 = J00 * fx + J10 * s
-    a01 = J01 * fx + J11 * s
-    a10 = J10 * fy
-    a11 = J11 * fy
-    u = xd * fx + yd * s + ph.splat8(K[0, 2])
-    v = yd * fy + ph.splat8(K[1, 2])
-    du2 = -wp.cw_mul(wp.cw_mul(a00, x) + wp.cw_mul(a01, y), iz)
-    dv2 = -wp.cw_mul(wp.cw_mul(a10, x) + wp.cw_mul(a11, y), iz)
-    return u, v, ok, wp.cw_mul(a00, iz), wp.cw_mul(a01, iz), du2, wp.cw_mul(a10, iz), wp.cw_mul(a11, iz), dv2
+def _make_lanes(jacobian: bool):
+    """The lane functions with (``jacobian``) or without the projection's Jacobian (then returned
+    as zeros): (distort8, project_rays8, block_lanes)."""
+
+    @wp.func
+    def atan_ratio8(z: Any, one: Any):
+        """(c, dc/dz) of :func:`.lens._atan_ratio` per lane (z >= 0; dc only with the Jacobian),
+        the same formulas: the polynomial at w = 2 z - 1 on z <= 1, and beyond (more than 45
+        degrees off the axis) c(z) = pi / (2 sqrt(z)) - c(1/z) / z with the polynomial at
+        w = 2 / z - 1. One polynomial evaluation for both and no branch (a branch on "any lane
+        beyond" cost the block ~4 ns per pixel, taken or not)."""
+        ones = ph.splat8(one)
+        two = type(one)(2.0)
+        big = ph.open_mask8(z, one, type(one)(3.0e38))  # 1 where z > 1
+        small = ones - big
+        zb = wp.max(z, ones)
+        iz = wp.cw_div(ones, zb)
+        # w exact in both cases: the masks are 0 or 1 and both terms finite
+        w = wp.cw_mul(small, z * two - ones) + wp.cw_mul(big, iz * two - ones)
+        h = _atan_ratio_h8(w, one)
+        root = wp.vector(
+            wp.sqrt(zb[0]), wp.sqrt(zb[1]), wp.sqrt(zb[2]), wp.sqrt(zb[3]),
+            wp.sqrt(zb[4]), wp.sqrt(zb[5]), wp.sqrt(zb[6]), wp.sqrt(zb[7]),
+        )
+        a = wp.cw_mul(root, iz) * type(one)(wp.static(math.pi / 2.0))
+        c = wp.cw_mul(small, h) + wp.cw_mul(big, a - wp.cw_mul(h, iz))
+        dc = ph.splat8(type(one)(0.0))
+        if wp.static(jacobian):
+            g = _atan_ratio_g8(w, one)
+            dc_big = wp.cw_mul(a * type(one)(-0.5) + wp.cw_mul(h + wp.cw_mul(g, iz) * two, iz), iz)
+            dc = wp.cw_mul(small, g * two) + wp.cw_mul(big, dc_big)
+        return c, dc
+
+    @wp.func
+    def distort8(model: int, dist: Any, x: Any, y: Any, one: Any):
+        """The distortion of 8 lanes of normalized (x, y) and its Jacobian: (xd, yd, J00, J01, J10,
+        J11), the formulas of :func:`.lens._distort64` per lane in the float type of ``one``."""
+        two = type(one)(2.0)
+        xx = wp.cw_mul(x, x)
+        yy = wp.cw_mul(y, y)
+        xy = wp.cw_mul(x, y)
+        r2 = xx + yy
+        ones = ph.splat8(one)
+        xd = x
+        yd = y
+        J00 = ones
+        J01 = ph.splat8(type(one)(0.0))
+        J10 = J01
+        J11 = ones
+        if model == lens.RADTAN:
+            k1 = dist[0]
+            k2 = dist[1]
+            p1 = dist[2]
+            p2 = dist[3]
+            k3 = dist[4]
+            R = ones + wp.cw_mul(r2, ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(k2) + r2 * k3))
+            xd = wp.cw_mul(x, R) + xy * (two * p1) + (r2 + xx * two) * p2
+            yd = wp.cw_mul(y, R) + (r2 + yy * two) * p1 + xy * (two * p2)
+            if wp.static(jacobian):
+                dR = ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(two * k2) + r2 * (type(one)(3.0) * k3))
+                off = wp.cw_mul(xy * two, dR) + x * (two * p1) + y * (two * p2)
+                J00 = R + wp.cw_mul(xx * two, dR) + y * (two * p1) + x * (type(one)(6.0) * p2)
+                J01 = off
+                J10 = off
+                J11 = R + wp.cw_mul(yy * two, dR) + y * (type(one)(6.0) * p1) + x * (two * p2)
+        elif model == lens.FISHEYE:
+            # s = theta_d / r and q = 2 ds/d(r^2), as lens._fisheye_terms
+            c, dc = atan_ratio8(r2, one)
+            cc = wp.cw_mul(c, c)
+            t = wp.cw_mul(r2, cc)
+            poly = ones + wp.cw_mul(t, ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(dist[1]) + wp.cw_mul(
+                t, ph.splat8(dist[2]) + t * dist[3])))
+            s = wp.cw_mul(c, poly)
+            xd = wp.cw_mul(s, x)
+            yd = wp.cw_mul(s, y)
+            if wp.static(jacobian):
+                dpoly = ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(two * dist[1]) + wp.cw_mul(
+                    t, ph.splat8(type(one)(3.0) * dist[2]) + t * (type(one)(4.0) * dist[3])))
+                dt = cc + wp.cw_mul(r2 * two, wp.cw_mul(c, dc))  # dt/d(r^2)
+                q = (wp.cw_mul(dc, poly) + wp.cw_mul(wp.cw_mul(c, dpoly), dt)) * two
+                qxy = wp.cw_mul(q, xy)
+                J00 = s + wp.cw_mul(q, xx)
+                J01 = qxy
+                J10 = qxy
+                J11 = s + wp.cw_mul(q, yy)
+        return xd, yd, J00, J01, J10, J11
+
+    @wp.func
+    def project_rays8(
+        model: int, R: Any, t: Any, K: Any, dist: Any, rx: Any, ry: Any, d: Any, min_depth: Any
+    ):
+        """:func:`project_ray_jacobian` for 8 lanes of rays (rx, ry) and depths d: returns (u, v, ok,
+        du0, du1, du2, dv0, dv1, dv2), ok 1 or 0 per lane (q_z > min_depth and inside the domain),
+        (du0, du1, du2) and (dv0, dv1, dv2) the rows d(u, v)/dq (zeros without the Jacobian).
+        Where not ok: the principal point and the Jacobian there, for the caller to reject."""
+        one = type(min_depth)(1.0)
+        ones = ph.splat8(one)
+        zeros = ph.splat8(type(one)(0.0))
+        P0 = wp.cw_mul(rx, d)
+        P1 = wp.cw_mul(ry, d)
+        q0 = P0 * R[0, 0] + P1 * R[0, 1] + d * R[0, 2] + ph.splat8(t[0])
+        q1 = P0 * R[1, 0] + P1 * R[1, 1] + d * R[1, 2] + ph.splat8(t[1])
+        q2 = P0 * R[2, 0] + P1 * R[2, 1] + d * R[2, 2] + ph.splat8(t[2])
+        front = ph.open_mask8(q2, min_depth, type(one)(3.0e38))
+        iz = wp.cw_div(ones, ph.select8(front, q2, ones))
+        x = wp.cw_mul(q0, iz)
+        y = wp.cw_mul(q1, iz)
+        ok = wp.cw_mul(front, ph.open_mask8(wp.cw_mul(x, x) + wp.cw_mul(y, y), -one, dist[lens.LIMIT]))
+        x = ph.select8(ok, x, zeros)
+        y = ph.select8(ok, y, zeros)
+        xd, yd, J00, J01, J10, J11 = distort8(model, dist, x, y, one)
+        fx = K[0, 0]
+        s = K[0, 1]
+        fy = K[1, 1]
+        u = xd * fx + yd * s + ph.splat8(K[0, 2])
+        v = yd * fy + ph.splat8(K[1, 2])
+        du0 = zeros
+        du1 = zeros
+        du2 = zeros
+        dv0 = zeros
+        dv1 = zeros
+        dv2 = zeros
+        if wp.static(jacobian):
+            a00 = J00 * fx + J10 * s
+            a01 = J01 * fx + J11 * s
+            a10 = J10 * fy
+            a11 = J11 * fy
+            du0 = wp.cw_mul(a00, iz)
+            du1 = wp.cw_mul(a01, iz)
+            du2 = -wp.cw_mul(wp.cw_mul(a00, x) + wp.cw_mul(a01, y), iz)
+            dv0 = wp.cw_mul(a10, iz)
+            dv1 = wp.cw_mul(a11, iz)
+            dv2 = -wp.cw_mul(wp.cw_mul(a10, x) + wp.cw_mul(a11, y), iz)
+        return u, v, ok, du0, du1, du2, dv0, dv1, dv2
+
+    @wp.func
+    def block_lanes(
+        depth: wp.array(dtype=Any), rays: wp.array(dtype=Any), i0: int, ray0: int, n: int, model: int, R: Any,
+        t: Any, K: Any, dist: Any, min_depth: Any,
+    ):
+        """The n <= 8 pixels of a block of :func:`warp_block` read and projected as lanes (lanes past n
+        repeat the last pixel): (u, v, ok, du0, du1, du2, dv0, dv1, dv2) of :func:`project_rays8`, ok
+        also 0 where the depth is invalid (<= min, NaN, inf; depth 1 stands in) or the pixel has no ray."""
+        one = type(min_depth)(1.0)
+        d = ph.load8(depth, i0, 0, n - 1)
+        rx, ry, rw = load_rays8(rays, ray0, n - 1)
+        has_ray = ph.open_mask8(rw, type(one)(0.0), type(one)(2.0))
+        depth_ok = wp.cw_mul(ph.open_mask8(d, min_depth, type(one)(1.0e30)), has_ray)
+        u, v, ok, du0, du1, du2, dv0, dv1, dv2 = project_rays8(
+            model, R, t, K, dist, rx, ry, ph.select8(depth_ok, d, ph.splat8(one)), min_depth
+        )
+        return u, v, wp.cw_mul(ok, depth_ok), du0, du1, du2, dv0, dv1, dv2
+
+    return distort8, project_rays8, block_lanes
 
 
-@wp.func
-def block_lanes(
-    depth: wp.array(dtype=Any), rays: wp.array(dtype=Any), i0: int, ray0: int, n: int, model: int, R: Any,
-    t: Any, K: Any, dist: Any, min_depth: Any,
-):
-    """The n <= 8 pixels of a block of :func:`warp_block` read and projected as lanes (lanes past n
-    repeat the last pixel): (u, v, ok, du0, du1, du2, dv0, dv1, dv2) of :func:`project_rays8`, ok
-    also 0 where the depth is invalid (<= min, NaN, inf; depth 1 stands in) or the pixel has no ray."""
-    one = type(min_depth)(1.0)
-    d = ph.load8(depth, i0, 0, n - 1)
-    rx, ry, rw = load_rays8(rays, ray0, n - 1)
-    has_ray = ph.open_mask8(rw, type(one)(0.0), type(one)(2.0))
-    depth_ok = wp.cw_mul(ph.open_mask8(d, min_depth, type(one)(1.0e30)), has_ray)
-    u, v, ok, du0, du1, du2, dv0, dv1, dv2 = project_rays8(
-        model, R, t, K, dist, rx, ry, ph.select8(depth_ok, d, ph.splat8(one)), min_depth
-    )
-    return u, v, wp.cw_mul(ok, depth_ok), du0, du1, du2, dv0, dv1, dv2
+distort8, project_rays8, block_lanes = _make_lanes(True)
+_, _, block_values = _make_lanes(False)  # the forward's: no Jacobian
 
 
 # pixels per block of warp_block: the projections of a block are computed before any of its
@@ -413,7 +453,7 @@ def _make_warp_block(T, warp_block=None):
         then per pixel the projection's Jacobian and the gradients to R, t, depth, the ray, and to
         ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a wanted gradient); the backward
         pass does not replay it (nothing the kernel computes after it reads its results)."""
-        u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_lanes(
+        u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_values(
             depth, rays, i0, ray0, n, model, R, t, Kb, db, min_depth
         )
         umax = T(W - 1) + tol
@@ -519,4 +559,7 @@ def _make_warp_block(T, warp_block=None):
 warp_block = _make_warp_block(wp.float64, _make_warp_block(wp.float32))
 
 
-__all__ = ["BLOCK", "pixel_ray", "project_ray", "project_ray_jacobian", "warp_block"]
+__all__ = [
+    "BLOCK", "block_lanes", "distort8", "lens64", "load_rays8", "pixel_ray", "project_ray", "project_ray_jacobian",
+    "project_ray_jacobian64", "project_ray_value64", "project_rays8", "warp_block",
+]
