@@ -169,7 +169,7 @@ def pack_dist(model: int, coeffs=()) -> np.ndarray:
 
 # c(z) = atan(sqrt(z)) / sqrt(z) on z in [0, 1] as a polynomial in w = 2 z - 1: its coefficients
 # (_ATAN_H, lowest first, degree 20) and those of its derivative dc/dw (_ATAN_G, degree 19),
-# read by the scalar functions below and by the 8-lane one of kernels.lens_rays
+# evaluated by _estrin20 below and by the 8-lane evaluator of kernels.lens_rays
 _ATAN_H = (
     0.8704197513671031,
     -0.10187654235021822,
@@ -214,86 +214,52 @@ _ATAN_G = (
     5.872169587345639e-10,
     -7.350095964382493e-10,
     3.3646406689883653e-10,
+    0.0,  # degree 19: padded to the evaluator's 21 coefficients (the term adds exactly 0)
 )
 
 
-@wp.func
-def _atan_ratio_poly_value(w: wp.float64):
-    """c of c = atan(sqrt(z)) / sqrt(z) at w = 2 z - 1, z in [0, 1] (see _atan_ratio)."""
-    w2 = w * w
-    w4 = w2 * w2
-    w8 = w4 * w4
-    w16 = w8 * w8
-    h0_0 = wp.float64(wp.static(_ATAN_H[0])) + wp.float64(wp.static(_ATAN_H[1])) * w
-    h0_1 = wp.float64(wp.static(_ATAN_H[2])) + wp.float64(wp.static(_ATAN_H[3])) * w
-    h0_2 = wp.float64(wp.static(_ATAN_H[4])) + wp.float64(wp.static(_ATAN_H[5])) * w
-    h0_3 = wp.float64(wp.static(_ATAN_H[6])) + wp.float64(wp.static(_ATAN_H[7])) * w
-    h0_4 = wp.float64(wp.static(_ATAN_H[8])) + wp.float64(wp.static(_ATAN_H[9])) * w
-    h0_5 = wp.float64(wp.static(_ATAN_H[10])) + wp.float64(wp.static(_ATAN_H[11])) * w
-    h0_6 = wp.float64(wp.static(_ATAN_H[12])) + wp.float64(wp.static(_ATAN_H[13])) * w
-    h0_7 = wp.float64(wp.static(_ATAN_H[14])) + wp.float64(wp.static(_ATAN_H[15])) * w
-    h0_8 = wp.float64(wp.static(_ATAN_H[16])) + wp.float64(wp.static(_ATAN_H[17])) * w
-    h0_9 = wp.float64(wp.static(_ATAN_H[18])) + wp.float64(wp.static(_ATAN_H[19])) * w
-    h1_0 = h0_0 + h0_1 * w2
-    h1_1 = h0_2 + h0_3 * w2
-    h1_2 = h0_4 + h0_5 * w2
-    h1_3 = h0_6 + h0_7 * w2
-    h1_4 = h0_8 + h0_9 * w2
-    h2_0 = h1_0 + h1_1 * w4
-    h2_1 = h1_2 + h1_3 * w4
-    h2_2 = h1_4 + wp.float64(wp.static(_ATAN_H[20])) * w4
-    h3_0 = h2_0 + h2_1 * w8
-    h4_0 = h3_0 + h2_2 * w16
-    return h4_0
+def _make_estrin20(coeffs):
+    """A ``@wp.func`` (w: float64) -> the degree-20 polynomial with these 21 coefficients (lowest
+    first), by Estrin's scheme (pairs, then w^2, w^4, w^8 and w^16: not Horner's 20 dependent steps)."""
+
+    @wp.func
+    def estrin20(w: wp.float64):
+        w2 = w * w
+        w4 = w2 * w2
+        w8 = w4 * w4
+        w16 = w8 * w8
+        h0_0 = wp.float64(wp.static(coeffs[0])) + wp.float64(wp.static(coeffs[1])) * w
+        h0_1 = wp.float64(wp.static(coeffs[2])) + wp.float64(wp.static(coeffs[3])) * w
+        h0_2 = wp.float64(wp.static(coeffs[4])) + wp.float64(wp.static(coeffs[5])) * w
+        h0_3 = wp.float64(wp.static(coeffs[6])) + wp.float64(wp.static(coeffs[7])) * w
+        h0_4 = wp.float64(wp.static(coeffs[8])) + wp.float64(wp.static(coeffs[9])) * w
+        h0_5 = wp.float64(wp.static(coeffs[10])) + wp.float64(wp.static(coeffs[11])) * w
+        h0_6 = wp.float64(wp.static(coeffs[12])) + wp.float64(wp.static(coeffs[13])) * w
+        h0_7 = wp.float64(wp.static(coeffs[14])) + wp.float64(wp.static(coeffs[15])) * w
+        h0_8 = wp.float64(wp.static(coeffs[16])) + wp.float64(wp.static(coeffs[17])) * w
+        h0_9 = wp.float64(wp.static(coeffs[18])) + wp.float64(wp.static(coeffs[19])) * w
+        h1_0 = h0_0 + h0_1 * w2
+        h1_1 = h0_2 + h0_3 * w2
+        h1_2 = h0_4 + h0_5 * w2
+        h1_3 = h0_6 + h0_7 * w2
+        h1_4 = h0_8 + h0_9 * w2
+        h2_0 = h1_0 + h1_1 * w4
+        h2_1 = h1_2 + h1_3 * w4
+        h2_2 = h1_4 + wp.float64(wp.static(coeffs[20])) * w4
+        h3_0 = h2_0 + h2_1 * w8
+        return h3_0 + h2_2 * w16
+
+    return estrin20
+
+
+_atan_ratio_poly_value = _make_estrin20(_ATAN_H)  # c at w = 2 z - 1, z in [0, 1] (see _atan_ratio)
+_atan_ratio_dpoly = _make_estrin20(_ATAN_G)  # dc/dw
 
 
 @wp.func
 def _atan_ratio_poly(w: wp.float64):
     """(c, dc/dw) of c = atan(sqrt(z)) / sqrt(z) at w = 2 z - 1, z in [0, 1] (see _atan_ratio)."""
-    w2 = w * w
-    w4 = w2 * w2
-    w8 = w4 * w4
-    w16 = w8 * w8
-    h0_0 = wp.float64(wp.static(_ATAN_H[0])) + wp.float64(wp.static(_ATAN_H[1])) * w
-    h0_1 = wp.float64(wp.static(_ATAN_H[2])) + wp.float64(wp.static(_ATAN_H[3])) * w
-    h0_2 = wp.float64(wp.static(_ATAN_H[4])) + wp.float64(wp.static(_ATAN_H[5])) * w
-    h0_3 = wp.float64(wp.static(_ATAN_H[6])) + wp.float64(wp.static(_ATAN_H[7])) * w
-    h0_4 = wp.float64(wp.static(_ATAN_H[8])) + wp.float64(wp.static(_ATAN_H[9])) * w
-    h0_5 = wp.float64(wp.static(_ATAN_H[10])) + wp.float64(wp.static(_ATAN_H[11])) * w
-    h0_6 = wp.float64(wp.static(_ATAN_H[12])) + wp.float64(wp.static(_ATAN_H[13])) * w
-    h0_7 = wp.float64(wp.static(_ATAN_H[14])) + wp.float64(wp.static(_ATAN_H[15])) * w
-    h0_8 = wp.float64(wp.static(_ATAN_H[16])) + wp.float64(wp.static(_ATAN_H[17])) * w
-    h0_9 = wp.float64(wp.static(_ATAN_H[18])) + wp.float64(wp.static(_ATAN_H[19])) * w
-    h1_0 = h0_0 + h0_1 * w2
-    h1_1 = h0_2 + h0_3 * w2
-    h1_2 = h0_4 + h0_5 * w2
-    h1_3 = h0_6 + h0_7 * w2
-    h1_4 = h0_8 + h0_9 * w2
-    h2_0 = h1_0 + h1_1 * w4
-    h2_1 = h1_2 + h1_3 * w4
-    h2_2 = h1_4 + wp.float64(wp.static(_ATAN_H[20])) * w4
-    h3_0 = h2_0 + h2_1 * w8
-    h4_0 = h3_0 + h2_2 * w16
-    g0_0 = wp.float64(wp.static(_ATAN_G[0])) + wp.float64(wp.static(_ATAN_G[1])) * w
-    g0_1 = wp.float64(wp.static(_ATAN_G[2])) + wp.float64(wp.static(_ATAN_G[3])) * w
-    g0_2 = wp.float64(wp.static(_ATAN_G[4])) + wp.float64(wp.static(_ATAN_G[5])) * w
-    g0_3 = wp.float64(wp.static(_ATAN_G[6])) + wp.float64(wp.static(_ATAN_G[7])) * w
-    g0_4 = wp.float64(wp.static(_ATAN_G[8])) + wp.float64(wp.static(_ATAN_G[9])) * w
-    g0_5 = wp.float64(wp.static(_ATAN_G[10])) + wp.float64(wp.static(_ATAN_G[11])) * w
-    g0_6 = wp.float64(wp.static(_ATAN_G[12])) + wp.float64(wp.static(_ATAN_G[13])) * w
-    g0_7 = wp.float64(wp.static(_ATAN_G[14])) + wp.float64(wp.static(_ATAN_G[15])) * w
-    g0_8 = wp.float64(wp.static(_ATAN_G[16])) + wp.float64(wp.static(_ATAN_G[17])) * w
-    g0_9 = wp.float64(wp.static(_ATAN_G[18])) + wp.float64(wp.static(_ATAN_G[19])) * w
-    g1_0 = g0_0 + g0_1 * w2
-    g1_1 = g0_2 + g0_3 * w2
-    g1_2 = g0_4 + g0_5 * w2
-    g1_3 = g0_6 + g0_7 * w2
-    g1_4 = g0_8 + g0_9 * w2
-    g2_0 = g1_0 + g1_1 * w4
-    g2_1 = g1_2 + g1_3 * w4
-    g3_0 = g2_0 + g2_1 * w8
-    g4_0 = g3_0 + g1_4 * w16
-    return h4_0, g4_0
+    return _atan_ratio_poly_value(w), _atan_ratio_dpoly(w)
 
 
 @wp.func

@@ -38,64 +38,6 @@ def pixel_ray(model: int, K: Any, dist: Any, x: Any, y: Any):
     return wp.vector(xn[0], xn[1], wp.where(ok, type(x)(1.0), type(x)(0.0)))
 
 
-mat33d = wp.types.matrix((3, 3), wp.float64)
-
-
-@wp.func
-def lens64(K: Any, dist: Any):
-    """(K, dist) in float64 for the ``*64`` functions below, which take them converted once (per
-    row or block of pixels) instead of per pixel. K's lower row is not read (set to 0 0 1)."""
-    K64 = mat33d(
-        wp.float64(K[0, 0]), wp.float64(K[0, 1]), wp.float64(K[0, 2]),
-        wp.float64(0.0), wp.float64(K[1, 1]), wp.float64(K[1, 2]),
-        wp.float64(0.0), wp.float64(0.0), wp.float64(1.0),
-    )
-    return K64, lens._to64(dist)
-
-
-@wp.func
-def project_ray_value64(model: int, R: Any, t: Any, K64: mat33d, d64: vec8d, ray: Any, depth: Any, min_depth: Any):
-    """The values of :func:`project_ray` for (K, dist) given by :func:`lens64`: (u, v, q, ok), q
-    the moved point (the kernel's float type). No adjoint (for hand-written ones)."""
-    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
-    front = q[2] > min_depth
-    # one division (two cost more than the lens)
-    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
-    x = wp.float64(q[0]) * iz
-    y = wp.float64(q[1]) * iz
-    ok = front and x * x + y * y < d64[lens.LIMIT]
-    xd, yd = lens._distort_value64(model, d64, wp.where(ok, x, wp.float64(0.0)), wp.where(ok, y, wp.float64(0.0)))
-    u = type(depth)(K64[0, 0] * xd + K64[0, 1] * yd + K64[0, 2])
-    v = type(depth)(K64[1, 1] * yd + K64[1, 2])
-    return u, v, q, ok
-
-
-@wp.func
-def project_ray_jacobian64(model: int, R: Any, t: Any, K64: mat33d, d64: vec8d, ray: Any, depth: Any, min_depth: Any):
-    """:func:`project_ray_jacobian` for (K, dist) given by :func:`lens64`."""
-    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
-    front = q[2] > min_depth
-    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
-    x = wp.float64(q[0]) * iz
-    y = wp.float64(q[1]) * iz
-    ok = front and x * x + y * y < d64[lens.LIMIT]
-    xs = wp.where(ok, x, wp.float64(0.0))
-    ys = wp.where(ok, y, wp.float64(0.0))
-    xd, yd, J = lens._distort64(model, d64, xs, ys)
-    fx = K64[0, 0]
-    s = K64[0, 1]
-    fy = K64[1, 1]
-    a00 = fx * J[0, 0] + s * J[1, 0]
-    a01 = fx * J[0, 1] + s * J[1, 1]
-    a10 = fy * J[1, 0]
-    a11 = fy * J[1, 1]
-    du = wp.vector(type(depth)(a00 * iz), type(depth)(a01 * iz), type(depth)(-(a00 * xs + a01 * ys) * iz))
-    dv = wp.vector(type(depth)(a10 * iz), type(depth)(a11 * iz), type(depth)(-(a10 * xs + a11 * ys) * iz))
-    u = type(depth)(fx * xd + s * yd + K64[0, 2])
-    v = type(depth)(fy * yd + K64[1, 2])
-    return u, v, q, ok, du, dv
-
-
 def _make_project_ray(T, project_ray=None):
     """float type ``T`` overload of project_ray (Warp custom adjoints need concrete types); the
     parameter named like the function is the overload made before (see sampler.py)."""
@@ -113,8 +55,16 @@ def _make_project_ray(T, project_ray=None):
         evaluated as :func:`.lens.project` does (in float64, rounded; X/Z as X * (1/Z)), so (u, v)
         equals ``lens.project(model, K, dist, q)`` to rounding. Gradients (hand-written adjoint): to R, t, K, dist,
         the ray's (x, y) and depth; q_z passes its own gradient."""
-        K64, d64 = lens64(K, dist)
-        u, v, q, ok = project_ray_value64(model, R, t, K64, d64, ray, depth, min_depth)
+        q = R * vec3(ray[0] * depth, ray[1] * depth, depth) + t
+        front = q[2] > min_depth
+        iz = f64(1.0) / f64(wp.where(front, q[2], T(1.0)))  # one division (two cost more than the lens)
+        x = f64(q[0]) * iz
+        y = f64(q[1]) * iz
+        d = lens._to64(dist)
+        ok = front and x * x + y * y < d[lens.LIMIT]
+        xd, yd = lens._distort_value64(model, d, wp.where(ok, x, f64(0.0)), wp.where(ok, y, f64(0.0)))
+        u = T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2]))
+        v = T(f64(K[1, 1]) * yd + f64(K[1, 2]))
         return vec3(u, v, q[2]), ok
 
     @wp.func_grad(project_ray)
@@ -163,8 +113,28 @@ def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any
     returns (u, v, q, ok, du/dq, dv/dq), q the moved point, du/dq and dv/dq (vec3) the rows of
     d(u, v)/dq = [[fx, s], [0, fy]] J_D (1 / q_z) [[1, 0, -x], [0, 1, -y]] (J_D the distortion's
     Jacobian at (x, y) = (q_x, q_y) / q_z). Where not ok the Jacobian is that of the stand-in."""
-    K64, d64 = lens64(K, dist)
-    return project_ray_jacobian64(model, R, t, K64, d64, ray, depth, min_depth)
+    q = R * wp.vector(ray[0] * depth, ray[1] * depth, depth) + t
+    front = q[2] > min_depth
+    iz = wp.float64(1.0) / wp.float64(wp.where(front, q[2], type(depth)(1.0)))
+    x = wp.float64(q[0]) * iz
+    y = wp.float64(q[1]) * iz
+    d = lens._to64(dist)
+    ok = front and x * x + y * y < d[lens.LIMIT]
+    xs = wp.where(ok, x, wp.float64(0.0))
+    ys = wp.where(ok, y, wp.float64(0.0))
+    xd, yd, J = lens._distort64(model, d, xs, ys)
+    fx = wp.float64(K[0, 0])
+    s = wp.float64(K[0, 1])
+    fy = wp.float64(K[1, 1])
+    a00 = fx * J[0, 0] + s * J[1, 0]
+    a01 = fx * J[0, 1] + s * J[1, 1]
+    a10 = fy * J[1, 0]
+    a11 = fy * J[1, 1]
+    du = wp.vector(type(depth)(a00 * iz), type(depth)(a01 * iz), type(depth)(-(a00 * xs + a01 * ys) * iz))
+    dv = wp.vector(type(depth)(a10 * iz), type(depth)(a11 * iz), type(depth)(-(a10 * xs + a11 * ys) * iz))
+    u = type(depth)(fx * xd + s * yd + wp.float64(K[0, 2]))
+    v = type(depth)(fy * yd + wp.float64(K[1, 2]))
+    return u, v, q, ok, du, dv
 
 
 # ----------------------------------------------------------------------------- 8 lanes
@@ -183,59 +153,40 @@ def _poly_pair8(w: Any, c0: Any, c1: Any):
     return ph.splat8(c0) + w * c1
 
 
-@wp.func
-def _atan_ratio_h8(w: Any, one: Any):
-    """c of :func:`.lens._atan_ratio_poly` per lane (the same coefficients, Estrin's scheme)."""
-    w2 = wp.cw_mul(w, w)
-    w4 = wp.cw_mul(w2, w2)
-    w8 = wp.cw_mul(w4, w4)
-    w16 = wp.cw_mul(w8, w8)
-    h0 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[0])), type(one)(wp.static(lens._ATAN_H[1])))
-    h1 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[2])), type(one)(wp.static(lens._ATAN_H[3])))
-    h2 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[4])), type(one)(wp.static(lens._ATAN_H[5])))
-    h3 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[6])), type(one)(wp.static(lens._ATAN_H[7])))
-    h4 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[8])), type(one)(wp.static(lens._ATAN_H[9])))
-    h5 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[10])), type(one)(wp.static(lens._ATAN_H[11])))
-    h6 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[12])), type(one)(wp.static(lens._ATAN_H[13])))
-    h7 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[14])), type(one)(wp.static(lens._ATAN_H[15])))
-    h8 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[16])), type(one)(wp.static(lens._ATAN_H[17])))
-    h9 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_H[18])), type(one)(wp.static(lens._ATAN_H[19])))
-    a0 = h0 + wp.cw_mul(h1, w2)
-    a1 = h2 + wp.cw_mul(h3, w2)
-    a2 = h4 + wp.cw_mul(h5, w2)
-    a3 = h6 + wp.cw_mul(h7, w2)
-    a4 = h8 + wp.cw_mul(h9, w2)
-    b0 = a0 + wp.cw_mul(a1, w4)
-    b1 = a2 + wp.cw_mul(a3, w4)
-    b2 = a4 + w4 * type(one)(wp.static(lens._ATAN_H[20]))
-    return b0 + wp.cw_mul(b1, w8) + wp.cw_mul(b2, w16)
+def _make_estrin20_lanes(coeffs):
+    """:func:`.lens._make_estrin20` per lane: w (8 lanes) -> the polynomial, in the lanes' float type."""
+
+    @wp.func
+    def estrin20(w: Any, one: Any):
+        w2 = wp.cw_mul(w, w)
+        w4 = wp.cw_mul(w2, w2)
+        w8 = wp.cw_mul(w4, w4)
+        w16 = wp.cw_mul(w8, w8)
+        h0 = _poly_pair8(w, type(one)(wp.static(coeffs[0])), type(one)(wp.static(coeffs[1])))
+        h1 = _poly_pair8(w, type(one)(wp.static(coeffs[2])), type(one)(wp.static(coeffs[3])))
+        h2 = _poly_pair8(w, type(one)(wp.static(coeffs[4])), type(one)(wp.static(coeffs[5])))
+        h3 = _poly_pair8(w, type(one)(wp.static(coeffs[6])), type(one)(wp.static(coeffs[7])))
+        h4 = _poly_pair8(w, type(one)(wp.static(coeffs[8])), type(one)(wp.static(coeffs[9])))
+        h5 = _poly_pair8(w, type(one)(wp.static(coeffs[10])), type(one)(wp.static(coeffs[11])))
+        h6 = _poly_pair8(w, type(one)(wp.static(coeffs[12])), type(one)(wp.static(coeffs[13])))
+        h7 = _poly_pair8(w, type(one)(wp.static(coeffs[14])), type(one)(wp.static(coeffs[15])))
+        h8 = _poly_pair8(w, type(one)(wp.static(coeffs[16])), type(one)(wp.static(coeffs[17])))
+        h9 = _poly_pair8(w, type(one)(wp.static(coeffs[18])), type(one)(wp.static(coeffs[19])))
+        a0 = h0 + wp.cw_mul(h1, w2)
+        a1 = h2 + wp.cw_mul(h3, w2)
+        a2 = h4 + wp.cw_mul(h5, w2)
+        a3 = h6 + wp.cw_mul(h7, w2)
+        a4 = h8 + wp.cw_mul(h9, w2)
+        b0 = a0 + wp.cw_mul(a1, w4)
+        b1 = a2 + wp.cw_mul(a3, w4)
+        b2 = a4 + w4 * type(one)(wp.static(coeffs[20]))
+        return b0 + wp.cw_mul(b1, w8) + wp.cw_mul(b2, w16)
+
+    return estrin20
 
 
-@wp.func
-def _atan_ratio_g8(w: Any, one: Any):
-    """dc/dw of :func:`.lens._atan_ratio_poly` per lane."""
-    w2 = wp.cw_mul(w, w)
-    w4 = wp.cw_mul(w2, w2)
-    w8 = wp.cw_mul(w4, w4)
-    w16 = wp.cw_mul(w8, w8)
-    g0 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[0])), type(one)(wp.static(lens._ATAN_G[1])))
-    g1 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[2])), type(one)(wp.static(lens._ATAN_G[3])))
-    g2 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[4])), type(one)(wp.static(lens._ATAN_G[5])))
-    g3 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[6])), type(one)(wp.static(lens._ATAN_G[7])))
-    g4 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[8])), type(one)(wp.static(lens._ATAN_G[9])))
-    g5 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[10])), type(one)(wp.static(lens._ATAN_G[11])))
-    g6 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[12])), type(one)(wp.static(lens._ATAN_G[13])))
-    g7 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[14])), type(one)(wp.static(lens._ATAN_G[15])))
-    g8 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[16])), type(one)(wp.static(lens._ATAN_G[17])))
-    g9 = _poly_pair8(w, type(one)(wp.static(lens._ATAN_G[18])), type(one)(wp.static(lens._ATAN_G[19])))
-    e0 = g0 + wp.cw_mul(g1, w2)
-    e1 = g2 + wp.cw_mul(g3, w2)
-    e2 = g4 + wp.cw_mul(g5, w2)
-    e3 = g6 + wp.cw_mul(g7, w2)
-    e4 = g8 + wp.cw_mul(g9, w2)
-    f0 = e0 + wp.cw_mul(e1, w4)
-    f1 = e2 + wp.cw_mul(e3, w4)
-    return f0 + wp.cw_mul(f1, w8) + wp.cw_mul(e4, w16)
+_atan_ratio_h8 = _make_estrin20_lanes(lens._ATAN_H)  # c of lens._atan_ratio_poly per lane
+_atan_ratio_g8 = _make_estrin20_lanes(lens._ATAN_G)  # dc/dw
 
 
 @wp.func
@@ -442,17 +393,19 @@ def _make_warp_block(T, warp_block=None):
     ):
         """``n`` <= BLOCK consecutive pixels of one row of the 3D spatial transformer through the lens:
         pixel k (flat index ``i0 + k`` of ``depth`` and ``valid``, ray ``rays[ray0 + k]``) is the point
-        ``depth (ray_x, ray_y, 1)`` moved by [R | t] and projected (:func:`project_ray`); ``valid``
+        ``depth (ray_x, ray_y, 1)`` moved by [R | t] and projected (the lanes of :func:`block_values`,
+        :func:`project_ray`'s formulas in the kernel's float type); ``valid``
         (valid depth, a ray, in the domain, inside the image within ``tol``) and the bilinear samples
         of the C channels of ``image`` (plane ``src``) into ``out[dst0 + k + c H W]`` (0 where not
         valid or out of the domain). Invalid depth (<= min, NaN, inf) or a pixel without a ray: depth
         1 stands in before any arithmetic, so neither the values nor the adjoint see it.
 
-        All n projections come first, then the samples (see BLOCK). Hand-written adjoint, in the same
-        two phases: the projections and the sampler's gradients (:func:`.sampler.sample_channels_grad`),
-        then per pixel the projection's Jacobian and the gradients to R, t, depth, the ray, and to
-        ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a wanted gradient); the backward
-        pass does not replay it (nothing the kernel computes after it reads its results)."""
+        All n projections come first, then the samples (see BLOCK). Hand-written adjoint in three
+        phases: the projections with their Jacobians (lanes, :func:`block_lanes`), the sampler's
+        gradients per pixel (:func:`.sampler.sample_channels_grad`), then per pixel the gradients to
+        R, t, depth, the ray, and to ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a
+        wanted gradient); the backward pass does not replay it (nothing the kernel computes after it
+        reads its results)."""
         u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_values(
             depth, rays, i0, ray0, n, model, R, t, Kb, db, min_depth
         )
@@ -502,7 +455,7 @@ def _make_warp_block(T, warp_block=None):
         gK = wp.adjoint[K]
         gd = wp.adjoint[dist]
         lens_wanted = gK.shape[0] > 0 or gd.shape[0] > 0
-        K64, d64 = lens64(Kb, db)
+        d64 = lens._to64(db)
         # the block's pose gradients summed in registers, added to the kernel's once
         g_t = vec3()
         g_R = mat33()
@@ -537,8 +490,8 @@ def _make_warp_block(T, warp_block=None):
                             T(gu64 * xd), T(gu64 * yd), gu, zero, T(gv64 * yd), gv, zero, zero, zero
                         )
                     if gd.shape[0] > 0:
-                        gxd = K64[0, 0] * gu64
-                        gyd = K64[0, 1] * gu64 + K64[1, 1] * gv64
+                        gxd = f64(Kb[0, 0]) * gu64
+                        gyd = f64(Kb[0, 1]) * gu64 + f64(Kb[1, 1]) * gv64
                         gd[b] = gd[b] + lens._from64(lens._distort_vjp_dist64(model, d64, x, y, gxd, gyd), depth_i)
         wp.adjoint[t] += g_t
         wp.adjoint[R] += g_R
@@ -560,6 +513,6 @@ warp_block = _make_warp_block(wp.float64, _make_warp_block(wp.float32))
 
 
 __all__ = [
-    "BLOCK", "block_lanes", "distort8", "lens64", "load_rays8", "pixel_ray", "project_ray", "project_ray_jacobian",
-    "project_ray_jacobian64", "project_ray_value64", "project_rays8", "warp_block",
+    "BLOCK", "block_lanes", "block_values", "distort8", "load_rays8", "pixel_ray", "project_ray",
+    "project_ray_jacobian", "project_rays8", "warp_block",
 ]
