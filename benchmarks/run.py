@@ -119,16 +119,25 @@ def lens_cases(B, C, H, W) -> list[Case]:
 
     changing_key = changing.K.contiguous().numpy().tobytes()  # its entries' K bytes (functional._rays)
 
+    runs = []  # whether the changing camera has been run (its entry must then be found)
+
     def forget_changing():
         clear()
-        for key in [k for k in Fn._RAYS_CACHE if k[4] == changing_key]:
+        keys = [k for k in Fn._RAYS_CACHE if k[4] == changing_key]
+        if runs and len(keys) != 1:
+            raise RuntimeError(f"lens_cases: {len(keys)} rays cache entries of the changing camera, expected 1")
+        for key in keys:
             del Fn._RAYS_CACHE[key]
+
+    def run_changing():
+        runs.append(True)
+        run(changing)
 
     return [
         Case("pinhole", lambda: run(K0), clear),
         Case("radtan", lambda: run(radtan), clear),
         Case("fisheye", lambda: run(fisheye), clear),
-        Case("radtan_rays_each_call", lambda: run(changing), forget_changing),
+        Case("radtan_rays_each_call", run_changing, forget_changing),
     ]
 
 

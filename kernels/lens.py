@@ -165,11 +165,8 @@ def pack_dist(model: int, coeffs=()) -> np.ndarray:
 # not Horner's 20 dependent steps, which measured no faster than the atan). The fisheye's distortion
 # in a loop over 614k points (one thread, interleaved in one process, a lightly loaded host): 16 ->
 # 10 ns per point, with its Jacobian 24 -> 14.5 ns (was: sqrt, atan and two or three divisions).
-
-
-# c(z) = atan(sqrt(z)) / sqrt(z) on z in [0, 1] as a polynomial in w = 2 z - 1: its coefficients
-# (_ATAN_H, lowest first, degree 20) and those of its derivative dc/dw (_ATAN_G, degree 19),
-# evaluated by _estrin20 below and by the 8-lane evaluator of kernels.lens_rays
+# The coefficients (lowest first) of c (_ATAN_H) and of its derivative dc/dw (_ATAN_G, degree 19),
+# evaluated by _make_estrin20's functions below and by their 8-lane twins in kernels.lens_rays.
 _ATAN_H = (
     0.8704197513671031,
     -0.10187654235021822,

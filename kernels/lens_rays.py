@@ -222,12 +222,13 @@ def _make_lanes(jacobian: bool):
         beyond" cost the block ~4 ns per pixel, taken or not)."""
         ones = ph.splat8(one)
         two = type(one)(2.0)
-        big = ph.open_mask8(z, one, type(one)(3.0e38))  # 1 where z > 1
+        big = ph.open_mask8(z, one, type(one)(wp.inf))  # 1 where z > 1 (z is finite here)
         small = ones - big
         zb = wp.max(z, ones)
         iz = wp.cw_div(ones, zb)
-        # w exact in both cases: the masks are 0 or 1 and both terms finite
-        w = wp.cw_mul(small, z * two - ones) + wp.cw_mul(big, iz * two - ones)
+        # w exact in both cases: the masks are 0 or 1 and both terms are in [-1, 1] (z up to the
+        # float type's largest: 2 z - 1 would overflow, 2 min(z, 1) - 1 does not)
+        w = wp.cw_mul(small, wp.min(z, ones) * two - ones) + wp.cw_mul(big, iz * two - ones)
         h = _atan_ratio_h8(w, one)
         root = wp.vector(
             wp.sqrt(zb[0]), wp.sqrt(zb[1]), wp.sqrt(zb[2]), wp.sqrt(zb[3]),
@@ -396,8 +397,10 @@ def _make_warp_block(T, warp_block=None):
         ``depth (ray_x, ray_y, 1)`` moved by [R | t] and projected (the lanes of :func:`block_values`,
         :func:`project_ray`'s formulas in the kernel's float type); ``valid``
         (valid depth, a ray, in the domain, inside the image within ``tol``) and the bilinear samples
-        of the C channels of ``image`` (plane ``src``) into ``out[dst0 + k + c H W]`` (0 where not
-        valid or out of the domain). Invalid depth (<= min, NaN, inf) or a pixel without a ray: depth
+        of the C channels of ``image`` (plane ``src``) into ``out[dst0 + k + c H W]``: 0 where the
+        pixel is not active (valid depth, a ray, the moved point in front and in the domain); an
+        active pixel that lands just outside the image reads zeros there (or the border, with border
+        padding) as grid_sample does. Invalid depth (<= min, NaN, inf) or a pixel without a ray: depth
         1 stands in before any arithmetic, so neither the values nor the adjoint see it.
 
         All n projections come first, then the samples (see BLOCK). Hand-written adjoint in three
@@ -462,7 +465,8 @@ def _make_warp_block(T, warp_block=None):
         for k in range(n):
             gu = gu8[k]
             gv = gv8[k]
-            if gu != zero or gv != zero:
+            # only active pixels (ok8: a valid depth, which is read raw below) with a gradient
+            if ok8[k] > zero and (gu != zero or gv != zero):
                 depth_i = depth[wp.max(i0 + k, 0)]
                 ray = rays[wp.max(ray0 + k, 0)]
                 P = vec3(ray[0] * depth_i, ray[1] * depth_i, depth_i)

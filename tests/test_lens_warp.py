@@ -139,8 +139,8 @@ def test_gradcheck_every_input_and_coefficient(model):
 
 def wide_fisheye_scene(dtype=f64):
     """A 13 px wide image (one full block of 8 pixels and a partial one) behind a wide-angle fisheye:
-    the corners are ~55 degrees off the axis (r^2 = (X/Z)^2 + (Y/Z)^2 up to ~2, past the z > 1 branch
-    of the lanes' atan ratio)."""
+    the corner pixels' rays are ~85 degrees off the axis (r^2 = (X/Z)^2 + (Y/Z)^2 up to ~80), most
+    pixels beyond 45 degrees (the z > 1 case of the lanes' atan ratio)."""
     image, depth, pose, _ = scene(B=2, C=2, H=9, W=13, seed=5, dtype=dtype)
     K = torch.tensor([[4.5, 0.0, 6.0], [0.0, 4.5, 4.0], [0.0, 0.0, 1.0]], dtype=dtype)
     return image, depth, pose, K
@@ -165,25 +165,27 @@ def test_wide_angle_fisheye_matches_torch_reference_and_gradcheck():
 
 @pytest.mark.parametrize("model", ["radtan", "fisheye", "wide fisheye"])
 def test_float32_warp_is_the_float64_one_to_float32_precision(model):
-    """float32 evaluates the lens in float32 (kernels.lens_rays, 8 lanes): values and gradients
-    within float32 rounding of the float64 op's, valid masks equal away from the image border."""
+    """float32 evaluates the lens in float32 (kernels.lens_rays, 8 lanes): values and gradients (for
+    image, depth, pose, K and the coefficients) within float32 rounding of the float64 op's, valid
+    masks equal on at least 99% of the pixels (they may differ where a pixel lands within rounding
+    of the image border)."""
     if model == "wide fisheye":
         image, depth, pose, K = wide_fisheye_scene()
         model = "fisheye"
     else:
         image, depth, pose, K = scene(B=2, C=3, H=24, W=29, seed=7)
+    c = torch.tensor(FR1 if model == "radtan" else FISH, dtype=f64)
     out = {}
     for dtype in (f64, torch.float32):
-        args = [t.detach().to(dtype).requires_grad_() for t in (image, depth, pose)]
-        cam = camera(model, K.to(dtype))
-        warped, valid = G.warp_frame_depth(*args, cam)
+        args = [t.detach().to(dtype).requires_grad_() for t in (image, depth, pose, K, c)]
+        warped, valid = G.warp_frame_depth(*args[:3], camera(model, args[3], args[4]))
         (warped * torch.linspace(0.5, 1.5, warped.numel(), dtype=dtype).reshape(warped.shape)).sum().backward()
         out[dtype] = (warped.double(), valid, [a.grad.double() for a in args])
     (w64, v64, g64), (w32, v32, g32) = out[f64], out[torch.float32]
     assert (v64 == v32).float().mean() > 0.99
     both = v64 & v32
     torch.testing.assert_close(w32 * both, w64 * both, atol=2e-5, rtol=0)
-    for name, a, b in zip(("image", "depth", "pose"), g32, g64):
+    for name, a, b in zip(("image", "depth", "pose", "K", "dist"), g32, g64):
         torch.testing.assert_close(a, b, atol=2e-3 * b.abs().max().item(), rtol=1e-3, msg=name)
 
 
@@ -217,21 +219,57 @@ def test_pinhole_camera_is_bitwise_the_K_path_and_zero_distortion_matches_it():
 
 
 def test_bad_depths_and_out_of_domain_points_are_finite_masked_and_pass_no_gradient():
-    image, depth, pose, K = scene(B=1, C=2, H=8, W=10, seed=4)
+    """Every rule of the valid mask checked against an independent torch computation, each case
+    present: depths not above min_depth or not finite, pixels without a ray (beyond the strong
+    fisheye's domain), moved points behind the camera or beyond the domain, samples outside the
+    image. Where a pixel is not active (all but the last rule) its output and depth gradient are 0."""
+    H, W = 8, 10  # a full block of 8 pixels and a partial one per row
+    image, depth, _, K = scene(B=3, C=2, H=H, W=W, seed=4)
     depth = depth.clone()
-    depth[0, 0, 1, :4] = torch.tensor([0.0, -1.0, float("nan"), float("inf")], dtype=f64)
+    depth[:, 0, 3, :5] = torch.tensor([0.0, -1.0, float("nan"), float("inf"), 5e-4], dtype=f64)
+    depth[:, 0, 4, 9] = float("nan")  # the last pixel of a row: the lanes past it repeat it
+    depth[1, 0, 4, 5] = 1.0  # near the axis: behind the camera after item 1's move, yet in the domain
+    # item 0 turns by 0.3 rad about y (points leave the domain), item 1 moves 1.8 m back (points
+    # behind), item 2 0.3 m forward (the 5e-4 m depth lands in front and in the domain)
+    twists = [[0.0, 0.3, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, -1.8], [0.0, 0.0, 0.0, 0.0, 0.0, 0.3]]
+    pose = G.se3_to_matrix(torch.tensor(twists, dtype=f64))
     # a strong fisheye whose domain ends inside the field of view (theta_max ~ 0.49 rad)
-    cam_c = torch.tensor([-0.6, 0.0, 0.0, 0.0], dtype=f64)
-    assert np.isfinite(lens.pack_dist(lens.FISHEYE, cam_c.numpy())[lens.LIMIT])
-    args = [t.clone().requires_grad_() for t in (image, depth, pose, K, cam_c)]
+    c = torch.tensor([-0.6, 0.0, 0.0, 0.0], dtype=f64)
+    limit = float(lens.pack_dist(lens.FISHEYE, c.numpy())[lens.LIMIT])
+    th_max = float(np.arctan(np.sqrt(limit)))
+    args = [t.clone().requires_grad_() for t in (image, depth, pose, K, c)]
     warped, valid = G.warp_frame_depth(*args[:3], FisheyeCamera(args[3], args[4]))
-    warped.sum().backward()
-    assert torch.isfinite(warped).all() and not valid[0, 0, 1, :4].any()
-    assert (warped[0, :, 1, :4] == 0).all()
+    (warped * torch.rand(warped.shape, dtype=f64, generator=torch.Generator().manual_seed(0))).sum().backward()
+
+    # the reference: rays by 1-D Newton where the pixel's distorted radius is below theta_d(theta_max)
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=f64), torch.arange(W, dtype=f64), indexing="ij")
+    yd = (ys - K[1, 2]) / K[1, 1]
+    xd = (xs - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+    rd = torch.sqrt(xd * xd + yd * yd)
+    has_ray = rd < th_max * (1 + c[0] * th_max**2)
+    xn, yn = undistort_ref("fisheye", c, xd, yd)
+    d = depth[:, 0]
+    depth_ok = torch.isfinite(d) & (d > 1e-3)
+    dd = torch.where(depth_ok, d, torch.ones_like(d))
+    pts = torch.stack([xn, yn, torch.ones_like(xn)], -1) * dd[..., None]
+    q = torch.einsum("bij,bhwj->bhwi", pose[:, :3, :3], pts) + pose[:, None, None, :3, 3]
+    front = q[..., 2] > 1e-3
+    x, y = q[..., 0] / q[..., 2], q[..., 1] / q[..., 2]
+    in_domain = front & (x * x + y * y < limit)
+    active = depth_ok & has_ray & in_domain
+    dx, dy = distort_ref("fisheye", c, torch.where(active, x, 0.0), torch.where(active, y, 0.0))
+    u, v = K[0, 0] * dx + K[0, 1] * dy + K[0, 2], K[1, 1] * dy + K[1, 2]
+    inside = (u >= -1e-3) & (u <= W - 1 + 1e-3) & (v >= -1e-3) & (v <= H - 1 + 1e-3)
+    # every case is present
+    for case in (~depth_ok, depth_ok & ~has_ray, depth_ok & has_ray & ~front, front & has_ray & depth_ok & ~in_domain,
+                 active & ~inside, active & inside):
+        assert case.any()
+    assert torch.equal(valid[:, 0], active & inside)
+    assert torch.isfinite(warped).all()
+    assert (warped.permute(1, 0, 2, 3)[:, ~active] == 0).all()
     for a in args:
         assert torch.isfinite(a.grad).all()
-    assert (args[1].grad[0, 0, 1, :4] == 0).all()
-    assert (~valid).sum() > 4  # some pixels have no ray (outside the domain) or project outside it
+    assert (args[1].grad[:, 0][~active] == 0).all() and (args[1].grad[:, 0][active & inside] != 0).any()
 
 
 def test_rays_cache_follows_the_camera_values():
