@@ -403,12 +403,12 @@ def _make_warp_block(T, warp_block=None):
         padding) as grid_sample does. Invalid depth (<= min, NaN, inf) or a pixel without a ray: depth
         1 stands in before any arithmetic, so neither the values nor the adjoint see it.
 
-        All n projections come first, then the samples (see BLOCK). Hand-written adjoint in three
-        phases: the projections with their Jacobians (lanes, :func:`block_lanes`), the sampler's
-        gradients per pixel (:func:`.sampler.sample_channels_grad`), then per pixel the gradients to
-        R, t, depth, the ray, and to ``K[b]`` and ``dist[b]`` only when their adjoint arrays exist (a
-        wanted gradient); the backward pass does not replay it (nothing the kernel computes after it
-        reads its results)."""
+        All n projections come first, then the samples (see BLOCK). Hand-written adjoint in two
+        phases: the projections with their Jacobians (lanes, :func:`block_lanes`), then per pixel the
+        sampler's gradient (:func:`.sampler.sample_channels_grad`) and through the Jacobian the
+        gradients to R, t, depth, the ray, and to ``K[b]`` and ``dist[b]`` only when their adjoint
+        arrays exist (a wanted gradient); the backward pass does not replay it (nothing the kernel
+        computes after it reads its results)."""
         u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_values(
             depth, rays, i0, ray0, n, model, R, t, Kb, db, min_depth
         )
@@ -434,69 +434,62 @@ def _make_warp_block(T, warp_block=None):
         u8, v8, ok8, du0, du1, du2, dv0, dv1, dv2 = block_lanes(
             depth, rays, i0, ray0, n, model, R, t, Kb, db, min_depth
         )
-        # phase 2: the sampler's gradients d loss / d(u, v) (0 where not sampled)
-        gu8 = vec8()
-        gv8 = vec8()
-        for k in range(n):
-            if ok8[k] > zero:
-                u = u8[k]
-                v = v8[k]
-                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
-                if reachable:
-                    gxs, gys = sampler.sample_channels_grad(
-                        image, wp.adjoint[image], wp.adjoint[out], src, dst0 + k, C, H * W, H * W, H, W, xs, ys
-                    )
-                    # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
-                    if padding == sampler.PADDING_BORDER:
-                        gxs = wp.where(u <= zero or u >= T(W - 1), zero, gxs)
-                        gys = wp.where(v <= zero or v >= T(H - 1), zero, gys)
-                    gu8[k] = gxs
-                    gv8[k] = gys
-        # phase 3: through the projection and the motion, per pixel with a gradient (sampled)
+        # phase 2, per pixel: the sampler's gradient d loss / d(u, v), then through the projection
+        # (the lanes' Jacobian) and the motion to pose, depth and ray, K and coefficients if wanted
         g_depth = wp.adjoint[depth]
         g_rays = wp.adjoint[rays]
         gK = wp.adjoint[K]
         gd = wp.adjoint[dist]
         lens_wanted = gK.shape[0] > 0 or gd.shape[0] > 0
-        d64 = lens._to64(db)
         # the block's pose gradients summed in registers, added to the kernel's once
         g_t = vec3()
         g_R = mat33()
         for k in range(n):
-            gu = gu8[k]
-            gv = gv8[k]
-            # only active pixels (ok8: a valid depth, which is read raw below) with a gradient
-            if ok8[k] > zero and (gu != zero or gv != zero):
-                depth_i = depth[wp.max(i0 + k, 0)]
-                ray = rays[wp.max(ray0 + k, 0)]
-                P = vec3(ray[0] * depth_i, ray[1] * depth_i, depth_i)
-                gq = vec3(du0[k] * gu + dv0[k] * gv, du1[k] * gu + dv1[k] * gv, du2[k] * gu + dv2[k] * gv)
-                g_t = g_t + gq
-                g_R = g_R + wp.outer(gq, P)
-                gP = wp.transpose(R) * gq
-                if g_rays.shape[0] > 0:
-                    j = wp.max(ray0 + k, 0)
-                    g_rays[j] = g_rays[j] + vec3(gP[0] * depth_i, gP[1] * depth_i, zero)
-                if g_depth.shape[0] > 0:
-                    j = wp.max(i0 + k, 0)
-                    g_depth[j] = g_depth[j] + gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
-                if lens_wanted:
-                    # u = fx xd + s yd + cx, v = fy yd + cy with (xd, yd) = D(x, y), (x, y) = (q0, q1) / q2
-                    q = R * P + t
-                    iz = f64(1.0) / f64(q[2])
-                    x = f64(q[0]) * iz
-                    y = f64(q[1]) * iz
-                    xd, yd = lens._distort_value64(model, d64, x, y)
-                    gu64 = f64(gu)
-                    gv64 = f64(gv)
-                    if gK.shape[0] > 0:
-                        gK[b] = gK[b] + mat33(
-                            T(gu64 * xd), T(gu64 * yd), gu, zero, T(gv64 * yd), gv, zero, zero, zero
-                        )
-                    if gd.shape[0] > 0:
-                        gxd = f64(Kb[0, 0]) * gu64
-                        gyd = f64(Kb[0, 1]) * gu64 + f64(Kb[1, 1]) * gv64
-                        gd[b] = gd[b] + lens._from64(lens._distort_vjp_dist64(model, d64, x, y, gxd, gyd), depth_i)
+            if ok8[k] > zero:  # active: a valid depth (read raw below), a ray, in front, in the domain
+                u = u8[k]
+                v = v8[k]
+                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+                if reachable:
+                    gu, gv = sampler.sample_channels_grad(
+                        image, wp.adjoint[image], wp.adjoint[out], src, dst0 + k, C, H * W, H * W, H, W, xs, ys
+                    )
+                    # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
+                    if padding == sampler.PADDING_BORDER:
+                        gu = wp.where(u <= zero or u >= T(W - 1), zero, gu)
+                        gv = wp.where(v <= zero or v >= T(H - 1), zero, gv)
+                    depth_i = depth[wp.max(i0 + k, 0)]
+                    ray = rays[wp.max(ray0 + k, 0)]
+                    P = vec3(ray[0] * depth_i, ray[1] * depth_i, depth_i)
+                    gq = vec3(du0[k] * gu + dv0[k] * gv, du1[k] * gu + dv1[k] * gv, du2[k] * gu + dv2[k] * gv)
+                    g_t = g_t + gq
+                    g_R = g_R + wp.outer(gq, P)
+                    gP = wp.transpose(R) * gq
+                    if g_rays.shape[0] > 0:
+                        j = wp.max(ray0 + k, 0)
+                        g_rays[j] = g_rays[j] + vec3(gP[0] * depth_i, gP[1] * depth_i, zero)
+                    if g_depth.shape[0] > 0:
+                        j = wp.max(i0 + k, 0)
+                        g_depth[j] = g_depth[j] + gP[0] * ray[0] + gP[1] * ray[1] + gP[2]
+                    if lens_wanted:
+                        # u = fx xd + s yd + cx, v = fy yd + cy, (xd, yd) = D(x, y), (x, y) = (q0, q1) / q2
+                        d64 = lens._to64(db)
+                        q = R * P + t
+                        iz = f64(1.0) / f64(q[2])
+                        x = f64(q[0]) * iz
+                        y = f64(q[1]) * iz
+                        xd, yd = lens._distort_value64(model, d64, x, y)
+                        gu64 = f64(gu)
+                        gv64 = f64(gv)
+                        if gK.shape[0] > 0:
+                            gK[b] = gK[b] + mat33(
+                                T(gu64 * xd), T(gu64 * yd), gu, zero, T(gv64 * yd), gv, zero, zero, zero
+                            )
+                        if gd.shape[0] > 0:
+                            gxd = f64(Kb[0, 0]) * gu64
+                            gyd = f64(Kb[0, 1]) * gu64 + f64(Kb[1, 1]) * gv64
+                            gd[b] = gd[b] + lens._from64(
+                                lens._distort_vjp_dist64(model, d64, x, y, gxd, gyd), depth_i
+                            )
         wp.adjoint[t] += g_t
         wp.adjoint[R] += g_R
 
