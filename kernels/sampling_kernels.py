@@ -230,12 +230,13 @@ def _warp_frame_depth_lens(
     R = lie.pose_rotation(Tb)
     t = lie.pose_translation(Tb)
     row = r * W
-    dst = b * C * H * W + py * W
+    src = b * C * H * W
+    dst = src + py * W
     ray0 = b * ray_stride + py * W
     for x0 in range(0, W, wp.static(lens_rays.BLOCK)):
         lens_rays.warp_block(
             image, depth, rays, out, valid, K, dist, row + x0, ray0 + x0, wp.min(W - x0, wp.static(lens_rays.BLOCK)),
-            b, b * C * H * W, dst + x0, C, H, W, padding, model, R, t, Kb, db, zmin, tol,
+            b, src, dst + x0, C, H, W, padding, model, R, t, Kb, db, zmin, tol,
         )
 
 
