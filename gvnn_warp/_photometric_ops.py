@@ -325,6 +325,9 @@ def _error_setup_context(ctx, inputs, output):
     ref_image, ref_depth, live_image, pose, K, kind, scale, min_depth, needs = inputs
     _, count, g_ref, g_depth, g_pose, g_K = output
     ctx.mark_non_differentiable(count, g_ref, g_depth, g_pose, g_K)
+    # gradients of the outputs other than the error are never used: autograd passes None rather than
+    # a zero-filled tensor of each output's size (g_depth and g_ref are image-sized)
+    ctx.set_materialize_grads(False)
     ctx.save_for_backward(count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live_image, pose, K)
     ctx.params = (kind, scale, min_depth, needs)
 
