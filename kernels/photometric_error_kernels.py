@@ -6,9 +6,9 @@ rule). E_b is one scalar per batch item, so the forward pass can compute dS_b / 
 while it has every per-pixel quantity in registers, and the backward pass only scales those
 gradients by grad_output_b / (C n_b). No replay of the forward, no adjoint, no atomics:
 
-- :data:`error_lanes` (indexed by ``grad`` 0/1, compile-time): one thread per reference row, 8 pixels
-  of the row at a time as length-8 vectors (SIMD lanes, as the normal equations' kernel). With
-  ``grad`` 1 it also writes, per reference pixel, dS/d depth and dS/d ref_c (= -rho'(r_c)) to
+- :data:`error_lanes` (``grad`` 0 or 1, a run-time argument): one thread per reference row,
+  8 pixels of the row at a time as length-8 vectors (SIMD lanes, as the normal equations'
+  kernel). With ``grad`` 1 it also writes, per reference pixel, dS/d depth and dS/d ref_c (= -rho'(r_c)) to
   null-or-full buffers (every pixel is written, no zero-fill needed), and per row the 14 sums
   that the pose and intrinsics gradients are made of (:data:`ROW_SLOTS`).
   The gradient is analytic: rho'(r_c) times the bilinear interpolant's derivative at the sample
@@ -163,10 +163,12 @@ def channel8(
 ACC_SLOTS = wp.constant(18)
 
 
-def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0):
-    """The row kernel of photometric_error, 8 pixels at a time; with (static_grad 1) or without
-    the gradient; the penalty ``static_kind`` (>= 0) and channel count ``static_c`` (> 0) compiled
-    in, or read at run time."""
+def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
+    """The row kernel of photometric_error, 8 pixels at a time, with (``grad`` 1) or without the
+    gradient; the penalty ``static_kind`` (>= 0) and channel count ``static_c`` (> 0) compiled in, or
+    read at run time. ``grad`` is a run-time flag, not a compiled-in one: a value-only variant
+    compiled without the gradient's code came out as scalar code (LLVM's SLP vectoriser gave up
+    on it) and ran 2-2.4x slower than this kernel with the gradient skipped."""
 
     @wp.kernel(module="unique", enable_backward=False)
     def _error_lanes(
@@ -182,6 +184,7 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
         kind: int,
         scale: wp.float64,
         min_depth: wp.float64,
+        grad: int,
         rows: wp.array(dtype=wp.float64),
         acc: wp.array(dtype=Any),
         g_ref: wp.array(dtype=Any),
@@ -267,11 +270,10 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
                     e, g, cu, cv = channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last,
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
-                    if wp.static(static_grad != 0):
-                        gu = gu + cu
-                        gv = gv + cv
-                        if want_ref:
-                            store8(g_ref, ref0 + ch * hw, x0, W, -g)
+                    gu = gu + cu
+                    gv = gv + cv
+                    if want_ref:
+                        store8(g_ref, ref0 + ch * hw, x0, W, -g)
             else:
                 acc[a + 16] = zeros
                 acc[a + 17] = zeros
@@ -279,14 +281,13 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
                     e, g, cu, cv = channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last,
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
-                    if wp.static(static_grad != 0):
-                        acc[a + 16] = acc[a + 16] + cu
-                        acc[a + 17] = acc[a + 17] + cv
-                        if want_ref:
-                            store8(g_ref, ref0 + ch * hw, x0, W, -g)
+                    acc[a + 16] = acc[a + 16] + cu
+                    acc[a + 17] = acc[a + 17] + cv
+                    if want_ref:
+                        store8(g_ref, ref0 + ch * hw, x0, W, -g)
                 gu = acc[a + 16]
                 gv = acc[a + 17]
-            if wp.static(static_grad != 0):
+            if grad != 0:
                 dq0, dq1, dq2, dfx, ds, dcx, dfy, dcy = project8_grad(gu, gv, Kb, inv_z, xn, yn)
                 if want_depth:
                     gd = (
@@ -314,7 +315,7 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
                 acc[a + 15] = acc[a + 15] + dcy
         o = r * ROW_SLOTS
         n_slots = 2
-        if wp.static(static_grad != 0):
+        if grad != 0:
             n_slots = ROW_SLOTS
         for k in range(n_slots):
             rows[o + k] = ph.hsum8(acc[a + k])
@@ -331,20 +332,20 @@ def _make_error_lanes(static_grad: int, static_kind: int = -1, static_c: int = 0
     )
 
 
-# channel counts and penalties compiled in (others run the generic kernel of their variant; each
-# combination is a module of its own, compiled on first use)
+# channel counts and penalties compiled in (others run the generic kernel; each combination is a
+# module of its own, compiled on first use)
 STATIC_CHANNELS = (1, 3)
 STATIC_KINDS = (ph.KINDS["l1"],)  # the default
-_ERROR_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
+_ERROR_KERNELS: dict[tuple[int, int], FloatKernel] = {}
 _ERROR_LOCK = threading.Lock()
 
 
-def error_lanes(grad: int, kind: int, C: int) -> FloatKernel:
-    """The row kernel for value only (``grad`` 0) or value and gradient (1), compiled for the
-    penalty ``kind`` if in :data:`STATIC_KINDS` and the channel count ``C`` if in
+def error_lanes(kind: int, C: int) -> FloatKernel:
+    """The row kernel (value only or value and gradient, by its ``grad`` argument), compiled for
+    the penalty ``kind`` if in :data:`STATIC_KINDS` and the channel count ``C`` if in
     :data:`STATIC_CHANNELS` (constants fold branches away, which the vectorised code needs to be
     fast), else reading them at run time; made on first use."""
-    key = (int(grad), int(kind) if kind in STATIC_KINDS else -1, C if C in STATIC_CHANNELS else 0)
+    key = (int(kind) if kind in STATIC_KINDS else -1, C if C in STATIC_CHANNELS else 0)
     with _ERROR_LOCK:  # one kernel per key, also when threads ask at once
         if key not in _ERROR_KERNELS:
             _ERROR_KERNELS[key] = _make_error_lanes(*key)
