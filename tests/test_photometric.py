@@ -484,6 +484,27 @@ def test_error_only_wanted_gradients_and_layer():
     assert "cauchy" in repr(loss)
 
 
+def test_error_value_only_and_backward_without_zero_filled_gradients():
+    # the value with and without gradients comes from one kernel (its gradient part skipped at run
+    # time): bitwise the same; and the backward allocates no zero-filled gradient for the outputs it
+    # does not use (autograd materialised one of each output's size, an image for dS/d depth)
+    from gvnn_warp.photometric import photometric_error
+
+    ref, depth, live, pose, K, _ = scene(B=2, C=3, H=12, W=20, seed=31)
+    with torch.no_grad():
+        value, count = photometric_error(ref, depth, live, pose, K)
+    args = [t.clone().requires_grad_() for t in (depth, pose)]
+    err, n = photometric_error(ref, args[0], live, args[1], K)
+    assert torch.equal(err.detach(), value) and torch.equal(n, count)
+    loss = err.sum()
+    with torch.profiler.profile(record_shapes=True) as prof:
+        loss.backward()
+    fills = [(e.name, e.input_shapes) for e in prof.events() if e.name in ("aten::fill_", "aten::zero_", "aten::zeros")
+             and any(math.prod(s) >= depth.numel() for s in e.input_shapes if isinstance(s, list) and s)]
+    assert not fills, fills
+    assert args[0].grad is not None and args[0].grad.abs().sum() > 0
+
+
 def reference_error(ref, depth, live, pose, K, kind, c):
     """photometric_error through the reference ops: the row kernel and the mean, differentiated
     by their Warp adjoints (the fast path computes its gradient analytically in the forward pass)."""
