@@ -36,7 +36,7 @@ import warp as wp
 
 from . import camera, lie, sampler
 from . import photometric as ph
-from .kinds import FloatKernel
+from .kinds import LANES_MODULE_OPTIONS, FloatKernel
 from .sampling_kernels import INSIDE_TOLERANCE
 
 # float64 slots per row: S (sum of rho), n (valid pixels), dS/da0 (3), dS/dax (3), dS/dt (3),
@@ -170,7 +170,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
     compiled without the gradient's code came out as scalar code (LLVM's SLP vectoriser gave up
     on it) and ran 2-2.4x slower than this kernel with the gradient skipped."""
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     def _error_lanes(
         offset: int,
         ref_image: wp.array(dtype=Any),

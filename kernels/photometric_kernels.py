@@ -36,7 +36,7 @@ import warp as wp
 
 from . import camera, lie, sampler
 from . import photometric as ph
-from .launch import FloatKernel
+from .kinds import LANES_MODULE_OPTIONS, FloatKernel
 from .sampling_kernels import INSIDE_TOLERANCE
 
 # float64 slots per row of the normal equations' partial sums: 21 (upper triangle of J^T W J,
@@ -292,7 +292,7 @@ def _make_normal_equations_lanes(
     :func:`_make_normal_equations_rows`'s kernel (up to rounding: its running sums are per lane,
     in the input float type, added in float64 at the end of the row)."""
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     def _normal_equations_lanes(
         offset: int,
         ref_image: wp.array(dtype=Any),

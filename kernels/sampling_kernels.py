@@ -23,7 +23,7 @@ from typing import Any
 import warp as wp
 
 from . import camera, lens_rays, lie, sampler
-from .kinds import FloatKernel
+from .kinds import LANES_MODULE_OPTIONS, FloatKernel
 
 # A projection counts as inside the image when it lies in [-tol, W - 1 + tol] x [-tol, H - 1 + tol]
 # (pixel units): all four bilinear taps are then real pixels, up to rounding (so the identity pose
@@ -93,7 +93,7 @@ def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKern
 def _make_bilinear_sample_lanes(static_c: int, static_align: int, static_padding: int) -> FloatKernel:
     """The kernel of :func:`bilinear_sample_lanes` for one combination (static_c 0: C at run time)."""
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     def _bilinear_sample_lanes(
         offset: int,
         image: wp.array(dtype=Any),

@@ -172,3 +172,23 @@ def test_free_threaded_interpreter_runs_launches_on_one_thread(monkeypatch):
         assert torch.equal(G.so3_exp(omega), one)
     finally:
         L.set_num_threads(None)
+
+
+def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
+    from gvnn_warp.kernels import photometric_error_kernels as pek
+    from gvnn_warp.kernels import photometric_kernels as pk
+    from gvnn_warp.kernels import sampling_kernels as sk
+    from gvnn_warp.kernels.kinds import LANES_MODULE_OPTIONS
+
+    # the Warp default this works around: a cap on the SLP vectoriser's depth (if an upgrade drops
+    # it, lanes_compiler_flags has nothing left to do)
+    assert "-mllvm=-slp-recursion-max-depth=4" in wp.config.cpu_compiler_flags.split()
+    assert wcompat.lanes_compiler_flags("-O2 -march=native") == "-O2 -march=native"
+    both = "-march=native -mllvm=-slp-recursion-max-depth=4 -O3 -mllvm -slp-recursion-max-depth=2 -mllvm -foo=1"
+    assert wcompat.lanes_compiler_flags(both) == "-march=native -O3 -mllvm -foo=1"
+    flags = LANES_MODULE_OPTIONS["cpu_compiler_flags"]
+    assert "slp-recursion-max-depth" not in flags and "-march=native" in flags.split()
+    # every 8-lane kernel family compiles with them
+    for fk in (pek.error_lanes(0, 3), pk.normal_equations_lanes_for(0, 1, 2), pk.normal_equations_lanes[3],
+               sk.bilinear_sample_lanes(3, 0, 0)):
+        assert fk.kernel.module.options["cpu_compiler_flags"] == flags, fk
