@@ -281,14 +281,15 @@ def photometric_error_backward(
             g = torch.empty(like.shape, dtype=like.dtype)
             n = g.numel()
             if n:
-                launch(pek.scale_segments[ft], (n + 7) // 8,
+                launch(pek.scale_segments[ft], pek.scale_segments_dim(n),
                        [_descriptor(src, "scalar", ft), ge, n_d, n // max(B, 1), n, C], [_descriptor(g, "scalar", ft)])
             out.append(g)
     if needs & _NEED_LIVE and B * H * W > 0:
         # d error_b / d row_sum = grad_error_b / (C n_b) for the rows of b, then the rows' adjoint
         adj_rows = torch.empty(B * H, dtype=ref_image.dtype)
         ones = torch.ones(B * H, dtype=ref_image.dtype)  # alive while its descriptor is used
-        launch(pek.scale_segments[ft], (B * H + 7) // 8, [_descriptor(ones, "scalar", ft), ge, n_d, H, B * H, C],
+        launch(pek.scale_segments[ft], pek.scale_segments_dim(B * H),
+               [_descriptor(ones, "scalar", ft), ge, n_d, H, B * H, C],
                [_descriptor(adj_rows, "scalar", ft)])
         scratch = [torch.empty(B * H, dtype=ref_image.dtype) for _ in range(2)]
         arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [

@@ -709,3 +709,29 @@ def test_opcheck_photometric_ops():
     torch.library.opcheck(ops.photometric_error, (*(a.detach() for a in args), CODES["l1"], 1.0, MIN_DEPTH, 0))
     torch.library.opcheck(ops.photometric_normal_equations,
                           (ref, depth, live, live_depth, pose, Kb, CODES["tukey"], 0.4, MIN_DEPTH, 2.0))
+
+
+@pytest.mark.parametrize("seg, n", [(5, 35), (1, 3), (8, 8), (2049, 4098), (4097, 3 * 4097), (7, 7 * 700)])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
+    # the backward's scaling: segments shorter and longer than a launch element's span, runs that
+    # cross spans, short tails, a launch cut into one-element chunks; out[i] = src[i] g[b] / (C count[b]),
+    # b = i // seg
+    from gvnn_warp.kernels import photometric_error_kernels as pek
+
+    if threads > 1:
+        monkeypatch.setattr(launch, "_planner", lambda n, *a: [(i, 1, 0) for i in range(n)])
+
+    rng = np.random.default_rng(seg + n)
+    src, g = rng.standard_normal(n).astype(np.float32), rng.standard_normal(n // seg).astype(np.float32)
+    count = rng.integers(0, 50, n // seg).astype(np.float32)
+    count[0] = 0  # no valid pixel: factor 0
+    out = wp.array(np.full(n, np.nan, np.float32))
+    launch.set_num_threads(threads)
+    try:
+        launch.launch(pek.scale_segments[wp.float32], pek.scale_segments_dim(n),
+                      [wp.array(src), wp.array(g), wp.array(count), seg, n, 3], [out])
+    finally:
+        launch.set_num_threads(None)
+    factor = np.where(count > 0, g / (np.float32(3) * np.maximum(count, 1)), 0).astype(np.float32)
+    np.testing.assert_array_equal(out.numpy(), src * np.repeat(factor, seg))
