@@ -285,6 +285,10 @@ class RecordedLaunch:
     :func:`.threads.python_pool` (on a loaded host torch's spin-waiting OpenMP team cost such tight
     replay loops several times more). Only for kernels whose elements write only their own
     outputs, so any split gives the same bits. The thread count is read when recording.
+
+    The first call runs the recorded launches as Warp does (``Launch.launch``); the fast replay
+    functions are built on the second (building one costs several launches' worth of Python, so
+    a launch recorded to run once, e.g. by a torch op, does not pay for it).
     """
 
     def __init__(self, kernel: wp.Kernel, n: int, inputs: Sequence, outputs: Sequence = (), *,
@@ -296,7 +300,8 @@ class RecordedLaunch:
                       device="cpu", record_cmd=True)
             for k in range(pieces)
         ]
-        self._runs = [_compat.replay_function(c) for c in self._cmds]
+        self._runs = None  # the replay functions, built on the second call
+        self._called = False
 
     def set_arg(self, index: int, value) -> None:
         """Replace argument ``index`` (0 = the first after ``offset``) in every piece."""
@@ -307,7 +312,11 @@ class RecordedLaunch:
     def __call__(self) -> None:
         runs = self._runs
         if runs is None:
-            runs = self._runs = [_compat.replay_function(c) for c in self._cmds]
+            if self._called:
+                runs = self._runs = [_compat.replay_function(c) for c in self._cmds]
+            else:
+                self._called = True
+                runs = [c.launch for c in self._cmds]
         if len(runs) == 1:
             runs[0]()
         else:

@@ -381,3 +381,34 @@ _, status = os.waitpid(pid, 0)
 print(os.waitstatus_to_exitcode(status))
 """
     assert _run(code) == "0"
+
+
+@wp.kernel
+def _affine(offset: int, x: wp.array(dtype=float), a: float, y: wp.array(dtype=float)):
+    i = wp.tid() + offset
+    y[i] = x[i] * a + float(i)
+
+
+@once
+@pytest.mark.parametrize("n_threads", [1, 2])
+def test_recorded_launch_first_call_replays_and_set_arg(n_threads, monkeypatch):
+    # RecordedLaunch runs its pieces through Warp's Launch.launch on the first call and through the
+    # fast replay functions from the second on; set_arg takes effect on the next call either way
+    import numpy as np
+
+    monkeypatch.setattr(threads, "get_num_threads", lambda: n_threads)
+    n = 1000
+    x = wp.array(np.arange(n, dtype=np.float32))
+    y = wp.zeros(n, dtype=float)
+    rec = L.RecordedLaunch(_affine, n, [x, 2.0], [y], grain=100)
+    assert len(rec._cmds) == n_threads
+    expect = lambda a: np.arange(n, dtype=np.float32) * np.float32(a) + np.arange(n, dtype=np.float32)  # noqa: E731
+    for a in (2.0, 3.0, 5.0, 7.0):
+        if a != 2.0:
+            rec.set_arg(1, a)
+        y.fill_(-1.0)
+        rec()
+        np.testing.assert_array_equal(y.numpy(), expect(a))
+        y.fill_(-1.0)
+        rec()  # a second call with the same arguments: the replay functions
+        np.testing.assert_array_equal(y.numpy(), expect(a))
