@@ -218,8 +218,8 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
         ref0 = b * C * hw + py * W
         live0 = b * C * hw
         last = W - 1
-        want_ref = g_ref.shape[0] > 0
-        want_depth = g_depth.shape[0] > 0
+        want_ref = grad != 0 and g_ref.shape[0] > 0
+        want_depth = grad != 0 and g_depth.shape[0] > 0
         ones = ph.splat8(one)
         zeros = ph.splat8(zero)
         a = r * ACC_SLOTS
@@ -457,11 +457,12 @@ def segment_factor(grad_error: wp.array(dtype=Any), count: wp.array(dtype=Any), 
     return wp.where(nb > zero, grad_error[b] / (type(nb)(C) * wp.where(nb > zero, nb, type(nb)(1.0))), zero)
 
 
-# floats per element of scale_segments, and its fewest elements per chunk of a threaded launch:
-# splitting this copy pays for the chunks' fixed costs only past ~0.5 M floats (B=8 240x320 depth
-# gradients, 0.6 M floats: 0.33-0.45 ms on one thread, 0.67-0.90 ms cut into 8 chunks on 2)
+# values per element of scale_segments, and its fewest elements per chunk of a threaded launch
+# (one piece below ~1 M values): splitting this copy did not pay for the chunks' fixed costs at
+# 0.6 M values (B=8 240x320 depth gradients: 0.33-0.52 ms in one piece, 0.39-0.58 in two, 0.67-0.94
+# cut into 8 chunks on 2 threads) and broke even at 2.5 M
 SCALE_SPAN = wp.constant(2048)
-SCALE_GRAIN = 256
+SCALE_GRAIN = 512
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -477,15 +478,18 @@ def _scale_segments(
 ):
     # Element k: out[i] = src[i] segment_factor(b) for i in [k SCALE_SPAN, (k + 1) SCALE_SPAN) ∩ [0, n),
     # b = i // seg (segment = batch item), one run per segment: one factor, then 8 straight-line
-    # loads and stores at a time at indices the compiler knows are not negative (it merges them
-    # into vector instructions), then the run's last few one by one.
+    # loads and stores at a time (less loop overhead; at indices the compiler knows are not
+    # negative, which drops Warp's negative-index wrap; the arrays' run-time stride keeps LLVM from
+    # merging them into vector instructions), then the run's last few one by one. Every bound is
+    # written so that no int32 sum exceeds n (< 2^31): i + SCALE_SPAN or i + 8 would wrap for n
+    # within a span of 2^31.
     i = (wp.tid() + offset) * SCALE_SPAN
-    end = wp.min(i + SCALE_SPAN, n)
+    end = wp.min(i, n - SCALE_SPAN) + SCALE_SPAN
     while i < end:
         b = i // seg
-        stop = wp.min((b + 1) * seg, end)
+        stop = b * seg + wp.min(seg, end - b * seg)
         f = segment_factor(grad_error, count, b, C)
-        while i + 8 <= stop:
+        while stop - i >= 8:
             j = wp.max(i, 0)
             out[j] = src[j] * f
             out[j + 1] = src[j + 1] * f

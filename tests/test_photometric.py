@@ -735,3 +735,38 @@ def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
         launch.set_num_threads(None)
     factor = np.where(count > 0, g / (np.float32(3) * np.maximum(count, 1)), 0).astype(np.float32)
     np.testing.assert_array_equal(out.numpy(), src * np.repeat(factor, seg))
+
+
+_SCALE_NEAR_2_31 = r"""
+import sys, torch, warp as wp
+from gvnn_warp.kernels import photometric_error_kernels as pek, _compat
+for arg in sys.argv[1:]:
+    n, seg = map(int, arg.split(","))
+    S = ((n - 1) // pek.SCALE_SPAN) * pek.SCALE_SPAN  # the last launch element's first value
+    m = n - S
+    src = torch.arange(1, m + 65, dtype=torch.float32)
+    out = torch.full((m + 64,), float("nan"))  # 64 guard values past index n - 1
+    g = torch.arange(1, n // seg + 2, dtype=torch.float32)
+    count = torch.ones(n // seg + 1)
+    # descriptors of length n whose data starts S values before the buffers: only the last
+    # element's values are real memory (a write below S faults, one at or past n lands in the guard)
+    shifted = lambda t: _compat.array_descriptor(t.data_ptr() - S * 4, n, 4)
+    plain = lambda t: _compat.array_descriptor(t.data_ptr(), t.numel(), 4)
+    wp.launch(pek.scale_segments[wp.float32], dim=1, inputs=[(n - 1) // pek.SCALE_SPAN, shifted(src), plain(g),
+              plain(count), seg, n, 1], outputs=[shifted(out)], device="cpu")
+    want = src[:m] * g[(torch.arange(S, n) // seg)]
+    print(arg, int(torch.equal(out[:m], want)), int((~out[m:].isnan()).sum()), flush=True)
+"""
+
+
+def test_scale_segments_last_element_near_2_31():
+    # int32 bounds: n up to 2^31 - 1 values (what the ops accept); the last launch element writes
+    # exactly its values and none past n (in a child process: a wrapped index faults there)
+    import subprocess
+    import sys
+
+    cases = [f"{n},{seg}" for n in (2**31 - 1, 2**31 - 8, 2**31 - 100, 2**31 - 2047, 2**31 - 2048)
+             for seg in (n, 2**20)]
+    r = subprocess.run([sys.executable, "-c", _SCALE_NEAR_2_31, *cases], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, (r.stdout, r.stderr[-2000:])
+    assert r.stdout.split("\n")[-len(cases) - 1:-1] == [f"{c} 1 0" for c in cases], r.stdout
