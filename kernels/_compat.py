@@ -122,8 +122,11 @@ _SLP_DEPTH_FLAG = "-slp-recursion-max-depth="
 
 def lanes_compiler_flags(flags: str | None = None) -> str:
     """CPU compiler flags for the 8-lane kernels: ``flags`` (default: ``wp.config.cpu_compiler_flags``
-    when this module is imported; None there means ``"-march=native"``, as Warp resolves it) without
-    any limit on the depth of LLVM's SLP vectoriser, so it runs at LLVM's default (12).
+    as it is when called; None there means ``"-march=native"``, as Warp resolves it) without any
+    limit on the depth of LLVM's SLP vectoriser, so it runs at LLVM's default (12).
+    :data:`.kinds.LANES_MODULE_OPTIONS` calls it once, when ``gvnn_warp.kernels`` is imported: a
+    change to ``wp.config.cpu_compiler_flags`` made later does not reach the 8-lane kernels (a
+    module option replaces the global setting), so set it before importing gvnn_warp.
 
     Warp 1.19's default flags cap that depth at 4. The 8-lane kernels are written as length-8
     vector operations, and LLVM turns them into SIMD instructions only where that vectoriser finds
@@ -137,15 +140,18 @@ def lanes_compiler_flags(flags: str | None = None) -> str:
         flags = wp.config.cpu_compiler_flags
     if flags is None:
         flags = "-march=native"
+    def is_cap(option: str) -> bool:  # LLVM takes its options with one dash or two
+        return option.lstrip("-").startswith(_SLP_DEPTH_FLAG.lstrip("-"))
+
     out: list[str] = []
     words = flags.split()
     i = 0
     while i < len(words):
         w = words[i]
-        if w.startswith("-mllvm=" + _SLP_DEPTH_FLAG):
+        if w.startswith("-mllvm=") and is_cap(w.removeprefix("-mllvm=")):
             i += 1
             continue
-        if w == "-mllvm" and i + 1 < len(words) and words[i + 1].startswith(_SLP_DEPTH_FLAG):
+        if w == "-mllvm" and i + 1 < len(words) and is_cap(words[i + 1]):
             i += 2
             continue
         out.append(w)

@@ -30,7 +30,8 @@ vec16f = wp.types.vector(length=16, dtype=wp.float32)  # 8 (x, y) pairs
 vec16d = wp.types.vector(length=16, dtype=wp.float64)
 
 # module options of the 8-lane kernels (``module_options=`` of their ``@wp.kernel``): LLVM's SLP
-# vectoriser at its own default depth, see :func:`._compat.lanes_compiler_flags`
+# vectoriser at its own default depth, see :func:`._compat.lanes_compiler_flags` (Warp's CPU flags
+# as they are when this module is imported)
 LANES_MODULE_OPTIONS = {"cpu_compiler_flags": _compat.lanes_compiler_flags()}
 
 # kind -> (element shape, {float type: Warp element type})

@@ -186,6 +186,8 @@ def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     assert wcompat.lanes_compiler_flags("-O2 -march=native") == "-O2 -march=native"
     both = "-march=native -mllvm=-slp-recursion-max-depth=4 -O3 -mllvm -slp-recursion-max-depth=2 -mllvm -foo=1"
     assert wcompat.lanes_compiler_flags(both) == "-march=native -O3 -mllvm -foo=1"
+    dashes = "-mllvm=--slp-recursion-max-depth=4 -mllvm --slp-recursion-max-depth=3 -mllvm=-slp-threshold=1"
+    assert wcompat.lanes_compiler_flags(dashes) == "-mllvm=-slp-threshold=1"
     flags = LANES_MODULE_OPTIONS["cpu_compiler_flags"]
     assert "slp-recursion-max-depth" not in flags and "-march=native" in flags.split()
     # every 8-lane kernel family compiles with them

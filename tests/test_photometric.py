@@ -484,17 +484,19 @@ def test_error_only_wanted_gradients_and_layer():
     assert "cauchy" in repr(loss)
 
 
-def test_error_value_only_and_backward_without_zero_filled_gradients():
+@pytest.mark.parametrize("C, kind, c", [(3, "l1", 1.0), (2, "cauchy", 0.2), (1, "huber", 0.1)])  # compiled-in and
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])  # run-time channel counts and penalties
+def test_error_value_only_and_backward_without_zero_filled_gradients(C, kind, c, dtype):
     # the value with and without gradients comes from one kernel (its gradient part skipped at run
     # time): bitwise the same; and the backward allocates no zero-filled gradient for the outputs it
     # does not use (autograd materialised one of each output's size, an image for dS/d depth)
     from gvnn_warp.photometric import photometric_error
 
-    ref, depth, live, pose, K, _ = scene(B=2, C=3, H=12, W=20, seed=31)
+    ref, depth, live, pose, K, _ = scene(B=2, C=C, H=12, W=20, seed=31, dtype=dtype)
     with torch.no_grad():
-        value, count = photometric_error(ref, depth, live, pose, K)
+        value, count = photometric_error(ref, depth, live, pose, K, robust=kind, scale=c)
     args = [t.clone().requires_grad_() for t in (depth, pose)]
-    err, n = photometric_error(ref, args[0], live, args[1], K)
+    err, n = photometric_error(ref, args[0], live, args[1], K, robust=kind, scale=c)
     assert torch.equal(err.detach(), value) and torch.equal(n, count)
     loss = err.sum()
     with torch.profiler.profile(record_shapes=True) as prof:
