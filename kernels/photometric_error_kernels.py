@@ -131,19 +131,21 @@ def store8(a: wp.array(dtype=Any), base: int, x0: int, W: int, v: Any):
 
 @wp.func
 def channel8(
-    live_image: wp.array(dtype=Any), base: int, ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
+    live_planes: wp.array2d(dtype=Any), plane: int, ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
     i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any, m11: Any, wx1: Any, wy1: Any, ok: Any,
     kind: int, c: Any,
 ):
-    """One channel of an 8-lane step: the residuals r = live(taps of plane ``base``) -
+    """One channel of an 8-lane step: the residuals r = live(taps of plane ``plane``) -
     ref[ref_i + x0 ...] where ``ok`` (and finite), and returns (rho(r), rho'(r), rho'(r) d live/du,
     rho'(r) d live/dv), 0 in masked lanes."""
     one = type(c)(1.0)
     zeros = ph.splat8(type(c)(0.0))
     big = type(c)(1.0e30)
     val, gx, gy = ph.interpolate8(
-        sampler.gather_lanes(live_image, base, i00, m00), sampler.gather_lanes(live_image, base, i10, m10),
-        sampler.gather_lanes(live_image, base, i01, m01), sampler.gather_lanes(live_image, base, i11, m11),
+        sampler.gather_plane_lanes(live_planes, plane, i00, m00),
+        sampler.gather_plane_lanes(live_planes, plane, i10, m10),
+        sampler.gather_plane_lanes(live_planes, plane, i01, m01),
+        sampler.gather_plane_lanes(live_planes, plane, i11, m11),
         wx1, wy1,
     )
     res = val - ph.load8(ref_image, ref_i, x0, last)
@@ -190,11 +192,12 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
         g_ref: wp.array(dtype=Any),
         g_depth: wp.array(dtype=Any),
     ):
-        # Element r = one reference row (flat (b, y)); images flat (B, C, H, W), depth (B, H, W);
-        # rows: ROW_SLOTS float64 per row; acc: ACC_SLOTS 8-lane vectors per row (scratch);
-        # g_ref (B, C, H, W) and g_depth (B, H, W): dS/d ref_image, dS/d ref_depth, or null arrays
-        # (not wanted). Masks are 0/1 lanes; every value a masked lane computes is finite (its
-        # inputs are replaced first), so products with masks are exact.
+        # Element r = one reference row (flat (b, y)); images flat (B, C, H, W) (the live image
+        # contiguous: it is read through a 2-D view of its memory), depth (B, H, W); rows:
+        # ROW_SLOTS float64 per row; acc: ACC_SLOTS 8-lane vectors per row (scratch); g_ref
+        # (B, C, H, W) and g_depth (B, H, W): dS/d ref_image, dS/d ref_depth, or null arrays (not
+        # wanted). Masks are 0/1 lanes; every value a masked lane computes is finite (its inputs
+        # are replaced first), so products with masks are exact.
         r = wp.tid() + offset
         b = r // H
         py = r - b * H
@@ -216,7 +219,8 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
         t = lie.pose_translation(Tb)
         row = r * W
         ref0 = b * C * hw + py * W
-        live0 = b * C * hw
+        # the live image's planes, (B C, H W), read through a view made here (see sampler.planes_view)
+        live_planes = sampler.planes_view(live_image, hw)
         last = W - 1
         want_ref = grad != 0 and g_ref.shape[0] > 0
         want_depth = grad != 0 and g_depth.shape[0] > 0
@@ -267,7 +271,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
             gv = ph.splat8(zero)
             if wp.static(static_c > 0):  # channels unrolled: gu, gv stay in registers
                 for ch in range(wp.static(static_c)):
-                    e, g, cu, cv = channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last,
+                    e, g, cu, cv = channel8(live_planes, b * C + ch, ref_image, ref0 + ch * hw, x0, last,
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
                     gu = gu + cu
@@ -278,7 +282,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
                 acc[a + 16] = zeros
                 acc[a + 17] = zeros
                 for ch in range(C):
-                    e, g, cu, cv = channel8(live_image, live0 + ch * hw, ref_image, ref0 + ch * hw, x0, last,
+                    e, g, cu, cv = channel8(live_planes, b * C + ch, ref_image, ref0 + ch * hw, x0, last,
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
                     acc[a + 16] = acc[a + 16] + cu
