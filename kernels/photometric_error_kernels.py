@@ -131,21 +131,19 @@ def store8(a: wp.array(dtype=Any), base: int, x0: int, W: int, v: Any):
 
 @wp.func
 def channel8(
-    live_planes: wp.array2d(dtype=Any), plane: int, ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
+    live_plane: wp.array(dtype=Any), ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
     i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any, m11: Any, wx1: Any, wy1: Any, ok: Any,
     kind: int, c: Any,
 ):
-    """One channel of an 8-lane step: the residuals r = live(taps of plane ``plane``) -
+    """One channel of an 8-lane step: the residuals r = live(taps of ``live_plane``) -
     ref[ref_i + x0 ...] where ``ok`` (and finite), and returns (rho(r), rho'(r), rho'(r) d live/du,
     rho'(r) d live/dv), 0 in masked lanes."""
     one = type(c)(1.0)
     zeros = ph.splat8(type(c)(0.0))
     big = type(c)(1.0e30)
     val, gx, gy = ph.interpolate8(
-        sampler.gather_plane_lanes(live_planes, plane, i00, m00),
-        sampler.gather_plane_lanes(live_planes, plane, i10, m10),
-        sampler.gather_plane_lanes(live_planes, plane, i01, m01),
-        sampler.gather_plane_lanes(live_planes, plane, i11, m11),
+        sampler.gather_lanes(live_plane, 0, i00, m00), sampler.gather_lanes(live_plane, 0, i10, m10),
+        sampler.gather_lanes(live_plane, 0, i01, m01), sampler.gather_lanes(live_plane, 0, i11, m11),
         wx1, wy1,
     )
     res = val - ph.load8(ref_image, ref_i, x0, last)
@@ -271,7 +269,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
             gv = ph.splat8(zero)
             if wp.static(static_c > 0):  # channels unrolled: gu, gv stay in registers
                 for ch in range(wp.static(static_c)):
-                    e, g, cu, cv = channel8(live_planes, b * C + ch, ref_image, ref0 + ch * hw, x0, last,
+                    e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, x0, last,
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
                     gu = gu + cu
@@ -282,7 +280,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
                 acc[a + 16] = zeros
                 acc[a + 17] = zeros
                 for ch in range(C):
-                    e, g, cu, cv = channel8(live_planes, b * C + ch, ref_image, ref0 + ch * hw, x0, last,
+                    e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, x0, last,
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
                     acc[a + 16] = acc[a + 16] + cu

@@ -419,27 +419,10 @@ def gather_lanes(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
 def planes_view(a: wp.array(dtype=Any), plane_size: int):
     """A contiguous flat array of planes of ``plane_size`` values seen as a 2-D (plane, value)
     array over the same memory. Made in the kernel, its element stride is a compile-time constant,
-    so :func:`gather_plane_lanes` computes a tap's address once for every plane it reads (the
-    flat array's run-time stride made the compiler multiply each plane's index anew)."""
+    and so is that of a plane taken from it (``view[p]``, a 1-D array): :func:`gather_lanes` from
+    such planes computes a tap's address once for every plane it reads (the flat array's run-time
+    stride made the compiler multiply each plane's index anew)."""
     return wp.array(ptr=a.ptr, shape=(a.shape[0] // plane_size, plane_size), dtype=a.dtype)
-
-
-@wp.func
-def gather_plane_lanes(a: wp.array2d(dtype=Any), plane: int, idx: Any, mask: Any):
-    """:func:`gather_lanes` from plane ``plane`` of a :func:`planes_view`: (a[plane, idx[k]] where
-    mask[k] != 0, else 0) for the 8 lanes, ``idx`` float-valued addresses in the plane."""
-    zero = type(idx[0])(0.0)
-    p = wp.max(plane, 0)
-    return type(idx)(
-        wp.where(mask[0] != zero, a[p, wp.max(int(idx[0]), 0)], zero),
-        wp.where(mask[1] != zero, a[p, wp.max(int(idx[1]), 0)], zero),
-        wp.where(mask[2] != zero, a[p, wp.max(int(idx[2]), 0)], zero),
-        wp.where(mask[3] != zero, a[p, wp.max(int(idx[3]), 0)], zero),
-        wp.where(mask[4] != zero, a[p, wp.max(int(idx[4]), 0)], zero),
-        wp.where(mask[5] != zero, a[p, wp.max(int(idx[5]), 0)], zero),
-        wp.where(mask[6] != zero, a[p, wp.max(int(idx[6]), 0)], zero),
-        wp.where(mask[7] != zero, a[p, wp.max(int(idx[7]), 0)], zero),
-    )
 
 
 @wp.func
