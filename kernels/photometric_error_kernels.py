@@ -244,26 +244,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
             us = ph.select8(ok, u, zeros)
             vs = ph.select8(ok, v, zeros)
             # taps as in sampler.sample_lanes: float addresses in the plane, 0/1 masks (in the image)
-            fx0 = sampler.floor_lanes(us)
-            fy0 = sampler.floor_lanes(vs)
-            wx1 = us - fx0
-            wy1 = vs - fy0
-            mx0 = sampler.clamp_lanes(fx0 + ones, zero, one)
-            mx1 = sampler.clamp_lanes(ph.splat8(fW - one) - fx0, zero, one)
-            my0 = sampler.clamp_lanes(fy0 + ones, zero, one)
-            my1 = sampler.clamp_lanes(ph.splat8(fH - one) - fy0, zero, one)
-            xa = sampler.clamp_lanes(fx0, zero, fW - one)
-            xb = sampler.clamp_lanes(fx0 + ones, zero, fW - one)
-            ra = sampler.clamp_lanes(fy0, zero, fH - one) * fW
-            rb = sampler.clamp_lanes(fy0 + ones, zero, fH - one) * fW
-            i00 = ra + xa
-            i10 = ra + xb
-            i01 = rb + xa
-            i11 = rb + xb
-            m00 = wp.cw_mul(my0, mx0)
-            m10 = wp.cw_mul(my0, mx1)
-            m01 = wp.cw_mul(my1, mx0)
-            m11 = wp.cw_mul(my1, mx1)
+            i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1 = sampler.taps_lanes(us, vs, fW, fH)
             acc[a + 1] = acc[a + 1] + ok
             gu = ph.splat8(zero)
             gv = ph.splat8(zero)

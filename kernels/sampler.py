@@ -416,6 +416,35 @@ def gather_lanes(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
 
 
 @wp.func
+def taps_lanes(x: Any, y: Any, fW: Any, fH: Any):
+    """The bilinear taps of 8 positions (x, y) in [-1, W - 1] x [-1, H - 1] (``fW``, ``fH``: W, H
+    as floats): returns (a00, a10, a01, a11, m00, m10, m01, m11, wx1, wy1), the float addresses
+    y W + x of the taps (x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1) in a plane, clamped
+    into it (valid addresses also for taps outside), their 0/1 masks (1 where the tap is in the
+    image) and the fractional parts of x and y. For :func:`gather_lanes`."""
+    one = type(fW)(1.0)
+    zero = type(fW)(0.0)
+    ones = type(x)(one)
+    fx0 = floor_lanes(x)
+    fy0 = floor_lanes(y)
+    # fx0 is an integer in [-1, W - 1]: tap column fx0 is in the image iff fx0 >= 0, fx0 + 1 iff
+    # fx0 <= W - 2 (exact as clamps, which vectorise); likewise rows
+    mx0 = clamp_lanes(fx0 + ones, zero, one)
+    mx1 = clamp_lanes(type(x)(fW - one) - fx0, zero, one)
+    my0 = clamp_lanes(fy0 + ones, zero, one)
+    my1 = clamp_lanes(type(x)(fH - one) - fy0, zero, one)
+    xa = clamp_lanes(fx0, zero, fW - one)
+    xb = clamp_lanes(fx0 + ones, zero, fW - one)
+    ra = clamp_lanes(fy0, zero, fH - one) * fW
+    rb = clamp_lanes(fy0 + ones, zero, fH - one) * fW
+    return (
+        ra + xa, ra + xb, rb + xa, rb + xb,
+        wp.cw_mul(my0, mx0), wp.cw_mul(my0, mx1), wp.cw_mul(my1, mx0), wp.cw_mul(my1, mx1),
+        x - fx0, y - fy0,
+    )
+
+
+@wp.func
 def planes_view(a: wp.array(dtype=Any), plane_size: int):
     """A contiguous flat array of planes of ``plane_size`` values seen as a 2-D (plane, value)
     array over the same memory. Made in the kernel, its element stride is a compile-time constant,
