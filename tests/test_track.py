@@ -378,6 +378,9 @@ def test_odometry_benchmark_runs_without_open3d(tmp_path):
     r = json.loads((tmp_path / "r.json").read_text())["results"]["80x60"]["gvnn_warp DirectAligner"]
     assert r["basin_5_pairs"] == 3 and 0 <= r["basin_5"] <= 1 and 0 <= r["failed_pairs"] <= 7
     assert r["ms_per_pair"] > 0 and 0 < r["rpe_trans_rmse_cm"] < 1.0 and r["ate_alignment"].startswith("SE(3)")
+    ne = json.loads((tmp_path / "r.json").read_text())["results"]["80x60 normal equations"]
+    assert ne["pairs"] == 7 and 0 < ne["ms_per_call_median"] and "fraction_of_open3d_pair" not in ne
+    assert "normal equations (pure Warp, out=, C=1, 80x60)" in out.stdout
 
 
 def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch):
