@@ -417,11 +417,12 @@ def gather_lanes(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
 
 @wp.func
 def taps_lanes(x: Any, y: Any, fW: Any, fH: Any):
-    """The bilinear taps of 8 positions (x, y) in [-1, W - 1] x [-1, H - 1] (``fW``, ``fH``: W, H
-    as floats): returns (a00, a10, a01, a11, m00, m10, m01, m11, wx1, wy1), the float addresses
-    y W + x of the taps (x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1) in a plane, clamped
-    into it (valid addresses also for taps outside), their 0/1 masks (1 where the tap is in the
-    image) and the fractional parts of x and y. For :func:`gather_lanes`."""
+    """The bilinear taps of 8 positions (x, y) in [-1, W) x [-1, H) (a precondition: the masks are
+    exact there and only there; ``fW``, ``fH``: W, H as floats). Returns (a00, a10, a01, a11, m00,
+    m10, m01, m11, wx1, wy1): the float addresses y W + x of the taps (x0, y0), (x0 + 1, y0),
+    (x0, y0 + 1), (x0 + 1, y0 + 1) in a plane, clamped into it (valid addresses also for taps
+    outside), their 0/1 masks (1 where the tap is in the image) and the fractional parts of x and
+    y. For :func:`gather_lanes`."""
     one = type(fW)(1.0)
     zero = type(fW)(0.0)
     ones = type(x)(one)

@@ -378,9 +378,23 @@ def test_odometry_benchmark_runs_without_open3d(tmp_path):
     r = json.loads((tmp_path / "r.json").read_text())["results"]["80x60"]["gvnn_warp DirectAligner"]
     assert r["basin_5_pairs"] == 3 and 0 <= r["basin_5"] <= 1 and 0 <= r["failed_pairs"] <= 7
     assert r["ms_per_pair"] > 0 and 0 < r["rpe_trans_rmse_cm"] < 1.0 and r["ate_alignment"].startswith("SE(3)")
-    ne = json.loads((tmp_path / "r.json").read_text())["results"]["80x60 normal equations"]
+    ne = json.loads((tmp_path / "r.json").read_text())["normal_equations"]["80x60"]
     assert ne["pairs"] == 7 and 0 < ne["ms_per_call_median"] and "fraction_of_open3d_pair" not in ne
+    # probed at the true relative pose of the last pair: 1.4e-4 per pixel here (identity 4.4e-4, inverted 9.6e-4)
+    assert 0 < ne["last_pair_cost_per_pixel"] < 3e-4
     assert "normal equations (pure Warp, out=, C=1, 80x60)" in out.stdout
+
+
+def test_odometry_benchmark_normal_equations_summary():
+    from benchmarks.odometry import NE_TARGET_FRACTION, normal_equations_summary
+
+    ne, line = normal_equations_summary([1.0, 3.0, 2.0, 10.0], "320x240", {"ms_per_pair_median": 40.0})
+    assert ne == {"ms_per_call_median": 2.5, "ms_per_call_mean": 4.0, "pairs": 4, "fraction_of_open3d_pair": 2.5 / 40}
+    assert "0.062x Open3D's median time per pair" in line and f"{NE_TARGET_FRACTION:.3f}x" in line
+    ne, line = normal_equations_summary([1.0], "640x480", {"ms_per_pair_median": 40.0})
+    assert ne["fraction_of_open3d_pair"] == 1 / 40 and "target" not in line  # the target is at 320x240 only
+    ne, line = normal_equations_summary([1.0], "320x240", None)
+    assert "fraction_of_open3d_pair" not in ne and "Open3D" not in line
 
 
 def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch):
