@@ -226,7 +226,7 @@ def photometric_error(
         arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
             _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
         acc = torch.empty(B * H * pek.ACC_SLOTS * 8, dtype=ref_image.dtype)  # the rows' running sums
-        launch(pek.error_lanes(kind, C)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth, grad],
+        launch(pek.error_lanes(kind, C, W)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth, grad],
                [rows_d, _descriptor(acc, "vec8", ft), _descriptor(outs[2], "scalar", ft),
                 _descriptor(outs[3], "scalar", ft)])
     else:

@@ -110,33 +110,34 @@ def psi8(r: Any, kind: int, c: Any):
 
 
 @wp.func
-def store8(a: wp.array(dtype=Any), base: int, x0: int, W: int, v: Any):
-    """a[base + x0 + k] = v[k] for the lanes k with x0 + k < W. (Indices written as max(i, 0) + k
-    let the compiler see they are not negative, so it drops Warp's negative-index wrap and merges
-    the 8 stores.)"""
-    i = wp.max(base + x0, 0)
-    if x0 + 8 <= W:
-        a[i] = v[0]
-        a[i + 1] = v[1]
-        a[i + 2] = v[2]
-        a[i + 3] = v[3]
-        a[i + 4] = v[4]
-        a[i + 5] = v[5]
-        a[i + 6] = v[6]
-        a[i + 7] = v[7]
+def store8(a: wp.array(dtype=Any), i: int, first: int, end: int, v: Any):
+    """a[i + k] = v[k] for the lanes first <= k < end (a step's own pixels, see
+    :func:`.photometric.step_start`). (Indices written as max(i, 0) + k let the compiler see they are
+    not negative, so it drops Warp's negative-index wrap.)"""
+    j = wp.max(i, 0)
+    if first == 0 and end == 8:
+        a[j] = v[0]
+        a[j + 1] = v[1]
+        a[j + 2] = v[2]
+        a[j + 3] = v[3]
+        a[j + 4] = v[4]
+        a[j + 5] = v[5]
+        a[j + 6] = v[6]
+        a[j + 7] = v[7]
     else:
-        for k in range(W - x0):
-            a[i + k] = v[k]
+        for k in range(first, end):
+            a[j + k] = v[k]
 
 
 @wp.func
 def channel8(
-    live_plane: wp.array(dtype=Any), ref_image: wp.array(dtype=Any), ref_i: int, x0: int, last: int,
+    live_plane: wp.array(dtype=Any), ref_image: wp.array(dtype=Any), ref_i: int, xs: int, last: int, narrow: int,
     i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any, m11: Any, wx1: Any, wy1: Any, ok: Any,
     kind: int, c: Any,
 ):
-    """One channel of an 8-lane step: the residuals r = live(taps of ``live_plane``) -
-    ref[ref_i + x0 ...] where ``ok`` (and finite), and returns (rho(r), rho'(r), rho'(r) d live/du,
+    """One channel of an 8-lane step that reads from pixel ``xs`` (:func:`.photometric.step_load8`):
+    the residuals r = live(taps of ``live_plane``) - ref[ref_i + xs ...] where ``ok`` (and finite),
+    and returns (rho(r), rho'(r), rho'(r) d live/du,
     rho'(r) d live/dv), 0 in masked lanes."""
     one = type(c)(1.0)
     zeros = ph.splat8(type(c)(0.0))
@@ -146,7 +147,7 @@ def channel8(
         sampler.gather_lanes(live_plane, 0, i01, m01), sampler.gather_lanes(live_plane, 0, i11, m11),
         wx1, wy1,
     )
-    res = val - ph.load8(ref_image, ref_i, x0, last)
+    res = val - ph.step_load8(ref_image, ref_i, xs, last, narrow)
     # finite residual and derivatives (NaN and inf fail the compare)
     m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gx, -gx) + wp.max(gy, -gy), -one, big))
     rr = ph.select8(m, res, zeros)
@@ -163,10 +164,11 @@ def channel8(
 ACC_SLOTS = wp.constant(18)
 
 
-def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
+def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: int = 0):
     """The row kernel of photometric_error, 8 pixels at a time, with (``grad`` 1) or without the
     gradient; the penalty ``static_kind`` (>= 0) and channel count ``static_c`` (> 0) compiled in, or
-    read at run time. ``grad`` is a run-time flag, not a compiled-in one: a value-only variant
+    read at run time; ``static_narrow`` 1 for rows narrower than 8 pixels (whose steps cannot read
+    8 straight values, see :func:`.photometric.step_start`). ``grad`` is a run-time flag, not a compiled-in one: a value-only variant
     compiled without the gradient's code came out as scalar code (LLVM's SLP vectoriser gave up
     on it) and ran 2-2.4x slower than this kernel with the gradient skipped."""
 
@@ -229,12 +231,15 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
             acc[a + k] = zeros
         for k8 in range((W + 7) // 8):
             x0 = k8 * 8
-            x = ph.iota8(x0, one)
-            d = ph.load8(ref_depth, row, x0, last)
-            # lanes past the row's end and invalid depths are masked; their depth is replaced by 1
+            xs = ph.step_start(x0, W, wp.static(static_narrow))  # the step reads pixels xs .. xs + 7
+            first = x0 - xs  # the step's own pixels are lanes first .. end - 1
+            end = wp.min(W - xs, 8)
+            x = ph.iota8(xs, one)
+            d = ph.step_load8(ref_depth, row, xs, last, wp.static(static_narrow))
+            # lanes outside the step's own pixels and invalid depths are masked; their depth is replaced by 1
             mdep = ph.open_mask8(d, zmin, big)
-            if x0 + 8 > W:  # the row's last, partial block
-                mdep = wp.cw_mul(mdep, ph.closed_mask8(x, zero, fW - one))
+            if x0 + 8 > W:  # the row's last, partial block: its own pixels are x0 .. W - 1
+                mdep = wp.cw_mul(mdep, ph.closed_mask8(x, type(one)(x0), fW - one))
             dd = ph.select8(mdep, d, ones)
             q0, q1, q2, inv_z, xn, yn, u, v = project8(a0, ax, t, Kb, x, dd, zmin)
             ok = wp.cw_mul(
@@ -250,24 +255,26 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
             gv = ph.splat8(zero)
             if wp.static(static_c > 0):  # channels unrolled: gu, gv stay in registers
                 for ch in range(wp.static(static_c)):
-                    e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, x0, last,
+                    e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, xs, last,
+                                            wp.static(static_narrow),
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
                     gu = gu + cu
                     gv = gv + cv
                     if want_ref:
-                        store8(g_ref, ref0 + ch * hw, x0, W, -g)
+                        store8(g_ref, ref0 + ch * hw + xs, first, end, -g)
             else:
                 acc[a + 16] = zeros
                 acc[a + 17] = zeros
                 for ch in range(C):
-                    e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, x0, last,
+                    e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, xs, last,
+                                            wp.static(static_narrow),
                                             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1, ok, kindc, c)
                     acc[a] = acc[a] + e
                     acc[a + 16] = acc[a + 16] + cu
                     acc[a + 17] = acc[a + 17] + cv
                     if want_ref:
-                        store8(g_ref, ref0 + ch * hw, x0, W, -g)
+                        store8(g_ref, ref0 + ch * hw + xs, first, end, -g)
                 gu = acc[a + 16]
                 gv = acc[a + 17]
             if grad != 0:
@@ -278,7 +285,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0):
                         + wp.cw_mul(dq1, ph.splat8(a0[1]) + x * ax[1])
                         + wp.cw_mul(dq2, ph.splat8(a0[2]) + x * ax[2])
                     )
-                    store8(g_depth, row, x0, W, gd)
+                    store8(g_depth, row + xs, first, end, gd)
                 w0 = wp.cw_mul(dq0, dd)
                 w1 = wp.cw_mul(dq1, dd)
                 w2 = wp.cw_mul(dq2, dd)
@@ -323,12 +330,13 @@ _ERROR_KERNELS: dict[tuple[int, int], FloatKernel] = {}
 _ERROR_LOCK = threading.Lock()
 
 
-def error_lanes(kind: int, C: int) -> FloatKernel:
+def error_lanes(kind: int, C: int, W: int = 8) -> FloatKernel:
     """The row kernel (value only or value and gradient, by its ``grad`` argument), compiled for
     the penalty ``kind`` if in :data:`STATIC_KINDS` and the channel count ``C`` if in
     :data:`STATIC_CHANNELS` (constants fold branches away, which the vectorised code needs to be
-    fast), else reading them at run time; made on first use."""
-    key = (int(kind) if kind in STATIC_KINDS else -1, C if C in STATIC_CHANNELS else 0)
+    fast), else reading them at run time, and for rows of ``W`` pixels: at least 8 (the usual
+    kernel) or fewer; made on first use."""
+    key = (int(kind) if kind in STATIC_KINDS else -1, C if C in STATIC_CHANNELS else 0, int(W < 8))
     with _ERROR_LOCK:  # one kernel per key, also when threads ask at once
         if key not in _ERROR_KERNELS:
             _ERROR_KERNELS[key] = _make_error_lanes(*key)
