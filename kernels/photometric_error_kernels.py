@@ -168,9 +168,10 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
     """The row kernel of photometric_error, 8 pixels at a time, with (``grad`` 1) or without the
     gradient; the penalty ``static_kind`` (>= 0) and channel count ``static_c`` (> 0) compiled in, or
     read at run time; ``static_narrow`` 1 for rows narrower than 8 pixels (whose steps cannot read
-    8 straight values, see :func:`.photometric.step_start`). ``grad`` is a run-time flag, not a compiled-in one: a value-only variant
-    compiled without the gradient's code came out as scalar code (LLVM's SLP vectoriser gave up
-    on it) and ran 2-2.4x slower than this kernel with the gradient skipped."""
+    8 straight values, see :func:`.photometric.step_start`). ``grad`` is a run-time flag, not a
+    compiled-in one: a value-only variant compiled without the gradient's code came out as scalar
+    code (LLVM's SLP vectoriser gave up on it) and ran 2-2.4x slower than this kernel with the
+    gradient skipped."""
 
     @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     def _error_lanes(
