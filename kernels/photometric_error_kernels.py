@@ -197,8 +197,11 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
         # contiguous: it is read through a 2-D view of its memory), depth (B, H, W); rows:
         # ROW_SLOTS float64 per row; acc: ACC_SLOTS 8-lane vectors per row (scratch); g_ref
         # (B, C, H, W) and g_depth (B, H, W): dS/d ref_image, dS/d ref_depth, or null arrays (not
-        # wanted). Masks are 0/1 lanes; every value a masked lane computes is finite (its inputs
-        # are replaced first), so products with masks are exact.
+        # wanted). Masks are 0/1 lanes. A masked lane's depth and sample position are replaced
+        # first, so the values built from them are finite and products with masks are exact; the
+        # residual, which reads the reference image (NaN or inf possible), is dropped by a select.
+        # The row's last, partial step reads the row's last 8 pixels (photometric.step_start) and
+        # masks those before its own.
         r = wp.tid() + offset
         b = r // H
         py = r - b * H
@@ -327,11 +330,11 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
 # module of its own, compiled on first use)
 STATIC_CHANNELS = (1, 3)
 STATIC_KINDS = (ph.KINDS["l1"],)  # the default
-_ERROR_KERNELS: dict[tuple[int, int], FloatKernel] = {}
+_ERROR_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
 _ERROR_LOCK = threading.Lock()
 
 
-def error_lanes(kind: int, C: int, W: int = 8) -> FloatKernel:
+def error_lanes(kind: int, C: int, W: int) -> FloatKernel:
     """The row kernel (value only or value and gradient, by its ``grad`` argument), compiled for
     the penalty ``kind`` if in :data:`STATIC_KINDS` and the channel count ``C`` if in
     :data:`STATIC_CHANNELS` (constants fold branches away, which the vectorised code needs to be

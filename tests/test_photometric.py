@@ -526,6 +526,13 @@ def test_error_fast_gradients_equal_warp_adjoint(kind, c, C):
 
     ref, depth, live, pose, K, _ = scene(B=3, C=C, H=9, W=21, seed=20 + C)  # W: two full blocks of 8 and a tail
     live[1, 0, 4, 6] = float("nan")  # a non-finite live pixel: its residuals are skipped
+    # the tail step reads pixels 13-20 and masks 13-15 (done by the block before): non-finite values
+    # there must not reach its sums
+    depth[0, 0, 2, 14] = float("nan")
+    depth[1, 0, 6, 13] = float("inf")
+    ref[0, 0, 3, 13] = float("inf")
+    ref[1, -1, 5, 15] = float("nan")
+    ref[2, 0, 7, 16] = float("nan")  # and in the tail's own first pixel
     pose[2, :, 3] += torch.tensor([0.3, 0.0, 0.0], dtype=pose.dtype)  # many pixels move outside
     weights = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
     results = []
