@@ -159,7 +159,7 @@ class NormalEquationsProbe:
         from gvnn_warp.kernels import photometric_pipeline
         from gvnn_warp.kernels.launch import mat34f
 
-        self.wp, self.ne, self.calls = wp, photometric_pipeline.photometric_normal_equations, calls
+        self.ne, self.calls = photometric_pipeline.photometric_normal_equations, calls
         shape = (1, 1, height, width)
         self.ref, self.depth, self.live = (wp.zeros(shape, dtype=wp.float32) for _ in range(3))
         self.pose = wp.zeros(1, dtype=mat34f)

@@ -137,8 +137,7 @@ def channel8(
 ):
     """One channel of an 8-lane step that reads from pixel ``xs`` (:func:`.photometric.step_load8`):
     the residuals r = live(taps of ``live_plane``) - ref[ref_i + xs ...] where ``ok`` (and finite),
-    and returns (rho(r), rho'(r), rho'(r) d live/du,
-    rho'(r) d live/dv), 0 in masked lanes."""
+    and returns (rho(r), rho'(r), rho'(r) d live/du, rho'(r) d live/dv), 0 in masked lanes."""
     one = type(c)(1.0)
     zeros = ph.splat8(type(c)(0.0))
     big = type(c)(1.0e30)
