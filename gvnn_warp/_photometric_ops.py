@@ -244,6 +244,12 @@ def _(ref_image, ref_depth, live_image, pose, K, kind, scale, min_depth, needs):
 _skip_lazy_dynamo_import(photometric_error)
 
 
+def _views8(t: torch.Tensor, ft) -> list:
+    """A contiguous tensor's scalar and length-8 vector descriptors (what :data:`.scale_segments`
+    reads and writes through)."""
+    return [_descriptor(t, "scalar", ft), _descriptor(t, "vec8", ft)]
+
+
 @torch.library.custom_op("gvnn_warp::photometric_error_backward", mutates_args=())
 def photometric_error_backward(
     grad_error: torch.Tensor,
@@ -282,15 +288,14 @@ def photometric_error_backward(
             n = g.numel()
             if n:
                 launch(pek.scale_segments[ft], pek.scale_segments_dim(n),
-                       [_descriptor(src, "scalar", ft), ge, n_d, n // max(B, 1), n, C], [_descriptor(g, "scalar", ft)])
+                       [*_views8(src, ft), ge, n_d, n // max(B, 1), n, C], _views8(g, ft))
             out.append(g)
     if needs & _NEED_LIVE and B * H * W > 0:
         # d error_b / d row_sum = grad_error_b / (C n_b) for the rows of b, then the rows' adjoint
         adj_rows = torch.empty(B * H, dtype=ref_image.dtype)
         ones = torch.ones(B * H, dtype=ref_image.dtype)  # alive while its descriptor is used
         launch(pek.scale_segments[ft], pek.scale_segments_dim(B * H),
-               [_descriptor(ones, "scalar", ft), ge, n_d, H, B * H, C],
-               [_descriptor(adj_rows, "scalar", ft)])
+               [*_views8(ones, ft), ge, n_d, H, B * H, C], _views8(adj_rows, ft))
         scratch = [torch.empty(B * H, dtype=ref_image.dtype) for _ in range(2)]
         arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
             _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 import warp as wp
-from gvnn_warp.kernels import launch
+from gvnn_warp.kernels import _compat, launch
 from gvnn_warp.kernels import photometric_pipeline as pp
 from gvnn_warp.kernels.launch import mat34d, mat34f
 from refs import intrinsics, skew
@@ -720,6 +720,11 @@ def test_opcheck_photometric_ops():
                           (ref, depth, live, live_depth, pose, Kb, CODES["tukey"], 0.4, MIN_DEPTH, 2.0))
 
 
+def views8(a: wp.array) -> list:
+    """A float32 array and a length-8 vector view of it (scale_segments' src/src8 and out/out8)."""
+    return [a, _compat.array_descriptor(a.ptr, a.shape[0] // 8, 32)]
+
+
 @pytest.mark.parametrize("seg, n", [(5, 35), (1, 3), (8, 8), (2049, 4098), (4097, 3 * 4097), (7, 7 * 700)])
 @pytest.mark.parametrize("threads", [1, 2])
 def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
@@ -739,7 +744,7 @@ def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
     launch.set_num_threads(threads)
     try:
         launch.launch(pek.scale_segments[wp.float32], pek.scale_segments_dim(n),
-                      [wp.array(src), wp.array(g), wp.array(count), seg, n, 3], [out])
+                      [*views8(wp.array(src)), wp.array(g), wp.array(count), seg, n, 3], views8(out))
     finally:
         launch.set_num_threads(None)
     factor = np.where(count > 0, g / (np.float32(3) * np.maximum(count, 1)), 0).astype(np.float32)
@@ -761,8 +766,9 @@ for arg in sys.argv[1:]:
     # element's values are real memory (a write below S faults, one at or past n lands in the guard)
     shifted = lambda t: _compat.array_descriptor(t.data_ptr() - S * 4, n, 4)
     plain = lambda t: _compat.array_descriptor(t.data_ptr(), t.numel(), 4)
-    wp.launch(pek.scale_segments[wp.float32], dim=1, inputs=[(n - 1) // pek.SCALE_SPAN, shifted(src), plain(g),
-              plain(count), seg, n, 1], outputs=[shifted(out)], device="cpu")
+    shifted8 = lambda t: _compat.array_descriptor(t.data_ptr() - S * 4, n // 8, 32)
+    wp.launch(pek.scale_segments[wp.float32], dim=1, inputs=[(n - 1) // pek.SCALE_SPAN, shifted(src), shifted8(src),
+              plain(g), plain(count), seg, n, 1], outputs=[shifted(out), shifted8(out)], device="cpu")
     want = src[:m] * g[(torch.arange(S, n) // seg)]
     print(arg, int(torch.equal(out[:m], want)), int((~out[m:].isnan()).sum()), flush=True)
 """
