@@ -9,7 +9,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import warp as wp
 
@@ -85,34 +85,65 @@ def gil_enabled() -> bool:
     return True if check is None else bool(check())
 
 
-def replay_function(cmd) -> Callable[[], None]:
-    """A callable that replays a recorded forward CPU launch (``wp.launch(..., record_cmd=True)``)
-    with its ctypes argument struct built once. Warp 1.19's ``Launch.launch()`` rebuilds that struct
-    on every call (a ``setattr`` per kernel argument: 10-15 us of Python per replay measured on a
-    loaded host, against 5-8 us for the bare call). Uses the launch's private ``params`` (bounds,
-    then one ctypes value per argument), ``hooks.forward`` and the kernel's argument labels, as
-    Warp's own ``invoke`` does; anything else (adjoint, GPU, block launches, a missing attribute)
-    falls back to ``cmd.launch``. Build a new one after ``cmd.set_param_at_index``."""
+# ctypes argument struct types of recorded launches, by their fields (names and ctypes types):
+# making a ctypes Structure class costs ~50-100 us of Python, filling one a few
+_ARGS_STRUCTS: dict[tuple, type] = {}
+
+
+def replay_pieces(cmd, pieces: Sequence[tuple[int, int]] | None = None) -> list[Callable[[], None]] | None:
+    """Callables that replay a recorded forward CPU launch (``wp.launch(..., record_cmd=True)``)
+    with its ctypes argument struct built once, one per ``(start, size)`` piece: the launch over
+    ``size`` elements with its first argument (the ``offset`` of a kernel written
+    ``kernel(offset, ...)``) set to ``start``; ``pieces`` None: the launch as recorded, one callable.
+    Warp 1.19's ``Launch.launch()`` rebuilds that struct on every call (a ``setattr`` per kernel
+    argument: 10-15 us of Python per replay measured on a loaded host, against 5-8 us for the bare
+    call), and recording one launch per piece packs every argument again (``wp.launch``).
+    Uses the launch's private ``params`` (bounds, then one ctypes value per argument),
+    ``hooks.forward``, the kernel's argument labels (as Warp's own ``invoke`` does) and the bounds'
+    struct type (constructed from a size). Returns None where that does not apply (adjoint, GPU,
+    block launches, a missing attribute): replay the launch with ``cmd.launch`` then. Build them
+    again after ``cmd.set_param_at_index``."""
     try:
         if not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1 or cmd.hooks.forward is None:
-            return cmd.launch
+            return None
         params = list(cmd.params)
         labels = [a.label for a in cmd.kernel.adj.args]
         if len(params) != 1 + len(labels):
-            return cmd.launch
-        fields = [(name, type(params[1 + i])) for i, name in enumerate(labels)]
-        args = type("ArgsStruct", (ctypes.Structure,), {"_fields_": fields})()
-        for i, (name, _) in enumerate(fields):
-            setattr(args, name, params[1 + i])
+            return None
+        fields = tuple((name, type(params[1 + i])) for i, name in enumerate(labels))
+        struct = _ARGS_STRUCTS.get(fields)
+        if struct is None:
+            struct = _ARGS_STRUCTS[fields] = type("ArgsStruct", (ctypes.Structure,), {"_fields_": list(fields)})
+        bounds_type = type(params[0])
+        forward = cmd.hooks.forward
+        runs = []
+        for piece in pieces if pieces is not None else [None]:
+            args = struct()
+            for i, (name, _) in enumerate(fields):
+                setattr(args, name, params[1 + i])
+            if piece is None:
+                bounds = params[0]
+            else:
+                setattr(args, fields[0][0], piece[0])
+                bounds = bounds_type(piece[1])
+            runs.append(_replay(forward, ctypes.byref(bounds), ctypes.byref(args), (params, bounds, args)))
     except AttributeError:
-        return cmd.launch
-    forward, bounds, ref = cmd.hooks.forward, ctypes.byref(params[0]), ctypes.byref(args)
+        return None
+    return runs
 
+
+def _replay(forward, bounds, args, keep) -> Callable[[], None]:
     def replay() -> None:
-        forward(bounds, ref)
+        forward(bounds, args)
 
-    replay.keep = (params, args)  # the ctypes values the pointers refer to
+    replay.keep = keep  # the ctypes values the pointers refer to
     return replay
+
+
+def replay_function(cmd) -> Callable[[], None]:
+    """:func:`replay_pieces` of the launch as recorded, or ``cmd.launch`` where it does not apply."""
+    runs = replay_pieces(cmd)
+    return runs[0] if runs else cmd.launch
 
 
 # LLVM's own default depth of the SLP vectoriser's tree search, which Warp 1.19 lowers to 4 in its

@@ -33,7 +33,7 @@ This module never imports torch.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import warp as wp
@@ -278,49 +278,46 @@ def launch(
 
 
 class RecordedLaunch:
-    """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n), recorded once
-    (``wp.launch(..., record_cmd=True)``) and replayed by calling the object (a few microseconds
-    per piece, against ~14 us for ``wp.launch``): one piece, or, when ``n * work`` is at least
-    twice ``grain`` (``work``: pixels per element), one piece per thread over equal ranges, run on
-    :func:`.threads.python_pool` (on a loaded host torch's spin-waiting OpenMP team cost such tight
-    replay loops several times more). Only for kernels whose elements write only their own
+    """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n), its arguments
+    packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the object (a few
+    microseconds per piece, against ~14 us for ``wp.launch``): one piece, or, when ``n * work`` is at
+    least twice ``grain`` (``work``: pixels per element), one piece per thread over equal ranges,
+    run on :func:`.threads.python_pool` (on a loaded host torch's spin-waiting OpenMP team cost such
+    tight replay loops several times more). Only for kernels whose elements write only their own
     outputs, so any split gives the same bits. The thread count is read when recording.
 
-    The first call runs the recorded launches as Warp does (``Launch.launch``); the fast replay
-    functions are built on the second (building one costs several launches' worth of Python, so
-    a launch recorded to run once, e.g. by a torch op, does not pay for it).
+    The pieces' replay functions (:func:`._compat.replay_pieces`, one argument struct each) are
+    built on the first call and again after :meth:`set_arg`.
     """
 
     def __init__(self, kernel: wp.Kernel, n: int, inputs: Sequence, outputs: Sequence = (), *,
                  work: int = 1, grain: int = DEFAULT_GRAIN):
         pieces = max(1, min(threads.get_num_threads(), n, n * work // grain))
         bounds = [n * k // pieces for k in range(pieces + 1)]
-        self._cmds = [
-            wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs], outputs=list(outputs),
-                      device="cpu", record_cmd=True)
-            for k in range(pieces)
-        ]
-        self._runs = None  # the replay functions, built on the second call
-        self._called = False
+        self._pieces = [(bounds[k], bounds[k + 1] - bounds[k]) for k in range(pieces)]
+        self._kernel, self._args = kernel, [*inputs, *outputs]
+        self._cmd = wp.launch(kernel, dim=self._pieces[0][1], inputs=[0, *self._args], device="cpu", record_cmd=True)
+        self._runs = None  # the replay functions, built on the first call
 
     def set_arg(self, index: int, value) -> None:
-        """Replace argument ``index`` (0 = the first after ``offset``) in every piece."""
-        for c in self._cmds:
-            c.set_param_at_index(index + 1, value)
+        """Replace argument ``index`` (0 = the first after ``offset``)."""
+        self._args[index] = value
+        self._cmd.set_param_at_index(index + 1, value)
         self._runs = None  # rebuilt on the next call
 
     def __call__(self) -> None:
         runs = self._runs
         if runs is None:
-            if self._called:
-                runs = self._runs = [_compat.replay_function(c) for c in self._cmds]
-            else:
-                self._called = True
-                runs = [c.launch for c in self._cmds]
+            runs = self._runs = _compat.replay_pieces(self._cmd, self._pieces) or [
+                self._fallback(start, size) for start, size in self._pieces]
         if len(runs) == 1:
             runs[0]()
         else:
             threads.python_pool().run(lambda k: runs[k](), len(runs), len(runs))
+
+    def _fallback(self, start: int, size: int) -> Callable[[], None]:
+        # where the fast replay does not apply: Warp's own replay of one recorded launch per piece
+        return wp.launch(self._kernel, dim=size, inputs=[start, *self._args], device="cpu", record_cmd=True).launch
 
 
 __all__ = [

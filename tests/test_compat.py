@@ -86,9 +86,27 @@ def test_replay_function_runs_the_recorded_launch():
     ne = photometric_normal_equations(img, depth, img, pose, K)
     want = [a.copy() for a in ne.numpy()]
     for c in ne._cmds:
-        for piece in c._cmds:
-            piece.launch()
+        assert len(c._pieces) == 1  # 8 rows: one piece, which the recorded launch covers
+        c._cmd.launch()
     assert all(np.array_equal(a, b) for a, b in zip(ne.numpy(), want))
+
+
+def test_replay_pieces_sets_each_pieces_offset_and_size():
+    # one recorded launch replayed as pieces: each piece covers [start, start + size) and only that
+    import numpy as np
+
+    x = wp.array(np.arange(10.0), dtype=wp.float64, device="cpu")
+    y = wp.array(np.full(10, -1.0), dtype=wp.float64, device="cpu")
+    cmd = wp.launch(_scale, dim=4, inputs=[0, x, 2], outputs=[y], device="cpu", record_cmd=True)
+    runs = wcompat.replay_pieces(cmd, [(1, 3), (6, 2)])
+    assert len(runs) == 2
+    runs[1]()
+    assert y.numpy().tolist() == [-1] * 6 + [12, 14, -1, -1]
+    runs[0]()
+    assert y.numpy().tolist() == [-1, 2, 4, 6, -1, -1, 12, 14, -1, -1]
+    adjoint = wp.launch(_scale, dim=4, inputs=[0, x, 2], outputs=[y], adj_inputs=[0, x, 0], adj_outputs=[y],
+                        adjoint=True, device="cpu", record_cmd=True)
+    assert wcompat.replay_pieces(adjoint, [(0, 4)]) is None  # not a forward launch: the caller's fallback
 
 
 def test_warp_type_attributes():

@@ -391,33 +391,39 @@ def _affine(offset: int, x: wp.array(dtype=float), a: float, y: wp.array(dtype=f
 
 @once
 @pytest.mark.parametrize("n_threads", [1, 2])
-def test_recorded_launch_first_call_replays_and_set_arg(n_threads, monkeypatch):
-    # RecordedLaunch runs its pieces through Warp's Launch.launch on the first call and through the
-    # fast replay functions from the second on; set_arg takes effect on the next call either way
+def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
+    # RecordedLaunch packs the arguments once and runs one replay function per piece (each piece
+    # its own offset and size), built on the first call and again after a set_arg, which takes
+    # effect on the next call; and the same results through Warp's Launch.launch where the fast
+    # replay does not apply
     import numpy as np
     from gvnn_warp.kernels import _compat
 
     monkeypatch.setattr(threads, "get_num_threads", lambda: n_threads)
     built = []
-    real = _compat.replay_function
-    monkeypatch.setattr(_compat, "replay_function", lambda cmd: built.append(cmd) or real(cmd))
+    real = _compat.replay_pieces
     n = 1000
     x = wp.array(np.arange(n, dtype=np.float32))
     y = wp.zeros(n, dtype=float)
     expect = lambda a: np.arange(n, dtype=np.float32) * np.float32(a) + np.arange(n, dtype=np.float32)  # noqa: E731
-    for first in (2.0, 3.0):
-        rec = L.RecordedLaunch(_affine, n, [x, 2.0], [y], grain=100)
-        assert len(rec._cmds) == n_threads and not built  # nothing built when recording
-        if first != 2.0:
-            rec.set_arg(1, first)  # before the first call
-        for k, a in enumerate((first, 5.0, 7.0)):
-            if k:
-                rec.set_arg(1, a)
-            for call in range(3):
-                y.fill_(-1.0)
-                rec()
-                np.testing.assert_array_equal(y.numpy(), expect(a))
-                # Warp's Launch.launch on the very first call, then one replay function per piece,
-                # built again after each set_arg
-                assert len(built) == n_threads * (0 if (k, call) == (0, 0) else k + 1)
-        built.clear()
+    for fast in (True, False):
+        def counted(cmd, pieces, fast=fast):
+            built.append(pieces)
+            return real(cmd, pieces) if fast else None
+
+        monkeypatch.setattr(_compat, "replay_pieces", counted)
+        for first in (2.0, 3.0):
+            rec = L.RecordedLaunch(_affine, n, [x, 2.0], [y], grain=100)
+            assert len(rec._pieces) == n_threads and not built  # nothing built when recording
+            if first != 2.0:
+                rec.set_arg(1, first)  # before the first call
+            for k, a in enumerate((first, 5.0, 7.0)):
+                if k:
+                    rec.set_arg(1, a)
+                for _ in range(3):
+                    y.fill_(-1.0)
+                    rec()
+                    np.testing.assert_array_equal(y.numpy(), expect(a))
+                    assert len(built) == k + 1  # built on the first call, again after each set_arg
+            assert [p[1] for p in built[0]] == [n // n_threads] * n_threads
+            built.clear()
