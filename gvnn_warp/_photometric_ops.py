@@ -246,7 +246,7 @@ _skip_lazy_dynamo_import(photometric_error)
 
 def _views8(t: torch.Tensor, ft) -> list:
     """A contiguous tensor's scalar and length-8 vector descriptors (what :data:`.scale_segments`
-    reads and writes through)."""
+    reads and writes through); keep ``t`` alive while they are used."""
     return [_descriptor(t, "scalar", ft), _descriptor(t, "vec8", ft)]
 
 
@@ -287,6 +287,7 @@ def photometric_error_backward(
             g = torch.empty(like.shape, dtype=like.dtype)
             n = g.numel()
             if n:
+                src = src.contiguous()  # (the op's own forward outputs are; a direct caller's may not be)
                 launch(pek.scale_segments[ft], pek.scale_segments_dim(n),
                        [*_views8(src, ft), ge, n_d, n // max(B, 1), n, C], _views8(g, ft))
             out.append(g)

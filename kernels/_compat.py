@@ -101,7 +101,9 @@ def replay_pieces(cmd, pieces: Sequence[tuple[int, int]] | None = None) -> list[
     Uses the launch's private ``params`` (bounds, then one ctypes value per argument),
     ``hooks.forward``, the kernel's argument labels (as Warp's own ``invoke`` does) and the bounds'
     struct type (constructed from a size). Returns None where that does not apply (adjoint, GPU,
-    block launches, a missing attribute): replay the launch with ``cmd.launch`` then. Build them
+    block launches, pieces of a launch over more than one dimension, a missing attribute): replay
+    the launch with ``cmd.launch`` then. Neither a ``wp.Tape`` nor Warp's CPU graph capture records
+    these replays. Build them
     again after ``cmd.set_param_at_index``."""
     try:
         if not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1 or cmd.hooks.forward is None:
@@ -115,6 +117,8 @@ def replay_pieces(cmd, pieces: Sequence[tuple[int, int]] | None = None) -> list[
         if struct is None:
             struct = _ARGS_STRUCTS[fields] = type("ArgsStruct", (ctypes.Structure,), {"_fields_": list(fields)})
         bounds_type = type(params[0])
+        if pieces is not None and len(params[0].shape) != 1:
+            return None  # pieces of a 1-D range only
         forward = cmd.hooks.forward
         runs = []
         for piece in pieces if pieces is not None else [None]:

@@ -278,8 +278,8 @@ def launch(
 
 
 class RecordedLaunch:
-    """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n), its arguments
-    packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the object (a few
+    """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n) (1-D), its
+    arguments packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the object (a few
     microseconds per piece, against ~14 us for ``wp.launch``): one piece, or, when ``n * work`` is at
     least twice ``grain`` (``work``: pixels per element), one piece per thread over equal ranges,
     run on :func:`.threads.python_pool` (on a loaded host torch's spin-waiting OpenMP team cost such
@@ -287,27 +287,36 @@ class RecordedLaunch:
     outputs, so any split gives the same bits. The thread count is read when recording.
 
     The pieces' replay functions (:func:`._compat.replay_pieces`, one argument struct each) are
-    built on the first call and again after :meth:`set_arg`.
+    built on the first call and again after :meth:`set_arg`; where they do not apply, one launch
+    per piece is recorded then and replayed by Warp. ``n`` <= 0: calls do nothing. The replays
+    bypass ``wp.Tape`` and Warp's CPU graph capture (neither records them).
     """
 
     def __init__(self, kernel: wp.Kernel, n: int, inputs: Sequence, outputs: Sequence = (), *,
                  work: int = 1, grain: int = DEFAULT_GRAIN):
-        pieces = max(1, min(threads.get_num_threads(), n, n * work // grain))
-        bounds = [n * k // pieces for k in range(pieces + 1)]
-        self._pieces = [(bounds[k], bounds[k + 1] - bounds[k]) for k in range(pieces)]
+        pieces = max(1, min(threads.get_num_threads(), n, n * work // grain)) if n > 0 else 0
+        self._pieces = [(n * k // pieces, n * (k + 1) // pieces - n * k // pieces) for k in range(pieces)]
         self._kernel, self._args = kernel, [*inputs, *outputs]
-        self._cmd = wp.launch(kernel, dim=self._pieces[0][1], inputs=[0, *self._args], device="cpu", record_cmd=True)
+        self._cmd = None  # nothing to run (n <= 0)
+        if pieces:
+            self._cmd = wp.launch(kernel, dim=self._pieces[0][1], inputs=[0, *self._args], device="cpu",
+                                  record_cmd=True)
         self._runs = None  # the replay functions, built on the first call
 
     def set_arg(self, index: int, value) -> None:
         """Replace argument ``index`` (0 = the first after ``offset``)."""
+        if not 0 <= index < len(self._args):
+            raise IndexError(f"RecordedLaunch.set_arg: index must be in [0, {len(self._args)}), got {index}")
+        if self._cmd is not None:
+            self._cmd.set_param_at_index(index + 1, value)
         self._args[index] = value
-        self._cmd.set_param_at_index(index + 1, value)
         self._runs = None  # rebuilt on the next call
 
     def __call__(self) -> None:
         runs = self._runs
         if runs is None:
+            if self._cmd is None:
+                return
             runs = self._runs = _compat.replay_pieces(self._cmd, self._pieces) or [
                 self._fallback(start, size) for start, size in self._pieces]
         if len(runs) == 1:

@@ -278,6 +278,24 @@ def test_normal_equations_out_reuses_buffers_and_follows_inputs():
         assert_close_rel(g, w, 1e-9)
 
 
+@pytest.mark.parametrize("B, H, W", [(0, 4, 5), (1, 0, 5), (2, 4, 0)])
+def test_normal_equations_pure_warp_of_no_pixels(B, H, W):
+    # nothing to sum: zeros of the right shapes (the reduction still writes them: NaN-filled
+    # buffers passed as out= come back zero), also where the row kernel has no rows (H = 0)
+    pose, K = scene(B=max(B, 1), C=1, seed=8)[3:5]
+    img = wp.zeros((B, 1, H, W), dtype=wp.float64)
+    dep = wp.zeros((B, 1, H, W), dtype=wp.float64)
+    pose_a = wp.array(pose.numpy()[:B], dtype=mat34d)
+    K_a = wp.array(np.broadcast_to(K.numpy(), (B, 3, 3)).copy(), dtype=wp.mat33d)
+    first = pp.photometric_normal_equations(img, dep, img, pose_a, K_a)
+    for a in first:
+        a.fill_(float("nan"))
+    got = pp.photometric_normal_equations(img, dep, img, pose_a, K_a, out=first)
+    shapes = [(B, 6, 6), (B, 6), (B,), (B,)]
+    for a, shape in zip(got.numpy(), shapes):
+        assert a.shape == shape and not np.any(a)
+
+
 def test_normal_equations_deterministic_across_threads():
     # large enough for the rows to be split into several chunks
     ref, depth, live, pose, K, live_depth = scene(B=1, C=1, H=60, W=900, seed=11, holes=True)
@@ -781,7 +799,7 @@ def test_scale_segments_last_element_near_2_31():
     import sys
 
     cases = [f"{n},{seg}" for n in (2**31 - 1, 2**31 - 8, 2**31 - 100, 2**31 - 2047, 2**31 - 2048)
-             for seg in (n, 2**20)]
+             for seg in (n, 2**20, n - 3, n - 5)]  # n - 3, n - 5: a segment starts off a multiple of 8
     r = subprocess.run([sys.executable, "-c", _SCALE_NEAR_2_31, *cases], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, (r.stdout, r.stderr[-2000:])
     assert r.stdout.split("\n")[-len(cases) - 1:-1] == [f"{c} 1 0" for c in cases], r.stdout

@@ -402,7 +402,7 @@ def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
     monkeypatch.setattr(threads, "get_num_threads", lambda: n_threads)
     built = []
     real = _compat.replay_pieces
-    n = 1000
+    n = 1001  # unequal pieces on 2 threads
     x = wp.array(np.arange(n, dtype=np.float32))
     y = wp.zeros(n, dtype=float)
     expect = lambda a: np.arange(n, dtype=np.float32) * np.float32(a) + np.arange(n, dtype=np.float32)  # noqa: E731
@@ -425,5 +425,20 @@ def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
                     rec()
                     np.testing.assert_array_equal(y.numpy(), expect(a))
                     assert len(built) == k + 1  # built on the first call, again after each set_arg
-            assert [p[1] for p in built[0]] == [n // n_threads] * n_threads
+            assert [p[1] for p in built[0]] == [n * (k + 1) // n_threads - n * k // n_threads for k in range(n_threads)]
+            with pytest.raises(IndexError, match="set_arg"):
+                rec.set_arg(-1, 1.0)
+            with pytest.raises(IndexError, match="set_arg"):
+                rec.set_arg(3, 1.0)
             built.clear()
+
+
+@once
+def test_recorded_launch_of_no_elements_does_nothing():
+    import numpy as np
+
+    y = wp.array(np.full(4, 7.0, np.float32))
+    rec = L.RecordedLaunch(_affine, 0, [y, 2.0], [y])
+    rec.set_arg(1, 3.0)
+    rec()
+    assert y.numpy().tolist() == [7.0] * 4
