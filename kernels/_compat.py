@@ -103,8 +103,7 @@ def replay_pieces(cmd, pieces: Sequence[tuple[int, int]] | None = None) -> list[
     struct type (constructed from a size). Returns None where that does not apply (adjoint, GPU,
     block launches, pieces of a launch over more than one dimension, a missing attribute): replay
     the launch with ``cmd.launch`` then. Neither a ``wp.Tape`` nor Warp's CPU graph capture records
-    these replays. Build them
-    again after ``cmd.set_param_at_index``."""
+    these replays. Build them again after ``cmd.set_param_at_index``."""
     try:
         if not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1 or cmd.hooks.forward is None:
             return None

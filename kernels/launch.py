@@ -279,12 +279,13 @@ def launch(
 
 class RecordedLaunch:
     """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n) (1-D), its
-    arguments packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the object (a few
-    microseconds per piece, against ~14 us for ``wp.launch``): one piece, or, when ``n * work`` is at
-    least twice ``grain`` (``work``: pixels per element), one piece per thread over equal ranges,
-    run on :func:`.threads.python_pool` (on a loaded host torch's spin-waiting OpenMP team cost such
-    tight replay loops several times more). Only for kernels whose elements write only their own
-    outputs, so any split gives the same bits. The thread count is read when recording.
+    arguments packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the
+    object (a few microseconds per piece, against ~14 us for ``wp.launch``): one piece, or, when
+    ``n * work`` is at least twice ``grain`` (``work``: pixels per element), one piece per thread
+    over equal ranges, run on :func:`.threads.python_pool` (on a loaded host torch's spin-waiting
+    OpenMP team cost such tight replay loops several times more). Only for kernels whose elements
+    write only their own outputs, so any split gives the same bits. The thread count is read when
+    recording.
 
     The pieces' replay functions (:func:`._compat.replay_pieces`, one argument struct each) are
     built on the first call and again after :meth:`set_arg`; where they do not apply, one launch
