@@ -241,9 +241,7 @@ def run_size(seq, methods: dict, strides: list[int], progress: bool, probe: Norm
             failed_pairs=int(m.failed.sum()),
             unconverged_pairs=len(res.unconverged_frames),
         )
-    for name, (aligner, reader) in methods.items():
-        if not strides:
-            break
+    for name, (aligner, reader) in methods.items() if strides else ():  # no strides: no frames prepared
         prepared = _cache(reader, n, aligner)
         for s in strides:
             t = time.perf_counter()
