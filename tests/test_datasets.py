@@ -18,8 +18,8 @@ from gvnn_warp.datasets.tum import (
     TUMWriter,
     associate,
     intrinsics_preset,
-    matrix_to_quaternion,
-    quaternion_to_matrix,
+    matrix_to_quaternion_xyzw,
+    quaternion_xyzw_to_matrix,
     read_trajectory,
     read_tum,
     write_trajectory,
@@ -46,12 +46,12 @@ def test_quaternions_match_scipy_including_half_turns():
     hard += [Rotation.from_rotvec((np.pi - 1e-7) * np.array([1.0, -2.0, 0.5]) / np.sqrt(5.25))]
     rots = [*hard, *Rotation.random(50, random_state=1)]
     R = np.stack([r.as_matrix() for r in rots])
-    q = matrix_to_quaternion(R)
+    q = matrix_to_quaternion_xyzw(R)
     q_ref = np.stack([r.as_quat() for r in rots])  # scipy: (x, y, z, w)
     same = np.minimum(np.abs(q - q_ref).max(1), np.abs(q + q_ref).max(1))
     assert same.max() < 1e-7
     assert np.all(q[:, 3] >= 0)
-    np.testing.assert_allclose(quaternion_to_matrix(q_ref * 3.0), R, atol=1e-12)  # any norm
+    np.testing.assert_allclose(quaternion_xyzw_to_matrix(q_ref * 3.0), R, atol=1e-12)  # any norm
 
 
 def test_trajectory_round_trip_and_evo_reads_what_we_write(tmp_path):

@@ -52,8 +52,8 @@ __all__ = [
     "TUMWriter",
     "associate",
     "intrinsics_preset",
-    "matrix_to_quaternion",
-    "quaternion_to_matrix",
+    "matrix_to_quaternion_xyzw",
+    "quaternion_xyzw_to_matrix",
     "read_depth",
     "read_rgb",
     "read_trajectory",
@@ -95,9 +95,10 @@ class DatasetError(ValueError):
 # Quaternions (x, y, z, w as in TUM files), rotations and poses
 
 
-def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+def quaternion_xyzw_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) float64 from Hamilton quaternions (..., 4) ordered
-    (qx, qy, qz, qw) as in TUM files; any non-zero norm (normalised here)."""
+    (qx, qy, qz, qw) as in TUM files (the torch ``gvnn_warp.quaternion_to_matrix`` takes
+    (w, x, y, z), docs/conventions.md); any non-zero norm (normalised here)."""
     q = np.asarray(q, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = np.moveaxis(q, -1, 0)
@@ -112,7 +113,7 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
     return R.reshape(q.shape[:-1] + (3, 3))
 
 
-def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
+def matrix_to_quaternion_xyzw(R: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) ordered (qx, qy, qz, qw), with qw >= 0, of rotation matrices
     (..., 3, 3) (Shepperd's method: the numerically best of four branches per matrix)."""
     R = np.asarray(R, dtype=np.float64)
@@ -145,7 +146,7 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
 def _poses_from_rows(rows: np.ndarray) -> np.ndarray:
     """(N, 4, 4) float64 poses from (N, 7) rows tx ty tz qx qy qz qw."""
     T = np.zeros((rows.shape[0], 4, 4))
-    T[:, :3, :3] = quaternion_to_matrix(rows[:, 3:7])
+    T[:, :3, :3] = quaternion_xyzw_to_matrix(rows[:, 3:7])
     T[:, :3, 3] = rows[:, :3]
     T[:, 3, 3] = 1.0
     return T
@@ -239,7 +240,7 @@ def write_trajectory(path: str | Path, timestamps: np.ndarray, poses: np.ndarray
         raise ValueError(f"write_trajectory: poses must be (N, 4, 4) with N = {timestamps.shape[0]}, got {poses.shape}")
     if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(timestamps))):
         raise ValueError("write_trajectory: timestamps and poses must be finite")
-    q = matrix_to_quaternion(poses[:, :3, :3])
+    q = matrix_to_quaternion_xyzw(poses[:, :3, :3])
     lines = [f"# {c}" for c in (comment.splitlines() if comment else [])]
     lines.append("# timestamp tx ty tz qx qy qz qw")
     for t, T, qk in zip(timestamps, poses, q):
@@ -301,8 +302,8 @@ def _interpolate_poses(
     s = np.where(span > 0, (times - gt_times[prev]) / np.where(span > 0, span, 1.0), 0.0)
     s = np.clip(s, 0.0, 1.0)
     t = (1.0 - s)[:, None] * gt_poses[prev, :3, 3] + s[:, None] * gt_poses[nxt, :3, 3]
-    q = _slerp(matrix_to_quaternion(gt_poses[prev, :3, :3]), matrix_to_quaternion(gt_poses[nxt, :3, :3]), s)
-    poses[valid, :3, :3] = quaternion_to_matrix(q[valid])
+    q = _slerp(matrix_to_quaternion_xyzw(gt_poses[prev, :3, :3]), matrix_to_quaternion_xyzw(gt_poses[nxt, :3, :3]), s)
+    poses[valid, :3, :3] = quaternion_xyzw_to_matrix(q[valid])
     poses[valid, :3, 3] = t[valid]
     poses[valid, 3] = [0.0, 0.0, 0.0, 1.0]
     return poses, valid
