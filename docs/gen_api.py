@@ -33,8 +33,9 @@ def render() -> str:
         "",
         "Generated from the docstrings by `docs/gen_api.py`. Conventions (pixel centres, (x, y) order,",
         "`[omega, t]` order, quaternion order, units, valid masks, minimum depth):",
-        "[conventions.md](conventions.md). Everything below is importable from `gvnn_warp`, except the",
-        "last section's pure-Warp functions (from `gvnn_warp.kernels`).",
+        "[conventions.md](conventions.md). Each section names the module it documents; the functions",
+        "and layers of the first seven (all but the cameras' base class `Camera`) are also importable",
+        "from `gvnn_warp` itself.",
         "",
     ]
     for title, modname, *names in SECTIONS:
