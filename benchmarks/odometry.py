@@ -12,7 +12,7 @@ through ``gvnn_warp.datasets.tum`` (or ``--data DIR`` is read: one existing TUM 
    examples), by Open3D 0.20's tensor ``rgbd_odometry_multi_scale`` (``Method.Intensity``,
    its default pyramid of 3 levels with 10/5/3 iterations, depth_max 10 m) and by
    ``gvnn_warp.odometry.DirectAligner`` (grey images, as Open3D's Intensity term). Reported: ms per
-   pair (alignment incl. pyramids and image gradients; file reading excluded), RPE translation /
+   pair (alignment incl. the live frame's pyramid; file reading excluded), RPE translation /
    rotation RMSE over 1-frame steps, ATE RMSE (SE(3) Umeyama) - all by ``evo`` - and the failed
    pairs (RPE above 1 cm or 0.25 deg). Our tracker pipelines (``gvnn_warp.tracking``: frame i's
    pyramid is built on a helper thread while frame i - 1 is aligned; each step returns when its

@@ -242,7 +242,7 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
                      "depth_weight": args.depth_weight,
                      "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale},
         "ms_per_pair": result.ms_per_pair,
-        "ms_per_pair_note": "alignment incl. pyramids and image gradients; file reading excluded",
+        "ms_per_pair_note": "alignment incl. the live frame's pyramid; file reading excluded",
         "keyframes": len(result.keyframes) if policy else None,
         "unconverged_pairs": len(unconverged),
         "unconverged_frames": unconverged,
