@@ -64,9 +64,11 @@ class TrackResult:
             was used instead).
         valid_fraction: (N,) the finest level's valid fraction (NaN when unknown / frame 0).
         seconds: (N,) time per frame in ``prepare`` + ``align_frames`` (file reading excluded;
-            ``seconds[0]`` is frame 0's ``prepare``). When pipelined, ``seconds[i]`` is the time of
-            the step that prepared frame i and aligned frame i - 1 (and the last entry also the
-            last frame's alignment): the sum, hence ``ms_per_pair``, is the whole time.
+            ``seconds[0]`` is frame 0's ``prepare``). When pipelined, ``seconds[i]`` for i >= 3 is
+            the time of the step that prepared frame i and aligned frame i - 1 (the last entry
+            also the last frame's alignment); frame 1 is prepared and aligned alone, and
+            ``seconds[2]`` is frame 2's ``prepare``. The sum, hence ``ms_per_pair``, is the whole
+            time.
         keyframes: frames used as references, in order.
         infos: the aligner's ``info`` per frame (None for frame 0).
     """

@@ -280,9 +280,10 @@ def launch(
 class RecordedLaunch:
     """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n) (1-D), its
     arguments packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the
-    object (a few microseconds per piece, against ~14 us for ``wp.launch``): one piece, or, when
-    ``n * work`` is at least twice ``grain`` (``work``: pixels per element), one piece per thread
-    over equal ranges, run on :func:`.threads.python_pool` (on a loaded host torch's spin-waiting
+    object (a few microseconds per piece, against ~14 us for ``wp.launch``): min(threads, n,
+    n * work // grain) pieces over equal ranges (at least one; ``work``: pixels per element, so a
+    piece has at least ``grain`` pixels), several run on :func:`.threads.python_pool` whatever
+    :func:`.threads.pool` is (on a loaded host torch's spin-waiting
     OpenMP team cost such tight replay loops several times more). Only for kernels whose elements
     write only their own outputs, so any split gives the same bits. The thread count is read when
     recording.

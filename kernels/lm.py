@@ -9,14 +9,16 @@ A coarse-to-fine aligner (``gvnn_warp.odometry.DirectAligner``) evaluates the Ga
    level, ``first = 1``, if ``count >= min_count``; otherwise the item skips the level);
    ``lambda`` shrinks by ``lam_down`` on acceptance and grows by ``lam_up`` on rejection;
 2. stops the item (``active = 0``) when the trial's step moved the image by less than ``tol``
-   pixels, ``lambda > lam_max``, or the system could not be solved;
+   pixels, ``lambda > lam_max``, an accepted trial lowered the cost per pixel by less than
+   ``min_decrease`` of it, or the system could not be solved;
 3. otherwise solves ``(JtWJ + lambda diag(JtWJ) + eps) delta = -JtWr`` of the best pose (a 6x6
    Cholesky factorisation in float64) and writes the next trial pose ``exp(delta) T`` (left
    multiplied, ``delta = [omega, t]``, ``se3_exp``) into ``pose``, the float32 pose the normal
    equations read, and the step length ``f (|omega| + |t| / z)`` in pixels (``f`` the level's
-   focal length, ``z`` the item's typical depth). A step shorter than ``tol`` pixels is taken at
-   once, without evaluating it, and stops the item (it cannot change the outcome, and the
-   evaluation would cost a full pass over the level).
+   focal length, ``z`` the item's typical depth). A step shorter than ``take`` pixels (the
+   aligner passes ``max(tol, take_step / 2^level)``) is taken at once, without evaluating it, and
+   stops the item (it cannot change the outcome, and the evaluation would cost a full pass over
+   the level).
 
 State arrays (length B): ``T`` and ``Tn`` (3x4 float64: best and trial pose), ``H`` (B * 36) and
 ``g`` (B * 6) float64 (the best pose's system), ``mean``, ``count``, ``lam``, ``step`` float64,
