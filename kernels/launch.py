@@ -1,4 +1,8 @@
-"""The one launch helper every op goes through: a kernel's range cut into chunks over threads.
+"""The launch layer: :func:`launch`, through which every torch op and the non-recording pure-Warp
+functions run their kernels (a kernel's range cut into chunks over threads), and
+:class:`RecordedLaunch`, arguments packed once and replayed in pieces (the normal equations, the
+pyramids). The pure-Warp functions a ``wp.Tape`` can record call ``wp.launch`` themselves, on one
+thread.
 
 The other jobs of the launch layer live in their own modules: :mod:`.kinds` (array kinds, the
 float32/float64 overloads of :class:`FloatKernel` and each kernel's declaration of how it may be
