@@ -18,41 +18,39 @@
 Conventions: ``docs/conventions.md``.
 """
 
-from . import (
-    camera,
-    camera_kernels,
-    kinds,
-    launch,
-    lens,
-    lens_kernels,
-    lens_rays,
-    lie,
-    lie_kernels,
-    photometric,
-    photometric_kernels,
-    photometric_lens_kernels,
-    photometric_pipeline,
-    pipeline,
-    sampler,
-    sampling_kernels,
+import importlib
+
+# Submodules and re-exported names are imported on first use (PEP 562): defining the camera
+# models' custom adjoints makes Warp build their functions (~2 s on a slow guest), which a user
+# of the layers without a lens, or of `gvnn-warp --help`, should not wait for.
+_SUBMODULES = (
+    "camera", "camera_kernels", "kinds", "launch", "lens", "lens_kernels", "lens_rays", "lie", "lie_kernels",
+    "photometric", "photometric_kernels", "photometric_lens_kernels", "photometric_pipeline", "pipeline",
+    "sampler", "sampling_kernels",
 )
-from .camera import MIN_DEPTH, pixel_ray, project, project_clamped, unproject
-from .lie import (
-    euler_to_matrix,
-    hat,
-    pose_from_rt,
-    quat_wxyz_to_matrix,
-    se3_exp,
-    se3_to_pose,
-    sim3_to_pose,
-    so3_exp,
-    so3_log,
-    transform_point,
-    vee,
-)
-from .photometric_pipeline import NormalEquations, photometric_error, photometric_normal_equations
-from .pipeline import masked_squared_error, warp_frame_depth
-from .sampler import bilinear, normalized_to_pixel, sample_position
+_NAMES = {
+    **{n: "camera" for n in ("MIN_DEPTH", "pixel_ray", "project", "project_clamped", "unproject")},
+    **{n: "lie" for n in ("euler_to_matrix", "hat", "pose_from_rt", "quat_wxyz_to_matrix", "se3_exp", "se3_to_pose",
+                          "sim3_to_pose", "so3_exp", "so3_log", "transform_point", "vee")},
+    **{n: "photometric_pipeline" for n in ("NormalEquations", "photometric_error", "photometric_normal_equations")},
+    **{n: "pipeline" for n in ("masked_squared_error", "warp_frame_depth")},
+    **{n: "sampler" for n in ("bilinear", "normalized_to_pixel", "sample_position")},
+}
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)  # (the import sets the attribute)
+    if name in _NAMES:
+        value = getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "MIN_DEPTH",
