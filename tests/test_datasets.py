@@ -305,8 +305,12 @@ def test_errors_name_the_file(tmp_path):
         read_tum(tmp_path)
     assert "groundtruth.txt:3: expected 8 fields per line, got 7" in _one_line(e)
 
-    (tmp_path / "groundtruth.txt").write_text("1.0 0 0 0 0 0 0 0\n")
-    with pytest.raises(DatasetError, match="groundtruth.txt: a quaternion has zero norm"):
+    # line numbers in the file, not in time order
+    (tmp_path / "groundtruth.txt").write_text("# gt\n2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 0\n")
+    with pytest.raises(DatasetError, match=r"groundtruth.txt:3: the quaternion \(qx qy qz qw\) has zero norm"):
+        read_tum(tmp_path)
+    (tmp_path / "groundtruth.txt").write_text("1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n")
+    with pytest.raises(DatasetError, match="groundtruth.txt:2: pose entries must be numbers"):
         read_tum(tmp_path)
     (tmp_path / "groundtruth.txt").unlink()
 
@@ -330,6 +334,34 @@ def test_errors_name_the_file(tmp_path):
 
     with pytest.raises(DatasetError, match="nowhere: no such directory"):
         read_tum(tmp_path / "nowhere")
+
+
+def test_check_files_finds_a_bad_file_before_any_is_decoded(tmp_path):
+    _three_frame_folder(tmp_path)
+    seq = read_tum(tmp_path)
+    seq.check_files()  # all good
+    _png_depth(tmp_path / "depth" / "bc.png", np.zeros((3, 5)))
+    seq.check_files(1)  # only the first frame
+    with pytest.raises(DatasetError) as e:
+        seq.check_files()
+    assert "depth/bc.png: depth image is 5x3, the sequence's first image is 5x4" in _one_line(e)
+    Image.fromarray(np.zeros((4, 5, 3), np.uint8)).save(tmp_path / "depth" / "bc.png")
+    with pytest.raises(DatasetError) as e:
+        seq.check_files()
+    assert "depth/bc.png: depth image has colour channels" in _one_line(e)
+    (tmp_path / "rgb" / "b.png").unlink()
+    with pytest.raises(DatasetError) as e:
+        seq.check_files()
+    assert "rgb/b.png: missing colour image" in _one_line(e)
+
+
+def test_lists_with_a_byte_order_mark_are_read(tmp_path):
+    _three_frame_folder(tmp_path)
+    plain = read_tum(tmp_path)
+    for name in ("rgb.txt", "depth.txt"):
+        (tmp_path / name).write_bytes(b"\xef\xbb\xbf" + (tmp_path / name).read_bytes())
+    seq = read_tum(tmp_path)
+    assert seq.rgb_files == plain.rgb_files and np.array_equal(seq.timestamps, plain.timestamps)
 
 
 def test_writer_quantises_and_drops_out_of_range_depth(tmp_path):

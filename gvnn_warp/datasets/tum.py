@@ -171,20 +171,22 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
 # Text files
 
 
-def _read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[list[str]]]:
-    """Rows of a TUM text file: (timestamps (N,) float64, the other ``columns - 1`` fields per row).
+def _read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[list[str]], list[int]]:
+    """Rows of a TUM text file, sorted by time: (timestamps (N,) float64, the other ``columns - 1``
+    fields per row, each row's line number).
 
     Comment lines (``#``) and blank lines are skipped; fields are separated by spaces, tabs or
     commas (as TUM's tools accept). Raises DatasetError naming the file and line otherwise.
     """
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = path.read_text(encoding="utf-8-sig", errors="replace")  # (a byte-order mark is dropped)
     except FileNotFoundError:
         raise DatasetError(f"{path}: missing {what} file") from None
     except OSError as e:
         raise DatasetError(f"{path}: cannot read {what} file ({e.strerror or e})") from None
     stamps: list[float] = []
     rows: list[list[str]] = []
+    lines: list[int] = []
     for number, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -200,6 +202,7 @@ def _read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[l
             raise DatasetError(f"{path}:{number}: timestamp {fields[0]!r} is not finite")
         stamps.append(t)
         rows.append(fields[1:])
+        lines.append(number)
     if not stamps:
         raise DatasetError(f"{path}: no entries in {what} file")
     times = np.array(stamps)
@@ -208,7 +211,7 @@ def _read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[l
     dup = np.flatnonzero(np.diff(sorted_times) == 0)
     if dup.size:
         raise DatasetError(f"{path}: timestamp {sorted_times[dup[0]]:.6f} appears more than once")
-    return sorted_times, [rows[i] for i in order]
+    return sorted_times, [rows[i] for i in order], [lines[i] for i in order]
 
 
 def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -218,15 +221,17 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         ``(timestamps (N,) float64, T_world_cam (N, 4, 4) float64)``, sorted by time.
     """
     path = Path(path)
-    stamps, rows = _read_table(path, 8, "trajectory")
-    try:
-        values = np.array(rows, dtype=np.float64)
-    except ValueError:
-        raise DatasetError(f"{path}: pose entries must be numbers") from None
-    if not np.all(np.isfinite(values)):
-        raise DatasetError(f"{path}: pose entries must be finite")
-    if np.any(np.linalg.norm(values[:, 3:7], axis=1) < 1e-12):
-        raise DatasetError(f"{path}: a quaternion has zero norm")
+    stamps, rows, lines = _read_table(path, 8, "trajectory")
+    values = np.empty((len(rows), 7))
+    for k, (row, number) in enumerate(zip(rows, lines)):
+        try:
+            values[k] = [float(v) for v in row]
+        except ValueError:
+            raise DatasetError(f"{path}:{number}: pose entries must be numbers: {' '.join(row)!r}") from None
+        if not np.all(np.isfinite(values[k])):
+            raise DatasetError(f"{path}:{number}: pose entries must be finite: {' '.join(row)!r}")
+        if np.linalg.norm(values[k, 3:7]) < 1e-12:
+            raise DatasetError(f"{path}:{number}: the quaternion (qx qy qz qw) has zero norm")
     return stamps, _poses_from_rows(values)
 
 
@@ -380,12 +385,31 @@ def _open_image(path: Path, what: str):
     return im
 
 
+_RGB_MODES = ("RGB", "RGBA", "RGBX", "L", "LA", "P", "PA")
+_DEPTH_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I")  # "I": some Pillow versions open 16-bit PNGs so
+
+
+def _check_rgb_mode(path: Path, mode: str) -> None:
+    if mode not in _RGB_MODES:
+        raise DatasetError(f"{path}: colour image must be 8-bit RGB or grey, got Pillow mode {mode}")
+
+
+def _check_depth_mode(path: Path, mode: str) -> None:
+    if mode in _DEPTH_MODES:
+        return
+    if mode in ("L", "P", "1"):
+        raise DatasetError(f"{path}: depth image is 8-bit (Pillow mode {mode}); expected a 16-bit single-channel PNG")
+    if mode in ("RGB", "RGBA", "RGBX", "LA", "PA", "CMYK", "YCbCr"):
+        raise DatasetError(f"{path}: depth image has colour channels (Pillow mode {mode}); "
+                           "expected a 16-bit single-channel PNG")
+    raise DatasetError(f"{path}: depth image has Pillow mode {mode}; expected a 16-bit single-channel PNG")
+
+
 def read_rgb(path: str | Path) -> np.ndarray:
     """An 8-bit colour (or grey) image as float32 (3, H, W) in [0, 1]."""
     path = Path(path)
     im = _open_image(path, "colour")
-    if im.mode not in ("RGB", "RGBA", "RGBX", "L", "LA", "P", "PA"):
-        raise DatasetError(f"{path}: colour image must be 8-bit RGB or grey, got Pillow mode {im.mode}")
+    _check_rgb_mode(path, im.mode)
     rgb = np.asarray(im.convert("RGB"), dtype=np.float32) / np.float32(255.0)
     return np.ascontiguousarray(rgb.transpose(2, 0, 1))
 
@@ -395,21 +419,11 @@ def read_depth(path: str | Path, depth_scale: float = DEFAULT_DEPTH_SCALE) -> np
     depth). 8-bit, colour and floating-point images are refused."""
     path = Path(path)
     im = _open_image(path, "depth")
-    if im.mode in ("I;16", "I;16L", "I;16B", "I;16N"):
-        raw = np.asarray(im).astype(np.float32)
-    elif im.mode == "I":  # some Pillow versions open 16-bit PNGs as 32-bit integer images
-        raw = np.asarray(im)
-        if raw.min(initial=0) < 0 or raw.max(initial=0) > 65535:
-            raise DatasetError(f"{path}: depth image must be 16-bit, got 32-bit values outside 0..65535")
-        raw = raw.astype(np.float32)
-    elif im.mode in ("L", "P", "1"):
-        raise DatasetError(f"{path}: depth image is 8-bit (Pillow mode {im.mode}); "
-                           "expected a 16-bit single-channel PNG")
-    elif im.mode in ("RGB", "RGBA", "RGBX", "LA", "PA", "CMYK", "YCbCr"):
-        raise DatasetError(f"{path}: depth image has colour channels (Pillow mode {im.mode}); "
-                           "expected a 16-bit single-channel PNG")
-    else:
-        raise DatasetError(f"{path}: depth image has Pillow mode {im.mode}; expected a 16-bit single-channel PNG")
+    _check_depth_mode(path, im.mode)
+    raw = np.asarray(im)
+    if im.mode == "I" and (raw.min(initial=0) < 0 or raw.max(initial=0) > 65535):
+        raise DatasetError(f"{path}: depth image must be 16-bit, got 32-bit values outside 0..65535")
+    raw = raw.astype(np.float32)
     return (raw / np.float32(depth_scale))[None]
 
 
@@ -500,6 +514,28 @@ class TUMSequence:
                                f"the colour images are {self.width}x{self.height}")
         return d
 
+    def check_files(self, n: int | None = None) -> None:
+        """Check the first ``n`` frames' image files (default: all) without decoding them: each
+        exists and can be opened, has a colour / 16-bit depth format and the sequence's size.
+        Raises DatasetError naming the first bad file, so that a long run does not stop at it
+        (Pillow reads only the headers: ~0.1 ms per file)."""
+        from PIL import Image, UnidentifiedImageError
+
+        for k in range(len(self) if n is None else min(n, len(self))):
+            for path, what, check in ((self.rgb_files[k], "colour", _check_rgb_mode),
+                                      (self.depth_files[k], "depth", _check_depth_mode)):
+                try:
+                    with Image.open(path) as im:
+                        mode, size = im.mode, im.size
+                except FileNotFoundError:
+                    raise DatasetError(f"{path}: missing {what} image") from None
+                except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+                    raise DatasetError(f"{path}: cannot read {what} image ({type(e).__name__}: {e})") from None
+                check(path, mode)
+                if size != (self.width, self.height):
+                    raise DatasetError(f"{path}: {what} image is {size[0]}x{size[1]}, the sequence's first image is "
+                                       f"{self.width}x{self.height}")
+
     def pose(self, i: int) -> np.ndarray | None:
         """Frame ``i``'s ground-truth ``T_world_cam`` (4, 4), or None if it has none."""
         i = self._check(i)
@@ -545,8 +581,8 @@ def read_tum(
     if not (math.isfinite(max_difference) and max_difference > 0):
         raise ValueError(f"read_tum: max_difference must be a positive number, got {max_difference}")
 
-    rgb_times, rgb_rows = _read_table(root / "rgb.txt", 2, "colour list")
-    depth_times, depth_rows = _read_table(root / "depth.txt", 2, "depth list")
+    rgb_times, rgb_rows, _ = _read_table(root / "rgb.txt", 2, "colour list")
+    depth_times, depth_rows, _ = _read_table(root / "depth.txt", 2, "depth list")
     pairs = associate(rgb_times, depth_times, max_difference)
     if pairs.shape[0] == 0:
         raise DatasetError(f"{root / 'depth.txt'}: no depth timestamp within {max_difference} s "
