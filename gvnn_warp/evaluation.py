@@ -33,7 +33,8 @@ __all__ = [
 FAIL_TRANS_M = 0.01
 FAIL_ROT_DEG = 0.25
 ATE_ALIGNMENT = "SE(3) Umeyama (evo_ape -a: rotation and translation, no scale)"
-ATE_ALIGNMENT_ORIGIN = "first pose (evo_ape --align_origin; the ground truth's positions are degenerate for Umeyama)"
+ATE_ALIGNMENT_ORIGIN = ("first pose (evo_ape --align_origin; the positions of the ground truth or of the estimate are "
+                        "degenerate for Umeyama)")
 
 
 def pose_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -23,6 +23,7 @@ BAD = "BAD"  # replaced by the path of an existing file
 FILE_CHILD = "BAD/sub"  # a directory below that file
 NOWHERE = "NOWHERE"  # track: replaced by a folder that does not exist
 SHORT = "SHORT"  # track: replaced by a sequence of 1 frame
+SEQ = "SEQ"  # track: replaced by the (valid) sequence's own folder
 
 
 def _bad_cases():
@@ -111,9 +112,16 @@ def _bad_cases():
             (["--intrinsics", "500,500,nan,240"], "argument --intrinsics: expected one of fr1"),
             (["--depth-scale", "0"], "argument --depth-scale: expected a positive number, got '0'"),
             (["--depth-scale", "nan"], "argument --depth-scale: expected a positive number"),
-            (["--max-difference", "inf"], "argument --max-difference: expected a number from 0 to 1 s"),
+            (["--max-difference", "inf"], "argument --max-difference: expected a number > 0 and <= 1 s"),
+            (["--max-difference", "0"], "argument --max-difference: expected a number > 0 and <= 1 s, got '0'"),
             (["--keyframe-trans", "-1"], "argument --keyframe-trans: expected a positive number"),
-            (["--keyframe-rot", "nan"], "argument --keyframe-rot: expected a number from 0 to 180 deg"),
+            (["--keyframe-rot", "nan"], "argument --keyframe-rot: expected a number > 0 and <= 180 deg"),
+            (["--keyframes", "--keyframe-rot", "0"], "argument --keyframe-rot: expected a number > 0 and <= 180 deg"),
+            (["--keyframe-trans", "0.1"], "--keyframe-trans applies with --keyframes only"),
+            (["--keyframe-valid", "0.5"], "--keyframe-valid applies with --keyframes only"),
+            (["--intrinsics", "240,240,1000,7.5"], "the principal point (1000, 7.5) of the intrinsics (given) is "
+                                                   "outside the 16x16 images"),
+            (["--out", SEQ], "is the sequence's own folder; choose another"),
             (["--keyframe-valid", "1.5"], "argument --keyframe-valid: expected a number from 0 to 1, got '1.5'"),
             (["--init", "magic"], "argument --init: invalid choice: 'magic'"),
             (["--levels", "0"], "argument --levels: expected an integer from 1 to 12"),
@@ -167,7 +175,7 @@ def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, 
     sequence = short = None
     if command == "track":
         sequence, short = request.getfixturevalue("sequences")
-    replace = {BAD: str(bad_file), NOWHERE: str(tmp_path / "nowhere"), SHORT: str(short)}
+    replace = {BAD: str(bad_file), NOWHERE: str(tmp_path / "nowhere"), SHORT: str(short), SEQ: str(sequence)}
     extra = [replace.get(a, a.replace(BAD, str(bad_file))) for a in extra]
     with pytest.raises(SystemExit) as exc:
         cli.main(_argv(command, extra, out, sequence))

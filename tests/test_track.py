@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 import pytest
+from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from gvnn_warp.datasets.tum import read_trajectory, read_tum
@@ -318,12 +319,73 @@ def test_track_cli_file_errors_name_the_file(tmp_path, capsys):
     assert re.fullmatch(r"gvnn-warp track: error: .*rgb.txt: missing colour list file.*", err[-1]), err
     (data / "rgb.old").rename(data / "rgb.txt")
     assert not out.exists()  # nothing is written before the arguments are checked
-    # an image that cannot be read is met while tracking: one line naming it, status 1
-    broken = sorted((data / "rgb").glob("*.png"))[2]
-    broken.write_bytes(b"not a png")
+    # an image that is missing, not an image, or of the wrong format or size is found before any
+    # frame is tracked (from the headers)
+    images = sorted((data / "rgb").glob("*.png"))
+    good = images[2].read_bytes()
+    depths = sorted((data / "depth").glob("*.png"))
+    for path, bad, says in [
+        (images[2], b"not a png", "cannot read colour image"),
+        (depths[2], None, "depth image is 8-bit"),
+        (depths[1], (4, 4), "depth image is 4x4, the sequence's first image is 16x16"),
+    ]:
+        original = path.read_bytes()
+        if bad is None:
+            Image.open(path).convert("L").save(path)
+        elif isinstance(bad, tuple):
+            Image.open(path).resize(bad).save(path)
+        else:
+            path.write_bytes(bad)
+        with pytest.raises(SystemExit) as e:
+            main(["track", str(data), "--out", str(out), "--no-progress"])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("gvnn-warp track: error: ") and path.name in err[-1] and says in err[-1], err
+        assert not out.exists()
+        path.write_bytes(original)
+    # pixel data that cannot be decoded behind a good header is met while tracking: one line
+    # naming the file, status 1
+    images[2].write_bytes(good[: len(good) // 2])
     assert main(["track", str(data), "--out", str(out), "--no-progress"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("gvnn-warp track: error: ") and broken.name in err[0], err
+    assert len(err) == 1 and err[0].startswith("gvnn-warp track: error: ") and images[2].name in err[0], err
+
+
+def test_track_cli_keeps_results_and_says_what_it_used(tmp_path, capsys):
+    from gvnn_warp.cli import main
+
+    data = _render(tmp_path, frames=3, size="32x24")
+    out = tmp_path / "o"
+    run = ["track", str(data), "--out", str(out), "--no-progress"]
+    assert main(run) == 0
+    summary = capsys.readouterr().out
+    assert "intrinsics         fx 24 fy 24 cx 15.5 cy 11.5 (" in summary and "intrinsics.txt)" in summary
+    first = (out / "metrics.json").read_text()
+    with pytest.raises(SystemExit) as e:  # earlier results are not replaced silently
+        main(run)
+    assert e.value.code == 2
+    assert "--out " + str(out) + " already holds results (trajectory.txt); pass --overwrite" in capsys.readouterr().err
+    assert (out / "metrics.json").read_text() == first
+    assert main([*run, "--overwrite"]) == 0
+    capsys.readouterr()
+
+    # ground truth that matches no frame, or none at all: the summary says why there is no ATE/RPE
+    gt = data / "groundtruth.txt"
+    lines = gt.read_text().splitlines()
+    shifted = [" ".join([f"{float(w[0]) + 100:.6f}", *w[1:]]) for w in (line.split() for line in lines
+                                                                           if not line.startswith("#"))]
+    gt.write_text("\n".join(shifted) + "\n")
+    assert main([*run, "--overwrite"]) == 0
+    assert ("none usable: 0 of the 3 frames have a pose in groundtruth.txt within --max-difference 0.02 s"
+            in capsys.readouterr().out)
+    gt.unlink()
+    assert main([*run, "--overwrite"]) == 0
+    assert "ground truth       none (no groundtruth.txt): no ATE/RPE" in capsys.readouterr().out
+    # depths read at the wrong scale leave no usable pixel: a warning, not only unconverged pairs
+    assert main([*run, "--overwrite", "--depth-scale", "1e9"]) == 0
+    report = capsys.readouterr().out
+    assert "warning            only 0.0% of the pixels were usable" in report and "--depth-scale (1e+09" in report
+    assert json.loads((out / "metrics.json").read_text())["median_valid_fraction"] == 0.0
 
 
 def test_track_cli_end_to_end_with_the_direct_aligner(tmp_path, capsys):
@@ -414,11 +476,11 @@ def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch
     out = tmp_path / "out"
     assert main(["track", str(data), "--out", str(out), "--no-progress"]) == 0
     assert made[-1]["dist"] is None  # the rendered folder's intrinsics.txt: a pinhole
-    assert main(["track", str(data), "--out", str(out), "--no-progress", "--intrinsics",
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--overwrite", "--intrinsics",
                  "100,100,20,15,0.1,-0.2,0.01,0.02,0.3"]) == 0
     np.testing.assert_array_equal(made[-1]["dist"], [0.1, -0.2, 0.01, 0.02, 0.3])
     assert json.loads((out / "metrics.json").read_text())["intrinsics"]["radtan"] == [0.1, -0.2, 0.01, 0.02, 0.3]
-    assert main(["track", str(data), "--out", str(out), "--no-progress", "--intrinsics", "fr1"]) == 0
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--overwrite", "--intrinsics", "fr1"]) == 0
     np.testing.assert_array_equal(made[-1]["dist"], [0.2624, -0.9531, -0.0054, 0.0026, 1.1633])
     aligner = real(read_tum(data).K, dist=[0.1, -0.2, 0.01, 0.02, 0.3])
     assert aligner.model == "radtan" and aligner.dist[4] == 0.3

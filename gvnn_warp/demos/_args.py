@@ -101,10 +101,14 @@ def bounded_int_list(minimum: int, maximum: int | None = None) -> Callable[[str]
     return parse
 
 
-def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: str = "") -> Callable[[str], float]:
-    """``type=`` for a finite number in [minimum, maximum] (NaN and inf are refused)."""
+def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: str = "",
+                 above_minimum: bool = False) -> Callable[[str], float]:
+    """``type=`` for a finite number in [minimum, maximum] (``above_minimum``: in (minimum,
+    maximum]; NaN and inf are refused)."""
     u = f" {unit}" if unit else ""
-    if math.isinf(minimum) and math.isinf(maximum):
+    if above_minimum:
+        expected = f"a number > {minimum:g} and <= {maximum:g}{u}"
+    elif math.isinf(minimum) and math.isinf(maximum):
         expected = "a finite number"
     elif math.isinf(maximum):
         expected = f"a finite number >= {minimum:g}{u}"
@@ -118,7 +122,7 @@ def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: st
             v = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
-        if not (math.isfinite(v) and minimum <= v <= maximum):
+        if not (math.isfinite(v) and minimum <= v <= maximum) or (above_minimum and v == minimum):
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return v
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    gvnn-warp track DIR --out OUT [--method direct|vo|vo+direct [--checkpoint CKPT]]
+    gvnn-warp track DIR --out OUT [--overwrite] [--method direct|vo|vo+direct [--checkpoint CKPT]]
                     [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
                     [--max-frames N] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
                     [--keyframe-valid F]] [--init identity|velocity] [--levels L] [--robust KIND]
@@ -27,6 +27,10 @@ of the identity or ``--init``) - and writes:
   (1-frame steps, as ``evo_rpe``), ``failed_pairs`` (RPE above 1 cm or 0.25 deg) - all by evo;
 - ``OUT/trajectory.png`` (top view, estimate vs truth) and, with ground truth, ``OUT/errors.png``
   (per-frame translation and rotation error).
+
+Before the first frame is tracked it checks every image to be tracked (exists, format, size: from
+the headers), and refuses an OUT that is the sequence's folder or holds an earlier run's results
+(unless ``--overwrite``).
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ PRESETS = ("fr1", "fr2", "fr3", "icl")
 METHODS = ("direct", "vo", "vo+direct")
 MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
 MAX_ITERATIONS = 1000
+LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the summary warns (depth scale, images)
 
 
 def intrinsics_arg(text: str):
@@ -73,7 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     kf = KeyframePolicy()
     p.add_argument("data", type=Path, metavar="DIR", help="TUM RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])")
     p.add_argument("--out", type=output_dir, required=True, metavar="OUT",
-                   help="output folder for trajectory.txt, metrics.json and the figures (made if missing)")
+                   help="output folder for trajectory.txt, metrics.json and the figures (made if missing; not the "
+                        "sequence's own folder)")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     p.add_argument("--method", choices=METHODS, default="direct",
                    help="direct: the direct aligner; vo: the trained network of --checkpoint alone; vo+direct: the "
                         "direct aligner starting from the network's estimate")
@@ -87,16 +94,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="raw depth units per metre (5000 in TUM RGB-D and ICL-NUIM)")
     p.add_argument("--max-frames", type=bounded_int(2), default=None, metavar="N",
                    help="track only the first N frames (default: all)")
-    p.add_argument("--max-difference", type=finite_float(0, 1, "s"), default=0.02, metavar="SEC",
+    p.add_argument("--max-difference", type=finite_float(0, 1, "s", above_minimum=True), default=0.02, metavar="SEC",
                    help="seconds: colour/depth association and ground-truth matching")
     p.add_argument("--keyframes", action="store_true",
                    help="align to a keyframe, replaced when the thresholds below are passed (default: previous frame)")
-    p.add_argument("--keyframe-trans", type=positive_float, default=kf.max_trans_m, metavar="M",
-                   help="new keyframe beyond this translation, metres")
-    p.add_argument("--keyframe-rot", type=finite_float(0, 180, "deg"), default=kf.max_rot_deg, metavar="DEG",
-                   help="new keyframe beyond this rotation, degrees")
-    p.add_argument("--keyframe-valid", type=finite_float(0, 1), default=kf.min_valid, metavar="F",
-                   help="new keyframe below this fraction of usable pixels")
+    # (defaults None: given without --keyframes they are refused; the policy's defaults in the help)
+    p.add_argument("--keyframe-trans", type=positive_float, default=None, metavar="M",
+                   help=f"with --keyframes: new keyframe beyond this translation, metres (default: {kf.max_trans_m:g})")
+    p.add_argument("--keyframe-rot", type=finite_float(0, 180, "deg", above_minimum=True), default=None,
+                   metavar="DEG", help=f"with --keyframes: new keyframe beyond this rotation, degrees "
+                                       f"(default: {kf.max_rot_deg:g})")
+    p.add_argument("--keyframe-valid", type=finite_float(0, 1), default=None, metavar="F",
+                   help=f"with --keyframes: new keyframe below this fraction of usable pixels "
+                        f"(default: {kf.min_valid:g})")
     p.add_argument("--init", choices=("identity", "velocity"), default="identity",
                    help="initial guess: identity or constant velocity")
     p.add_argument("--levels", type=bounded_int(1, MAX_LEVELS), default=None, metavar="L",
@@ -143,20 +153,43 @@ def _summary(rows: list[tuple[str, str]]) -> str:
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
 
 
+RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png")
+KEYFRAME_OPTIONS = ("keyframe_trans", "keyframe_rot", "keyframe_valid")
+
+
 def check(args: argparse.Namespace):
-    """Checks that need what is on disk (raises UsageError before any work): the sequence's lists
-    are read and associated (images are read while tracking) and there are at least 2 frames.
-    Returns (sequence, number of frames to track)."""
+    """Checks that need what is on disk (raises UsageError before any work): --out is not the
+    sequence's folder and holds no earlier results unless --overwrite; the sequence's lists are read
+    and associated, every image to be tracked exists and has the right format and size (from its
+    header; the pixels are read while tracking), there are at least 2 frames, and the principal
+    point is inside the image. Returns (sequence, number of frames to track)."""
     from ..datasets.tum import DatasetError, read_tum
 
+    if not getattr(args, "keyframes", False):
+        given = [name for name in KEYFRAME_OPTIONS if getattr(args, name, None) is not None]
+        if given:
+            raise UsageError(f"--{given[0].replace('_', '-')} applies with --keyframes only")
+    if args.out.exists() and args.data.exists() and args.out.resolve() == args.data.resolve():
+        raise UsageError(f"--out {args.out} is the sequence's own folder; choose another")
+    if (args.out / "rgb.txt").exists():
+        raise UsageError(f"--out {args.out} holds a sequence (rgb.txt); choose another folder")
+    existing = [name for name in RESULT_FILES if (args.out / name).exists()]
+    if existing and not getattr(args, "overwrite", False):
+        raise UsageError(f"--out {args.out} already holds results ({existing[0]}); pass --overwrite or choose "
+                         "another folder")
     try:
         seq = read_tum(args.data, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
                        max_difference=args.max_difference)
+        n = len(seq) if args.max_frames is None else min(args.max_frames, len(seq))
+        if n < 2:
+            raise UsageError(f"{args.data}: need at least 2 frames to track, found {n}")
+        seq.check_files(n)
     except DatasetError as e:
         raise UsageError(str(e)) from None
-    n = len(seq) if args.max_frames is None else min(args.max_frames, len(seq))
-    if n < 2:
-        raise UsageError(f"{args.data}: need at least 2 frames to track, found {n}")
+    cx, cy = seq.K[0, 2], seq.K[1, 2]
+    if not (0 <= cx <= seq.width - 1 and 0 <= cy <= seq.height - 1):
+        raise UsageError(f"the principal point ({cx:g}, {cy:g}) of the intrinsics ({seq.intrinsics_source}) is "
+                         f"outside the {seq.width}x{seq.height} images")
     return seq, n
 
 
@@ -217,8 +250,10 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
     gray = not args.color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
     has_gt = seq.gt_poses is not None and int(seq.gt_valid[:n].sum()) >= 2
     start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
-    policy = (KeyframePolicy(args.keyframe_trans, args.keyframe_rot, args.keyframe_valid)
-              if args.keyframes else None)
+    policy = None
+    if args.keyframes:  # the options given, else the policy's defaults
+        values = zip(("max_trans_m", "max_rot_deg", "min_valid"), (getattr(args, o, None) for o in KEYFRAME_OPTIONS))
+        policy = KeyframePolicy(**{field: v for field, v in values if v is not None})
     result = track(lambda i: (seq.image(i, gray=gray), seq.depth(i)), n, aligner, start_pose=start,
                    keyframes=policy, init=args.init, progress=not args.no_progress)
 
@@ -246,14 +281,23 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
         "keyframes": len(result.keyframes) if policy else None,
         "unconverged_pairs": len(unconverged),
         "unconverged_frames": unconverged,
+        "median_valid_fraction": _median_valid(result.valid_fraction),
         "ground_truth": has_gt,
     }
+    K = seq.K
     rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method})"),
+            ("intrinsics", f"fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
+                           f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
+                           f"({seq.intrinsics_source})"),
             ("ms per pair", f"{result.ms_per_pair:.2f}"),
             ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {_frames_text(unconverged)})" if unconverged
                                                            else ""))]
     if policy:
         rows.append(("keyframes", str(len(result.keyframes))))
+    valid = metrics["median_valid_fraction"]
+    if valid is not None and valid < LOW_VALID_FRACTION:
+        rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
+                                f"the depth images and --depth-scale ({seq.depth_scale:g} units per metre)"))
     if has_gt:
         m = evaluate_trajectory(stamps, result.poses, seq.gt_poses[:n], seq.gt_valid[:n])
         failed = m.pair_frames[m.failed]
@@ -274,15 +318,32 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
                  ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame"),
                  ("RPE rot RMSE", f"{m.rpe_rot_rmse_deg:.4f} deg per frame"),
                  ("failed pairs", f"{failed.shape[0]} of {m.pair_frames.shape[0]} (> 1 cm or > 0.25 deg)")]
+        if m.frames.size < n:
+            rows.append(("evaluated frames", f"{m.frames.size} of {n} (the others have no ground-truth pose within "
+                                             f"--max-difference {args.max_difference:g} s)"))
         plot_top_view(args.out / "trajectory.png", m.aligned, m.ground_truth,
                       title=f"{seq.root.name}: estimate ({aligned_by}) vs ground truth")
         plot_errors(args.out / "errors.png", m, np.array(unconverged))
     else:
         plot_top_view(args.out / "trajectory.png", result.poses, None, title=f"{seq.root.name}: estimate")
-        rows.append(("ground truth", "none: no ATE/RPE"))
+        if seq.gt_poses is None:
+            why = "none (no groundtruth.txt): no ATE/RPE"
+        else:
+            why = (f"none usable: {int(seq.gt_valid[:n].sum())} of the {n} frames have a pose in groundtruth.txt "
+                   f"within --max-difference {args.max_difference:g} s (2 needed): no ATE/RPE")
+        rows.append(("ground truth", why))
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     print(f"track {seq.root}:\n{_summary(rows)}\nwrote {args.out}")
     return 0
+
+
+def _median_valid(fractions) -> float | None:
+    """The median of the pairs' valid fractions (NaN: unknown, e.g. frame 0), None if none known."""
+    import numpy as np
+
+    known = np.asarray(fractions, dtype=np.float64)
+    known = known[np.isfinite(known)]
+    return float(np.median(known)) if known.size else None
 
 
 def _frames_text(frames: list[int], limit: int = 12) -> str:
