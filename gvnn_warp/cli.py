@@ -132,7 +132,8 @@ def _clear_unhandled_interrupt() -> bool:
 
 def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requires=()) -> int:
     """Run ``args.func(args)``: the packages in ``requires`` are checked first (one line, status 1,
-    if one is missing); a ``UsageError`` is printed after the usage line (status 2); Ctrl-C ends
+    if one is missing); a ``UsageError`` is printed after the usage line (status 2); an OSError
+    naming a file (one the command cannot make, read or write) is one line, status 1; Ctrl-C ends
     the command with one line and status 130."""
     missing = missing_packages(requires)
     if missing:
@@ -148,6 +149,12 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
             return args.func(args)
     except UsageError as e:
         parser.error(str(e))
+    except OSError as e:
+        if e.filename is None:  # not about a file: a bug or the system's, with its traceback
+            raise
+        # a file or folder the command cannot make, read or write (e.g. --out on a read-only disk)
+        print(f"{parser.prog}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         ctrl_c.reported = True
         print(f"{parser.prog}: interrupted", file=sys.stderr, flush=True)

@@ -278,6 +278,25 @@ def test_keyboard_interrupt_anywhere_in_a_command(command, tmp_path, capsys, mon
     assert capsys.readouterr().err == f"gvnn-warp {command}: interrupted\n"
 
 
+def test_a_file_the_command_cannot_write_is_one_line(tmp_path, capsys, monkeypatch):
+    from gvnn_warp.demos import render
+
+    def unwritable(args):
+        raise PermissionError(13, "Permission denied", str(tmp_path / "o" / "rgb.txt"))
+
+    monkeypatch.setattr(render, "run", unwritable)
+    argv = ["render", *(a.format(out=tmp_path / "o") for a in _VALID["render"])]
+    assert cli.main(argv) == 1
+    assert capsys.readouterr().err == f"gvnn-warp render: error: Permission denied: {tmp_path / 'o' / 'rgb.txt'}\n"
+
+    def broken(args):  # an OSError about no file is not the user's: it keeps its traceback
+        raise OSError("something else")
+
+    monkeypatch.setattr(render, "run", broken)
+    with pytest.raises(OSError, match="something else"):
+        cli.main(argv)
+
+
 def test_keyboard_interrupt_during_the_clean_up_still_exits_130(tmp_path, capsys, monkeypatch):
     """A second interrupt while run_command cleans up (after it reported the first) must not end the
     process as killed by SIGINT: one line, status 130."""
