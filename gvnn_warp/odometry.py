@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 import weakref
 from dataclasses import dataclass, field
 
@@ -86,6 +87,7 @@ _MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
 _AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
 _MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
 _LAMBDA_MAX = 1e8
+_RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)
 _OCCLUSION_LEVELS = 2  # the occlusion test runs at the finest this many levels (see DirectAligner's 'occlusion')
 _POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
 _GRAIN = 32768  # pyramid launches split over threads in pieces of at least this many pixels
@@ -94,6 +96,14 @@ _SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per 
 
 def _fail(fn: str, exc: type[Exception], msg: str):
     raise exc(f"gvnn_warp.odometry.{fn}: {msg}")
+
+
+def _real(v) -> float:
+    """``v`` as a float if it is a real number (Python, numpy, or a one-element numpy array or torch
+    tensor), else NaN (which every range check refuses)."""
+    if getattr(v, "ndim", None) == 0 or (hasattr(v, "numel") and callable(v.numel) and v.numel() == 1):
+        v = v.item()
+    return float(v) if isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) else math.nan
 
 
 def _lens_camera(fn: str, K, model, dist):
@@ -369,30 +379,30 @@ class DirectAligner:
         self.robust = robust
         for name, v, lo in (("scale", scale, 0.0), ("min_depth", min_depth, 0.0), ("tolerance", tolerance, 0.0),
                             ("lm_up", lm_up, 1.0)):
-            if not (isinstance(v, (int, float)) and lo < v < math.inf):
+            if not lo < _real(v) < math.inf:
                 _fail(fn, ValueError, f"argument '{name}' must be a finite number > {lo}, got {v!r}")
         for name, v in (("depth_weight", depth_weight), ("occlusion", occlusion), ("lm_lambda", lm_lambda),
                         ("depth_tolerance", depth_tolerance), ("take_step", take_step),
                         ("min_decrease", min_decrease)):
-            if not (isinstance(v, (int, float)) and 0.0 <= v < math.inf):
+            if not 0.0 <= _real(v) < math.inf:
                 _fail(fn, ValueError, f"argument '{name}' must be a finite number >= 0, got {v!r}")
-        if not (isinstance(lm_down, (int, float)) and 0.0 < lm_down <= 1.0):
+        if not 0.0 < _real(lm_down) <= 1.0:
             _fail(fn, ValueError, f"argument 'lm_down' must be in (0, 1], got {lm_down!r}")
-        if not (isinstance(min_valid_fraction, (int, float)) and 0.0 <= min_valid_fraction <= 1.0):
+        if not 0.0 <= _real(min_valid_fraction) <= 1.0:
             _fail(fn, ValueError, f"argument 'min_valid_fraction' must be in [0, 1], got {min_valid_fraction!r}")
-        self.scale = float(scale)
-        self.depth_weight = float(depth_weight)
-        self.occlusion = float(occlusion)
-        self.min_depth = float(min_depth)
+        self.scale = _real(scale)
+        self.depth_weight = _real(depth_weight)
+        self.occlusion = _real(occlusion)
+        self.min_depth = _real(min_depth)
         self.color = bool(color)
-        self.tolerance = float(tolerance)
-        self.min_decrease = float(min_decrease)
-        self.take_step = float(take_step)
-        self.lm_lambda = float(lm_lambda)
-        self.lm_up = float(lm_up)
-        self.lm_down = float(lm_down)
-        self.min_valid_fraction = float(min_valid_fraction)
-        self.depth_tolerance = float(depth_tolerance)
+        self.tolerance = _real(tolerance)
+        self.min_decrease = _real(min_decrease)
+        self.take_step = _real(take_step)
+        self.lm_lambda = _real(lm_lambda)
+        self.lm_up = _real(lm_up)
+        self.lm_down = _real(lm_down)
+        self.min_valid_fraction = _real(min_valid_fraction)
+        self.depth_tolerance = _real(depth_tolerance)
         self._weights: dict[int, wp.array] = {}
         self._states: dict[tuple, _State] = {}  # per (B, level shapes)
         self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free _Pyramid buffers
@@ -438,6 +448,11 @@ class DirectAligner:
             _fail(fn, ValueError, f"argument '{image_name}' must have no empty dimension, got shape {img.shape}")
         if B * C * H * W >= 2**31:
             _fail(fn, ValueError, f"argument '{image_name}' is too large for int32 indexing: shape {img.shape}")
+        if W in (1, 3, 4) and C > 4:  # (H, W, C) as image libraries load them
+            layout = "(H, W, C)" if not batched else "(B, H, W, C)"
+            _fail(fn, ValueError, f"argument '{image_name}' must be {'(B, ' if batched else '('}C, H, W), got shape "
+                  f"{tuple(np.shape(image))}, which looks channel-last {layout}: move the channels first (numpy: "
+                  f"transpose, torch: permute)")
         if H < _MIN_SIDE or W < _MIN_SIDE:
             _fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
                   f"got shape {img.shape}")
@@ -523,6 +538,17 @@ class DirectAligner:
             _fail(fn, ValueError, f"argument 'init' must have shape {want} (or 3x4 rows), got {tuple(np.shape(init))}")
         if not np.all(np.isfinite(T)):
             _fail(fn, ValueError, "argument 'init' must be finite")
+        R = T[:, :3, :3]
+        off = np.abs(np.einsum("bji,bjk->bik", R, R) - np.eye(3)).max(axis=(1, 2))
+        bad = np.flatnonzero((off > _RIGID_TOLERANCE) | (np.linalg.det(R) < 0))
+        if T.shape[1] == 4:
+            bad = np.union1d(bad, np.flatnonzero(np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > _RIGID_TOLERANCE))
+        if bad.size:
+            b = int(bad[0])
+            _fail(fn, ValueError, f"argument 'init' must be rigid transforms [R | t] (R a rotation: R^T R = I within "
+                                  f"{_RIGID_TOLERANCE:g}, det +1; a 4x4's last row 0 0 0 1), but "
+                                  f"{'item ' + str(b) if batched else 'it'} is not: "
+                                  f"{np.array2string(T[b], precision=4, separator=', ').replace(chr(10), '')}")
         out = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
         out[:, :3, :] = T[:, :3, :]
         return out

@@ -488,6 +488,19 @@ def test_bad_inputs_raise():
         (lambda: al.align(img, dep, [[0.0]]), TypeError, "align: argument 'live_image'"),
         (lambda: al.align(img, dep, img, init=np.eye(3)), ValueError, "align: argument 'init'"),
         (lambda: al.align(img, dep, img, init=np.full((4, 4), np.nan)), ValueError, "align: argument 'init'"),
+        # an init that is not a rigid transform: scaled, reflected, or with a projective last row
+        (lambda: al.align(img, dep, img, init=2 * np.eye(4)), ValueError, r"argument 'init' must be rigid.*it is not"),
+        (lambda: al.align(img, dep, img, init=np.diag([1.0, 1.0, -1.0, 1.0])), ValueError, "must be rigid"),
+        (lambda: al.align(img, dep, img, init=np.vstack([np.eye(4)[:3], [1.0, 2.0, 3.0, 4.0]])), ValueError,
+         "must be rigid"),
+        (lambda: al.align(img[None].repeat(2, 0), dep[None].repeat(2, 0), img[None].repeat(2, 0),
+                          init=np.stack([np.eye(4), 2 * np.eye(4)])), ValueError, r"must be rigid.*item 1 is not"),
+        # channel-last images, as image libraries load them
+        (lambda: al.align(np.zeros((60, 80, 3), np.float32), dep, img), ValueError,
+         r"argument 'ref_image' must be \(C, H, W\), got shape \(60, 80, 3\), which looks channel-last"),
+        (lambda: al.prepare(np.zeros((2, 60, 80, 4), np.float32)), ValueError, r"looks channel-last \(B, H, W, C\)"),
+        (lambda: DirectAligner(K, scale=True), ValueError, "argument 'scale'"),
+        (lambda: DirectAligner(K, scale=np.array([0.1, 0.2])), ValueError, "argument 'scale'"),
         (lambda: al.align(np.zeros((1, 3, 3), np.float32), np.ones((1, 3, 3), np.float32),
                           np.zeros((1, 3, 3), np.float32)), ValueError, "align: argument 'ref_image'"),
         (lambda: DirectAligner(K, depth_weight=1.0).align(img, dep, img), ValueError, "argument 'live_depth'"),
@@ -503,6 +516,14 @@ def test_bad_inputs_raise():
     for call, exc, msg in cases:
         with pytest.raises(exc, match=msg):
             call()
+
+
+def test_numbers_of_any_kind_are_accepted_as_settings():
+    K = np.array([[60.0, 0, 39.5], [0, 60.0, 29.5], [0, 0, 1]])
+    al = DirectAligner(K, scale=np.float32(0.05), depth_weight=torch.tensor(0.5), occlusion=np.array(0.1),
+                       lm_down=np.float64(0.5))
+    assert (al.scale, al.depth_weight, al.occlusion, al.lm_down) == (float(np.float32(0.05)), 0.5, 0.1, 0.5)
+    assert all(type(v) is float for v in (al.scale, al.depth_weight, al.occlusion, al.lm_down))
 
 
 def test_readme_example_runs_and_module_needs_no_torch():
