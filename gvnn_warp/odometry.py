@@ -484,8 +484,9 @@ class DirectAligner:
             ref_image, live_image: (C, H, W) or (B, C, H, W) intensities.
             ref_depth: (1, H, W) or (B, 1, H, W) metres (0/NaN = none).
             live_depth: like ``ref_depth``; needed when ``depth_weight > 0``, used by the occlusion test.
-            init: initial ``T`` ((4, 4) or (B, 4, 4); (3, 4) rows [R | t] also accepted), e.g. a
-                constant-velocity prediction; identity if None.
+            init: initial ``T`` ((4, 4) or (B, 4, 4); (3, 4) rows [R | t] also accepted), a rigid
+                transform (R a rotation within 1e-3), e.g. a constant-velocity prediction;
+                identity if None.
 
         Returns:
             ``(T, info)``: T of the kind of ``ref_image`` (numpy or torch), see the module docstring
