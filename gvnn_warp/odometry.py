@@ -101,7 +101,7 @@ def _fail(fn: str, exc: type[Exception], msg: str):
 def _real(v) -> float:
     """``v`` as a float if it is a real number (Python, numpy, or a one-element numpy array or torch
     tensor), else NaN (which every range check refuses)."""
-    if getattr(v, "ndim", None) == 0 or (hasattr(v, "numel") and callable(v.numel) and v.numel() == 1):
+    if (isinstance(v, np.ndarray) and v.size == 1) or (hasattr(v, "numel") and callable(v.numel) and v.numel() == 1):
         v = v.item()
     return float(v) if isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) else math.nan
 
@@ -448,21 +448,21 @@ class DirectAligner:
             _fail(fn, ValueError, f"argument '{image_name}' must have no empty dimension, got shape {img.shape}")
         if B * C * H * W >= 2**31:
             _fail(fn, ValueError, f"argument '{image_name}' is too large for int32 indexing: shape {img.shape}")
-        if W in (1, 3, 4) and C > 4:  # (H, W, C) as image libraries load them
-            layout = "(H, W, C)" if not batched else "(B, H, W, C)"
-            _fail(fn, ValueError, f"argument '{image_name}' must be {'(B, ' if batched else '('}C, H, W), got shape "
-                  f"{tuple(np.shape(image))}, which looks channel-last {layout}: move the channels first (numpy: "
-                  f"transpose, torch: permute)")
+        hint = ""  # for shapes refused below that look like (H, W, C), as image libraries load images
+        if W in (1, 3, 4) and C > 4:
+            hint = (f", which looks channel-last {'(B, H, W, C)' if batched else '(H, W, C)'}: images are "
+                    f"{'(B, C, H, W)' if batched else '(C, H, W)'} (numpy: transpose, torch: permute)")
         if H < _MIN_SIDE or W < _MIN_SIDE:
             _fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
-                  f"got shape {img.shape}")
+                  f"got shape {tuple(np.shape(image))}{hint}")
         if depth is not None:
             d = _as_numpy(fn, depth_name, depth, (4,) if batched else (3,))
             if not batched:
                 d = d[None]
             if d.shape != (B, 1, H, W):
                 want = (B, 1, H, W) if batched else (1, H, W)
-                _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}")
+                also = f"; argument '{image_name}' has shape {tuple(np.shape(image))}{hint}" if hint else ""
+                _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}{also}")
         if not use_depth:
             depth = None  # checked, but not needed
         key = (B, C, H, W, depth is not None)

@@ -38,8 +38,12 @@ _NAMES = {
 }
 
 
+# the other modules (not in __all__), which ``gvnn_warp.kernels.<name>`` also reaches
+_OTHER_MODULES = ("lm", "perpixel", "perpixel_kernels", "photometric_error_kernels", "pyramid", "robust", "threads")
+
+
 def __getattr__(name: str):
-    if name in _SUBMODULES:
+    if name in _SUBMODULES or name in _OTHER_MODULES:
         return importlib.import_module(f".{name}", __name__)  # (the import sets the attribute)
     if name in _NAMES:
         value = getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)

@@ -358,10 +358,11 @@ def test_check_files_finds_a_bad_file_before_any_is_decoded(tmp_path):
 def test_lists_with_a_byte_order_mark_are_read(tmp_path):
     _three_frame_folder(tmp_path)
     plain = read_tum(tmp_path)
-    for name in ("rgb.txt", "depth.txt"):
+    for name in ("rgb.txt", "depth.txt", "intrinsics.txt"):
         (tmp_path / name).write_bytes(b"\xef\xbb\xbf" + (tmp_path / name).read_bytes())
     seq = read_tum(tmp_path)
     assert seq.rgb_files == plain.rgb_files and np.array_equal(seq.timestamps, plain.timestamps)
+    assert np.array_equal(seq.K, plain.K)
 
 
 def test_writer_quantises_and_drops_out_of_range_depth(tmp_path):

@@ -497,8 +497,11 @@ def test_bad_inputs_raise():
                           init=np.stack([np.eye(4), 2 * np.eye(4)])), ValueError, r"must be rigid.*item 1 is not"),
         # channel-last images, as image libraries load them
         (lambda: al.align(np.zeros((60, 80, 3), np.float32), dep, img), ValueError,
-         r"argument 'ref_image' must be \(C, H, W\), got shape \(60, 80, 3\), which looks channel-last"),
-        (lambda: al.prepare(np.zeros((2, 60, 80, 4), np.float32)), ValueError, r"looks channel-last \(B, H, W, C\)"),
+         r"argument 'ref_image' must be at least 4x4 pixels, got shape \(60, 80, 3\), which looks channel-last "
+         r"\(H, W, C\): images are \(C, H, W\)"),
+        (lambda: al.prepare(np.zeros((2, 60, 80, 4), np.float32), np.ones((2, 1, 60, 80), np.float32)), ValueError,
+         r"argument 'depth' must have shape \(2, 1, 80, 4\), got \(2, 1, 60, 80\); argument 'image' has shape "
+         r"\(2, 60, 80, 4\), which looks channel-last \(B, H, W, C\)"),
         (lambda: DirectAligner(K, scale=True), ValueError, "argument 'scale'"),
         (lambda: DirectAligner(K, scale=np.array([0.1, 0.2])), ValueError, "argument 'scale'"),
         (lambda: al.align(np.zeros((1, 3, 3), np.float32), np.ones((1, 3, 3), np.float32),
@@ -524,6 +527,12 @@ def test_numbers_of_any_kind_are_accepted_as_settings():
                        lm_down=np.float64(0.5))
     assert (al.scale, al.depth_weight, al.occlusion, al.lm_down) == (float(np.float32(0.05)), 0.5, 0.1, 0.5)
     assert all(type(v) is float for v in (al.scale, al.depth_weight, al.occlusion, al.lm_down))
+    assert DirectAligner(K, scale=np.array([0.5])).scale == 0.5 == DirectAligner(K, scale=torch.tensor([0.5])).scale
+    # a 4-pixel-wide image of 8 channels is (C, H, W), not channel-last: accepted
+    img = np.random.default_rng(0).random((8, 32, 4), dtype=np.float32)
+    T, info = DirectAligner(np.array([[4.0, 0, 1.5], [0, 4.0, 15.5], [0, 0, 1]]), levels=1).align(
+        img, np.ones((1, 32, 4), np.float32), img)
+    assert np.all(np.isfinite(T))
 
 
 def test_readme_example_runs_and_module_needs_no_torch():

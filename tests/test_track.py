@@ -381,6 +381,7 @@ def test_track_cli_keeps_results_and_says_what_it_used(tmp_path, capsys):
     gt.unlink()
     assert main([*run, "--overwrite"]) == 0
     assert "ground truth       none (no groundtruth.txt): no ATE/RPE" in capsys.readouterr().out
+    assert not (out / "errors.png").exists()  # the earlier run's, with ground truth: not left behind
     # depths read at the wrong scale leave no usable pixel: a warning, not only unconverged pairs
     assert main([*run, "--overwrite", "--depth-scale", "1e9"]) == 0
     report = capsys.readouterr().out

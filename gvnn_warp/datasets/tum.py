@@ -345,7 +345,7 @@ def _dist_from_values(values, source: str) -> np.ndarray:
 
 
 def _read_intrinsics_file(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+    for number, line in enumerate(path.read_text(encoding="utf-8-sig", errors="replace").splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue

@@ -232,6 +232,8 @@ def run(args: argparse.Namespace) -> int:
         aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner,
                                  symmetries=tuple(spec.get("symmetries", ())))
     args.out.mkdir(parents=True, exist_ok=True)
+    for name in RESULT_FILES:  # --overwrite: no file of the earlier run is left beside the new ones
+        (args.out / name).unlink(missing_ok=True)
     try:
         return _track_and_report(args, seq, n, aligner)
     except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
