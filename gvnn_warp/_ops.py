@@ -1,13 +1,14 @@
 """Registration of every Warp kernel as a ``gvnn_warp::*`` torch custom op (see :mod:`._bridge`).
 
 These ops take already-validated, flattened, contiguous tensors; the public, documented entry
-points are in :mod:`gvnn_warp.functional`.
+points are in :mod:`gvnn_warp.functional`. The ops through lens models are in :mod:`._lens_ops`,
+registered on first use (:data:`PUBLIC` lists them too).
 """
 
 from __future__ import annotations
 
 from ._bridge import Output, Param, warp_op
-from .kernels import camera_kernels, lens_kernels, lie_kernels, sampling_kernels
+from .kernels import camera_kernels, lie_kernels, sampling_kernels
 
 
 def _rows(t, *_):
@@ -60,37 +61,6 @@ project_points = warp_op(
     [Param("P", "int"), Param("min_depth", "float")],
     [Output("pixels", "vec2", _per_row(2))], _rows,
 )
-# camera models (gvnn_warp.cameras): K (B, 3, 3), dist (B, 8) as kernels.lens lays it out, model id
-_valid = Output("valid", "bool", lambda t, *_: (t.shape[0],), differentiable=False)
-# points (B*P, 3) -> pixels (B*P, 2), valid (B*P,)
-project_points_camera = warp_op(
-    "project_points_camera", lens_kernels.project_points, ["points", "K", "dist"],
-    [Param("P", "int"), Param("min_depth", "float"), Param("model", "int")],
-    [Output("pixels", "vec2", _per_row(2)), _valid], _rows,
-)
-# depth (B*H*W,) -> points (B*H*W, 3), valid (B*H*W,)
-depth_to_points_camera = warp_op(
-    "depth_to_points_camera", lens_kernels.depth_to_points, ["depth", "K", "dist"],
-    [Param("H", "int"), Param("W", "int"), Param("model", "int")],
-    [Output("points", "vec3", _per_row(3)), _valid], _rows,
-)
-# pixels (B*P, 2), depth (B*P,) -> points (B*P, 3), valid (B*P,)
-unproject_points = warp_op(
-    "unproject_points", lens_kernels.unproject_points, ["pixels", "depth", "K", "dist"],
-    [Param("P", "int"), Param("model", "int")],
-    [Output("points", "vec3", _per_row(3)), _valid], _rows,
-)
-# pixels (B*P, 2) -> pixels (B*P, 2), valid (B*P,): ideal -> distorted image, and back
-distort_points = warp_op(
-    "distort_points", lens_kernels.distort_pixels, ["pixels", "K", "dist"],
-    [Param("P", "int"), Param("model", "int")],
-    [Output("out", "vec2", _per_row(2)), _valid], _rows,
-)
-undistort_points = warp_op(
-    "undistort_points", lens_kernels.undistort_pixels, ["pixels", "K", "dist"],
-    [Param("P", "int"), Param("model", "int")],
-    [Output("out", "vec2", _per_row(2)), _valid], _rows,
-)
 # image (B, C, H, W), grid (B*h*w, 2) -> (B, C, h*w)
 bilinear_sample = warp_op(
     "bilinear_sample", sampling_kernels.bilinear_sample, ["image", "grid"],
@@ -112,24 +82,6 @@ warp_frame_depth = warp_op(
 )
 
 
-# K (Bc, 3, 3), dist (Bc, 8) -> rays (Bc*H*W, 3): the undistorted ray (xn, yn, w) of every pixel
-pixel_rays = warp_op(
-    "pixel_rays", sampling_kernels.pixel_rays, ["K", "dist"],
-    [Param("H", "int"), Param("W", "int"), Param("model", "int")],
-    [Output("rays", "vec3", lambda K, d, H, W, m: (K.shape[0] * H * W, 3))],
-    lambda K, d, H, W, m: K.shape[0] * H * W,
-)
-# warp_frame_depth through a lens model: + dist (B, 8), rays (Bc*H*W, 3) (Bc = B, or 1 with ray_stride 0)
-warp_frame_depth_lens = warp_op(
-    "warp_frame_depth_lens", sampling_kernels.warp_frame_depth_lens, ["image", "depth", "pose", "K", "dist", "rays"],
-    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"),
-     Param("padding", "int"), Param("model", "int"), Param("ray_stride", "int")],
-    [
-        Output("out", "scalar", lambda img, *_: tuple(img.shape)),
-        Output("valid", "bool", lambda img, d, *_: tuple(d.shape), differentiable=False),
-    ],
-    lambda img, d, *_: d.shape[0] * d.shape[2],  # one thread per image row: B * H
-)
 
 
 def _lanes_kernel(C, H, W, hw, align_corners, padding):

@@ -11,7 +11,6 @@ import torch
 from ._bridge import _FLOAT_TYPES, Output, Param, _descriptor, _null, _skip_lazy_dynamo_import, warp_op
 from .kernels import photometric_error_kernels as pek
 from .kernels import photometric_kernels as pk
-from .kernels import photometric_lens_kernels as plk
 from .kernels.launch import RecordedLaunch, launch
 
 wp_float64 = _FLOAT_TYPES[torch.float64]
@@ -42,20 +41,6 @@ photometric_mean = warp_op(
         Output("count", "scalar", lambda s, n, H, C: (s.shape[0] // H,), differentiable=False),
     ],
     lambda s, n, H, C: s.shape[0] // H,
-)
-
-# photometric_rows through a distorted lens: + dist (B, 8), rays (Bc*H*W, 3) (ray_stride H*W, or 0: shared)
-photometric_rows_lens = warp_op(
-    "photometric_rows_lens",
-    plk.photometric_rows_lens,
-    ["ref_image", "ref_depth", "live_image", "pose", "K", "dist", "rays"],
-    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("kind", "int"), Param("scale", "float"),
-     Param("min_depth", "float"), Param("model", "int"), Param("ray_stride", "int")],
-    [
-        Output("row_sum", "scalar", lambda img, d, *_: (d.shape[0] * d.shape[2],)),
-        Output("row_count", "scalar", lambda img, d, *_: (d.shape[0] * d.shape[2],), differentiable=False),
-    ],
-    lambda img, d, *_: d.shape[0] * d.shape[2],
 )
 
 # op -> (its public function in gvnn_warp, its layer); tests/test_ops_registry.py checks them
@@ -152,6 +137,8 @@ def photometric_normal_equations_lens(
     ]
     rows_d = _descriptor(rows, "scalar", wp_float64)
     if H * W > 0:
+        from .kernels import photometric_lens_kernels as plk  # (on first use: see gvnn_warp._lens_ops)
+
         RecordedLaunch(
             plk.normal_equations_rows_lens[int(depth_term)][ft], B * H,
             [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride, rows_d], work=W,

@@ -21,6 +21,15 @@ from ._checks import ArgCheck
 from .kernels import lens
 from .kernels.camera import MIN_DEPTH
 
+
+def lens_ops():
+    """:mod:`gvnn_warp._lens_ops`, the ops through lens models, imported (and so registered) on
+    first use: its kernels cost ~1.5-3 s to define, which pinhole users should not pay."""
+    from . import _lens_ops
+
+    return _lens_ops
+
+
 __all__ = [
     "Camera",
     "FisheyeCamera",
@@ -176,7 +185,7 @@ def _project(chk: ArgCheck, points: Tensor, camera, min_depth: float) -> tuple[T
     model, Kb, dist = camera_args(chk, camera, "camera")
     min_depth = chk.positive("min_depth", min_depth)
     P = math.prod(points.shape[1:-1])
-    pixels, valid = _ops.project_points_camera(_flat(points, 1), Kb, dist, P, min_depth, model)
+    pixels, valid = lens_ops().project_points_camera(_flat(points, 1), Kb, dist, P, min_depth, model)
     return pixels.reshape(*points.shape[:-1], 2), valid.reshape(points.shape[:-1])
 
 
@@ -190,7 +199,7 @@ def _unproject(chk: ArgCheck, pixels: Tensor, depth: Tensor, camera) -> tuple[Te
         )
     model, Kb, dist = camera_args(chk, camera, "camera")
     P = math.prod(pixels.shape[1:-1])
-    points, valid = _ops.unproject_points(_flat(pixels, 1), depth.reshape(-1).contiguous(), Kb, dist, P, model)
+    points, valid = lens_ops().unproject_points(_flat(pixels, 1), depth.reshape(-1).contiguous(), Kb, dist, P, model)
     return points.reshape(*pixels.shape[:-1], 3), valid.reshape(pixels.shape[:-1])
 
 
@@ -246,7 +255,7 @@ def distort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
         the model's domain. Where not valid the input pixel is returned (a non-finite one as a
         finite stand-in) with zero gradient. Gradients flow to pixels, K and every coefficient.
     """
-    return _pixels_op("distort_points", _ops.distort_points, pixels, camera)
+    return _pixels_op("distort_points", lens_ops().distort_points, pixels, camera)
 
 
 def undistort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
@@ -266,7 +275,7 @@ def undistort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
         Gradients are the implicit-function ones through the solution (not through the
         iterations), for pixels, K and every coefficient.
     """
-    return _pixels_op("undistort_points", _ops.undistort_points, pixels, camera)
+    return _pixels_op("undistort_points", lens_ops().undistort_points, pixels, camera)
 
 
 def undistort_image(image: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
@@ -293,7 +302,7 @@ def undistort_image(image: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
         torch.arange(H, dtype=image.dtype), torch.arange(W, dtype=image.dtype), indexing="ij"
     )
     ideal = torch.stack([xs, ys], dim=-1).reshape(1, H * W, 2).expand(B, H * W, 2).reshape(-1, 2).contiguous()
-    src, ok = _ops.distort_points(ideal, Kb, dist, H * W, model)
+    src, ok = lens_ops().distort_points(ideal, Kb, dist, H * W, model)
     # align_corners=True normalisation: x = (gx + 1) / 2 (W - 1); a ray outside the domain reads 0
     scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=image.dtype)
     grid = torch.where(ok.unsqueeze(-1), src * scale - 1.0, src.new_full((), 2.0)).contiguous()

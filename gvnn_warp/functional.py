@@ -15,7 +15,7 @@ from torch import Tensor
 
 from . import _ops
 from ._checks import ArgCheck
-from .cameras import Camera, camera_args
+from .cameras import Camera, camera_args, lens_ops
 from .kernels import lens, sampling_kernels
 from .kernels.camera import MIN_DEPTH
 from .kernels.sampler import PADDING_MODES as _PADDING
@@ -94,11 +94,11 @@ def _rays(cam: _Lens, H: int, W: int) -> tuple[Tensor, int]:
     Kc, dc = cam.K_cam, cam.dist_cam
     stride = 0 if Kc.shape[0] == 1 else H * W
     if Kc.requires_grad or dc.requires_grad or torch.compiler.is_compiling():
-        return _ops.pixel_rays(Kc, dc, H, W, cam.model), stride
+        return lens_ops().pixel_rays(Kc, dc, H, W, cam.model), stride
     key = (cam.model, Kc.dtype, H, W, Kc.numpy().tobytes(), dc.numpy().tobytes())
     rays = _RAYS_CACHE.pop(key, None)
     if rays is None:
-        rays = _ops.pixel_rays(Kc, dc, H, W, cam.model)
+        rays = lens_ops().pixel_rays(Kc, dc, H, W, cam.model)
         if len(_RAYS_CACHE) >= _RAYS_CACHE_SIZE:
             _RAYS_CACHE.pop(next(iter(_RAYS_CACHE)))
     _RAYS_CACHE[key] = rays
@@ -266,7 +266,7 @@ def depth_to_points(depth: Tensor, K: Tensor | Camera) -> Tensor:
     flat = depth.reshape(-1).contiguous()
     if model == lens.PINHOLE:
         return _ops.depth_to_points(flat, Kb, H, W).reshape(B, H, W, 3)
-    return _ops.depth_to_points_camera(flat, Kb, dist, H, W, model)[0].reshape(B, H, W, 3)
+    return lens_ops().depth_to_points_camera(flat, Kb, dist, H, W, model)[0].reshape(B, H, W, 3)
 
 
 def transform_points(T: Tensor, points: Tensor) -> Tensor:
@@ -315,7 +315,7 @@ def project_points(points: Tensor, K: Tensor | Camera, *, min_depth: float = MIN
     if model == lens.PINHOLE:
         out = _ops.project_points(_flat(points, 1), Kb, P, min_depth)
     else:
-        out = _ops.project_points_camera(_flat(points, 1), Kb, dist, P, min_depth, model)[0]
+        out = lens_ops().project_points_camera(_flat(points, 1), Kb, dist, P, min_depth, model)[0]
     return out.reshape(*points.shape[:-1], 2)
 
 
@@ -413,7 +413,7 @@ def warp_frame_depth(
             image.contiguous(), depth.contiguous(), pose34.contiguous(), cam.K, C, H, W, min_depth, pad
         )
     rays, stride = _rays(cam, H, W)
-    return _ops.warp_frame_depth_lens(
+    return lens_ops().warp_frame_depth_lens(
         image.contiguous(), depth.contiguous(), pose34.contiguous(), cam.K, cam.dist, rays,
         C, H, W, min_depth, pad, cam.model, stride,
     )

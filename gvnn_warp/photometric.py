@@ -16,7 +16,7 @@ from torch import Tensor, nn
 
 from . import _photometric_ops as _ops
 from ._checks import ArgCheck
-from .cameras import Camera
+from .cameras import Camera, lens_ops
 from .functional import _Lens, _pose34, _rays
 from .kernels.camera import MIN_DEPTH
 from .kernels.photometric import KINDS as _CODES
@@ -99,7 +99,7 @@ def photometric_error(
     _, C, H, W = ref_image.shape
     if cam.model != 0:  # a distorted lens (see warp_frame_depth): its row kernel and Warp adjoint
         rays, stride = _rays(cam, H, W)
-        row_sum, row_count = _ops.photometric_rows_lens(
+        row_sum, row_count = lens_ops().photometric_rows_lens(
             ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K, cam.dist, rays,
             C, H, W, _CODES[robust], scale, min_depth, cam.model, stride,
         )

@@ -7,7 +7,8 @@
   :mod:`.sampler` (bilinear sampling with zeros/border padding).
 - Thin kernels with float32/float64 overloads: :mod:`.lie_kernels`, :mod:`.camera_kernels`,
   :mod:`.lens_kernels`,
-  :mod:`.sampling_kernels` (including the fused 3D spatial transformer).
+  :mod:`.sampling_kernels` (including the fused 3D spatial transformer; through a lens model:
+  :mod:`.sampling_lens_kernels`).
 - Host functions on ``wp.array``s, usable under ``wp.Tape``: :mod:`.pipeline`; the fused
   photometric objective (its Gauss-Newton normal equations): :mod:`.photometric_pipeline`
   (both take a distorted lens as ``dist=``, ``model=``; its kernels: :mod:`.photometric_lens_kernels`).
@@ -26,7 +27,7 @@ import importlib
 _SUBMODULES = (
     "camera", "camera_kernels", "kinds", "launch", "lens", "lens_kernels", "lens_rays", "lie", "lie_kernels",
     "photometric", "photometric_kernels", "photometric_lens_kernels", "photometric_pipeline", "pipeline",
-    "sampler", "sampling_kernels",
+    "sampler", "sampling_kernels", "sampling_lens_kernels",
 )
 _NAMES = {
     **{n: "camera" for n in ("MIN_DEPTH", "pixel_ray", "project", "project_clamped", "unproject")},
@@ -88,6 +89,7 @@ __all__ = [
     "sample_position",
     "sampler",
     "sampling_kernels",
+    "sampling_lens_kernels",
     "se3_exp",
     "se3_to_pose",
     "sim3_to_pose",

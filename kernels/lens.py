@@ -80,6 +80,7 @@ implicit-function adjoint at the solution (x, y)).
 """
 
 import math
+import threading
 from typing import Any
 
 import numpy as np
@@ -766,7 +767,27 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None, distort
     return distort, undistort, project, unproject, distort_pixel, undistort_pixel
 
 
-distort, undistort, project, unproject, distort_pixel, undistort_pixel = _make(wp.float64, *_make(wp.float32))
+# The typed fronts are made on first use (PEP 562): Warp builds a function with a custom adjoint
+# when the adjoint is defined, to learn its return types, which costs ~1.5 s here; importing this
+# module for its constants (the torch cameras, the aligner) should not. A kernel's code that names
+# ``lens.project`` reaches them through this hook when Warp resolves the name.
+_FRONTS = ("distort", "undistort", "project", "unproject", "distort_pixel", "undistort_pixel")
+distort: Any
+undistort: Any
+project: Any
+unproject: Any
+distort_pixel: Any
+undistort_pixel: Any
+_FRONTS_LOCK = threading.Lock()
+
+
+def __getattr__(name: str):
+    if name in _FRONTS:
+        with _FRONTS_LOCK:
+            if _FRONTS[0] not in globals():
+                globals().update(zip(_FRONTS, _make(wp.float64, *_make(wp.float32))))
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "DIST_SIZE",

@@ -20,7 +20,6 @@ import warp as wp
 
 from . import launch as _launch
 from . import photometric_kernels as pk
-from . import photometric_lens_kernels as plk
 from .camera import MIN_DEPTH
 from .photometric import KINDS
 from .pipeline import _expect, _expect_dist, _expect_float, _expect_matrices, _lens_model, _type_name, pixel_rays
@@ -326,6 +325,8 @@ def photometric_error(
         kernel, inputs = pk.photometric_rows[ft], [*frames, *penalty]
     else:
         rays = pixel_rays(K, dist, H, W, m)
+        from . import photometric_lens_kernels as plk  # (on first use: the lens models are slow to define)
+
         kernel, inputs = plk.photometric_rows_lens[ft], [*frames, dist, rays.flatten(), *penalty, m, H * W]
     wp.launch(kernel, dim=B * H, inputs=inputs, outputs=[row_sum, row_count], device="cpu")
     wp.launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C], outputs=[error, count],
@@ -374,6 +375,8 @@ def _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, sc
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
+    from . import photometric_lens_kernels as plk  # (on first use: the lens models are slow to define)
+
     out._cmds = [
         _launch.RecordedLaunch(plk.normal_equations_rows_lens[variant][ft], B * H, inputs, work=W,
                                grain=pk._GRAIN_PIXELS),

@@ -78,7 +78,9 @@ def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
     B = K.shape[0]
     vec3 = wp.types.vector(3, ft)
     rays = wp.zeros((B, H, W), dtype=vec3, device=K.device, requires_grad=K.requires_grad or dist.requires_grad)
-    wp.launch(sampling_kernels.pixel_rays[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
+    from . import sampling_lens_kernels  # (on first use: the lens models' adjoints are slow to define)
+
+    wp.launch(sampling_lens_kernels.pixel_rays[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
               outputs=[rays.flatten()], device=K.device)
     return rays
 
@@ -126,8 +128,10 @@ def warp_frame_depth(
     if m == 0:
         kernel, inputs = sampling_kernels.warp_frame_depth[ft], [0, *common, *params]
     else:
+        from . import sampling_lens_kernels  # (on first use, as in pixel_rays)
+
         rays = pixel_rays(K, dist, H, W, m)
-        kernel = sampling_kernels.warp_frame_depth_lens[ft]
+        kernel = sampling_lens_kernels.warp_frame_depth_lens[ft]
         inputs = [0, *common, dist, rays.flatten(), *params, m, H * W]
     wp.launch(
         kernel,

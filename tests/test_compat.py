@@ -139,6 +139,29 @@ def test_first_call_does_not_import_dynamo():
     assert out.stdout.strip().splitlines()[-1] == "False"
 
 
+def test_pinhole_work_does_not_define_the_lens_models():
+    """The lens models' kernels cost seconds to define (Warp builds every custom adjoint's function
+    then): import gvnn_warp, a pinhole warp_frame_depth fwd+bwd and a pinhole DirectAligner never
+    define them; the first distorted camera does."""
+    code = """if True:
+        import sys, numpy as np, torch, gvnn_warp as G
+        from gvnn_warp.odometry import DirectAligner
+        from gvnn_warp.kernels import lens
+        img = torch.rand(1, 1, 16, 16, requires_grad=True)
+        depth = torch.full((1, 1, 16, 16), 2.0, requires_grad=True)
+        K = torch.tensor([[20.0, 0, 7.5], [0, 20.0, 7.5], [0, 0, 1]])
+        G.warp_frame_depth(img, depth, torch.eye(4)[None], K)[0].sum().backward()
+        G.photometric_error(img, depth, img, torch.eye(4)[None], K)[0].backward()
+        DirectAligner(K.numpy()).align(img[0].detach().numpy(), depth[0].detach().numpy(), img[0].detach().numpy())
+        lensed = ('gvnn_warp.kernels.lens_rays' in sys.modules, 'gvnn_warp._lens_ops' in sys.modules,
+                  'project' in vars(lens))
+        G.warp_frame_depth(img, depth, torch.eye(4)[None], G.RadTanCamera(K, torch.tensor([0.1, 0, 0, 0, 0])))
+        print(lensed, 'project' in vars(lens))
+    """
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "(False, False, False) True", out.stdout
+
+
 def test_torch_openmp_library():
     library, reason = _compat.torch_openmp_library()
     assert "parallel backend:" in torch.__config__.parallel_info(), "parallel_info() text changed"

@@ -6,7 +6,7 @@ from op_samples import op_samples
 from refs import assert_only_wanted_gradients, intrinsics
 
 import gvnn_warp as G
-from gvnn_warp import _bridge, _ops, _perpixel_ops  # noqa: F401  (register the ops)
+from gvnn_warp import _bridge, _lens_ops, _ops, _perpixel_ops  # noqa: F401  (register the ops)
 
 OP_NAMES = sorted(_bridge.OPS)  # every registered op; samples in tests/op_samples.py
 

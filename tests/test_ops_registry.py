@@ -7,7 +7,7 @@ from gvnn_warp.kernels import kinds
 from op_samples import op_samples
 
 import gvnn_warp
-from gvnn_warp import _bridge, _ops, _perpixel_ops, _photometric_ops
+from gvnn_warp import _bridge, _lens_ops, _ops, _perpixel_ops, _photometric_ops  # noqa: F401  (registers every op)
 
 API_DOC = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
 

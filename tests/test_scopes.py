@@ -13,7 +13,7 @@ from op_samples import op_samples
 from refs import gradients_of
 
 import gvnn_warp  # noqa: F401
-from gvnn_warp import _bridge, _ops, _perpixel_ops, _photometric_ops  # noqa: F401  (registers every op)
+from gvnn_warp import _bridge, _lens_ops, _ops, _perpixel_ops, _photometric_ops  # noqa: F401  (registers every op)
 
 MAX_PIECES = 256
 
