@@ -336,6 +336,19 @@ def test_errors_name_the_file(tmp_path):
         read_tum(tmp_path / "nowhere")
 
 
+def test_errors_give_the_first_bad_line_in_the_file(tmp_path):
+    _three_frame_folder(tmp_path)
+    (tmp_path / "rgb.txt").write_text("# list\n10.0 rgb/a.png\n11.0 rgb/b.png\n10.0 rgb/c.png\n")
+    with pytest.raises(DatasetError) as e:
+        read_tum(tmp_path)
+    assert "rgb.txt:4: timestamp 10.000000 appears more than once (also on line 2)" in _one_line(e)
+    # two bad poses: the one on the earlier line is reported, though its timestamp is later
+    path = tmp_path / "trajectory.txt"
+    path.write_text("1.0 0 0 0 0 0 0 1\n5.0 0 0 0 0 0 0 0\n2.0 0 0 0 0 0 0 0\n")
+    with pytest.raises(DatasetError, match=r"trajectory.txt:2: the quaternion"):
+        read_trajectory(path)
+
+
 def test_check_files_finds_a_bad_file_before_any_is_decoded(tmp_path):
     _three_frame_folder(tmp_path)
     seq = read_tum(tmp_path)

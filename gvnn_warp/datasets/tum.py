@@ -210,7 +210,9 @@ def _read_table(path: Path, columns: int, what: str) -> tuple[np.ndarray, list[l
     sorted_times = times[order]
     dup = np.flatnonzero(np.diff(sorted_times) == 0)
     if dup.size:
-        raise DatasetError(f"{path}: timestamp {sorted_times[dup[0]]:.6f} appears more than once")
+        first, second = sorted((lines[order[dup[0]]], lines[order[dup[0] + 1]]))
+        raise DatasetError(f"{path}:{second}: timestamp {sorted_times[dup[0]]:.6f} appears more than once (also on "
+                           f"line {first})")
     return sorted_times, [rows[i] for i in order], [lines[i] for i in order]
 
 
@@ -223,7 +225,8 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     stamps, rows, lines = _read_table(path, 8, "trajectory")
     values = np.empty((len(rows), 7))
-    for k, (row, number) in enumerate(zip(rows, lines)):
+    for k in sorted(range(len(rows)), key=lines.__getitem__):  # checked in file order: the first bad line
+        row, number = rows[k], lines[k]
         try:
             values[k] = [float(v) for v in row]
         except ValueError:
