@@ -3,7 +3,9 @@ the camera objects' projections (:mod:`gvnn_warp.cameras`), and the 3D spatial t
 photometric error (:mod:`._photometric_ops`, whose :data:`PUBLIC` lists it) through a distorted
 camera. Like :mod:`._ops`, whose conventions and helpers they share, but imported on first
 use of a camera model: defining the lens models' custom adjoints makes Warp build their functions
-(~1.5-3 s), which a user of pinhole layers should not wait for.
+(~1.5-3 s), which a user of pinhole layers should not wait for. So ``torch.ops.gvnn_warp.<op>`` of
+these ops exists only once this module is imported: a program that loads a saved graph holding
+them (``torch.export.load``) imports ``gvnn_warp._lens_ops`` first.
 """
 
 from __future__ import annotations

@@ -769,8 +769,9 @@ def _make(T, distort=None, undistort=None, project=None, unproject=None, distort
 
 # The typed fronts are made on first use (PEP 562): Warp builds a function with a custom adjoint
 # when the adjoint is defined, to learn its return types, which costs ~1.5 s here; importing this
-# module for its constants (the torch cameras, the aligner) should not. A kernel's code that names
-# ``lens.project`` reaches them through this hook when Warp resolves the name.
+# module for its constants (the torch cameras, the aligner) should not. A kernel or function that
+# names ``lens.project`` makes them when it is defined (Warp resolves the names then), i.e. when
+# its module is imported: the modules with such kernels are imported on first use of a lens.
 _FRONTS = ("distort", "undistort", "project", "unproject", "distort_pixel", "undistort_pixel")
 distort: Any
 undistort: Any
@@ -788,6 +789,11 @@ def __getattr__(name: str):
                 globals().update(zip(_FRONTS, _make(wp.float64, *_make(wp.float32))))
         return globals()[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_FRONTS))
+
 
 __all__ = [
     "DIST_SIZE",
