@@ -369,9 +369,15 @@ def test_track_cli_keeps_results_and_says_what_it_used(tmp_path, capsys):
     assert main([*run, "--overwrite"]) == 0
     capsys.readouterr()
 
-    # ground truth that matches no frame, or none at all: the summary says why there is no ATE/RPE
+    # ground truth for some frames only: the summary says how many were evaluated
     gt = data / "groundtruth.txt"
     lines = gt.read_text().splitlines()
+    poses = [line for line in lines if not line.startswith("#")]
+    gt.write_text("\n".join(poses[:2]) + "\n")  # frames 0 and 1 (frame 2 is 1/30 s > 0.02 s away)
+    assert main([*run, "--overwrite"]) == 0
+    assert ("evaluated frames   2 of 3 (the others have no ground-truth pose within --max-difference 0.02 s)"
+            in capsys.readouterr().out)
+    # ground truth that matches no frame, or none at all: the summary says why there is no ATE/RPE
     shifted = [" ".join([f"{float(w[0]) + 100:.6f}", *w[1:]]) for w in (line.split() for line in lines
                                                                            if not line.startswith("#"))]
     gt.write_text("\n".join(shifted) + "\n")
