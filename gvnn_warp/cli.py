@@ -153,7 +153,7 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
         if e.filename is None:  # not about a file: a bug or the system's, with its traceback
             raise
         # a file or folder the command cannot make, read or write (e.g. --out on a read-only disk)
-        print(f"{parser.prog}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)
+        print(f"{parser.prog}: error: {e.filename}: {e.strerror or e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         ctrl_c.reported = True

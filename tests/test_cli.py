@@ -119,7 +119,7 @@ def _bad_cases():
             (["--keyframes", "--keyframe-rot", "0"], "argument --keyframe-rot: expected a number > 0 and <= 180 deg"),
             (["--keyframe-trans", "0.1"], "--keyframe-trans applies with --keyframes only"),
             (["--keyframe-valid", "0.5"], "--keyframe-valid applies with --keyframes only"),
-            (["--intrinsics", "240,240,1000,7.5"], "the principal point (1000, 7.5) of the intrinsics (given) is "
+            (["--intrinsics", "240,240,1000,7.5"], "the principal point (1000, 7.5) of the intrinsics (--intrinsics) is "
                                                    "outside the 16x16 images"),
             (["--out", SEQ], "is the sequence's own folder; choose another"),
             (["--keyframe-valid", "1.5"], "argument --keyframe-valid: expected a number from 0 to 1, got '1.5'"),
@@ -287,7 +287,7 @@ def test_a_file_the_command_cannot_write_is_one_line(tmp_path, capsys, monkeypat
     monkeypatch.setattr(render, "run", unwritable)
     argv = ["render", *(a.format(out=tmp_path / "o") for a in _VALID["render"])]
     assert cli.main(argv) == 1
-    assert capsys.readouterr().err == f"gvnn-warp render: error: Permission denied: {tmp_path / 'o' / 'rgb.txt'}\n"
+    assert capsys.readouterr().err == f"gvnn-warp render: error: {tmp_path / 'o' / 'rgb.txt'}: Permission denied\n"
 
     def broken(args):  # an OSError about no file is not the user's: it keeps its traceback
         raise OSError("something else")

@@ -240,8 +240,9 @@ def test_intrinsics_file_presets_and_explicit(tmp_path):
     named = tmp_path / "rgbd_dataset_freiburg2_xyz"
     _three_frame_folder(named, intrinsics=None)
     seq = read_tum(named)
-    assert seq.intrinsics_source.startswith("preset fr2")
+    assert seq.intrinsics_source == "preset fr2 (from the folder name, scaled from 640x480 to 5x4)"
     np.testing.assert_allclose(seq.K, intrinsics_preset("fr2", 5, 4))
+    assert read_tum(named, intrinsics="fr1").intrinsics_source == "preset fr1, scaled from 640x480 to 5x4"
 
     bare = tmp_path / "bare"
     _three_frame_folder(bare, intrinsics=None)

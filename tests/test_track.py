@@ -344,11 +344,18 @@ def test_track_cli_file_errors_name_the_file(tmp_path, capsys):
         assert not out.exists()
         path.write_bytes(original)
     # pixel data that cannot be decoded behind a good header is met while tracking: one line
-    # naming the file, status 1
+    # naming the file, status 1, and nothing written; an earlier run's results are kept
+    kept = tmp_path / "kept"
+    assert main(["track", str(data), "--out", str(kept), "--no-progress"]) == 0
+    before = {p.name: p.read_bytes() for p in kept.iterdir()}
+    capsys.readouterr()
     images[2].write_bytes(good[: len(good) // 2])
     assert main(["track", str(data), "--out", str(out), "--no-progress"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("gvnn-warp track: error: ") and images[2].name in err[0], err
+    assert not out.exists()
+    assert main(["track", str(data), "--out", str(kept), "--no-progress", "--overwrite"]) == 1
+    assert {p.name: p.read_bytes() for p in kept.iterdir()} == before
 
 
 def test_track_cli_keeps_results_and_says_what_it_used(tmp_path, capsys):

@@ -611,11 +611,12 @@ def read_tum(
 
 def _resolve_intrinsics(root: Path, intrinsics, width: int, height: int):
     """(K, source, dist or None)."""
+    scaled = "" if (width, height) == (640, 480) else f", scaled from 640x480 to {width}x{height}"
     if isinstance(intrinsics, str):
         if intrinsics not in INTRINSICS_PRESETS:
             raise ValueError(f"read_tum: unknown intrinsics preset {intrinsics!r}; "
                              f"expected one of {', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy")
-        return intrinsics_preset(intrinsics, width, height), f"preset {intrinsics}", _preset_dist(intrinsics)
+        return intrinsics_preset(intrinsics, width, height), f"preset {intrinsics}{scaled}", _preset_dist(intrinsics)
     if intrinsics is not None:
         arr = np.asarray(intrinsics, dtype=np.float64)
         if arr.shape == (3, 3):
@@ -632,7 +633,8 @@ def _resolve_intrinsics(root: Path, intrinsics, width: int, height: int):
         return K, str(path), dist
     preset = _preset_from_name(root)
     if preset is not None:
-        return intrinsics_preset(preset, width, height), f"preset {preset} (from the folder name)", _preset_dist(preset)
+        return (intrinsics_preset(preset, width, height), f"preset {preset} (from the folder name{scaled})",
+                _preset_dist(preset))
     raise DatasetError(f"{path}: missing; give intrinsics ({', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy)")
 
 

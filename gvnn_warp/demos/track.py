@@ -188,8 +188,9 @@ def check(args: argparse.Namespace):
         raise UsageError(str(e)) from None
     cx, cy = seq.K[0, 2], seq.K[1, 2]
     if not (0 <= cx <= seq.width - 1 and 0 <= cy <= seq.height - 1):
-        raise UsageError(f"the principal point ({cx:g}, {cy:g}) of the intrinsics ({seq.intrinsics_source}) is "
-                         f"outside the {seq.width}x{seq.height} images")
+        source = "--intrinsics" if seq.intrinsics_source == "given" else seq.intrinsics_source
+        raise UsageError(f"the principal point ({cx:g}, {cy:g}) of the intrinsics ({source}) is outside the "
+                         f"{seq.width}x{seq.height} images")
     return seq, n
 
 
@@ -231,9 +232,6 @@ def run(args: argparse.Namespace) -> int:
         net, spec = network
         aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner,
                                  symmetries=tuple(spec.get("symmetries", ())))
-    args.out.mkdir(parents=True, exist_ok=True)
-    for name in RESULT_FILES:  # --overwrite: no file of the earlier run is left beside the new ones
-        (args.out / name).unlink(missing_ok=True)
     try:
         return _track_and_report(args, seq, n, aligner)
     except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
@@ -260,6 +258,12 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
                    keyframes=policy, init=args.init, progress=not args.no_progress)
 
     stamps = seq.timestamps[:n]
+    # only now, with the run done: make --out, and (--overwrite) remove the earlier run's files, so
+    # that a run that fails leaves nothing, or the earlier results, and no file of theirs is left
+    # beside the new ones
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name in RESULT_FILES:
+        (args.out / name).unlink(missing_ok=True)
     write_trajectory(args.out / "trajectory.txt", stamps, result.poses,
                      comment=f"gvnn-warp track {seq.root}: estimated T_world_cam")
     unconverged = result.unconverged_frames
@@ -334,6 +338,7 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
             why = (f"none usable: {int(seq.gt_valid[:n].sum())} of the {n} frames have a pose in groundtruth.txt "
                    f"within --max-difference {args.max_difference:g} s (2 needed): no ATE/RPE")
         rows.append(("ground truth", why))
+        metrics["ground_truth_note"] = why
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     print(f"track {seq.root}:\n{_summary(rows)}\nwrote {args.out}")
     return 0
