@@ -119,8 +119,8 @@ def _bad_cases():
             (["--keyframes", "--keyframe-rot", "0"], "argument --keyframe-rot: expected a number > 0 and <= 180 deg"),
             (["--keyframe-trans", "0.1"], "--keyframe-trans applies with --keyframes only"),
             (["--keyframe-valid", "0.5"], "--keyframe-valid applies with --keyframes only"),
-            (["--intrinsics", "240,240,1000,7.5"], "the principal point (1000, 7.5) of the intrinsics (--intrinsics) is "
-                                                   "outside the 16x16 images"),
+            (["--intrinsics", "240,240,1000,7.5"],
+             "the principal point (1000, 7.5) of the intrinsics (--intrinsics) is outside the 16x16 images"),
             (["--out", SEQ], "is the sequence's own folder; choose another"),
             (["--keyframe-valid", "1.5"], "argument --keyframe-valid: expected a number from 0 to 1, got '1.5'"),
             (["--init", "magic"], "argument --init: invalid choice: 'magic'"),
