@@ -395,11 +395,19 @@ def test_track_cli_keeps_results_and_says_what_it_used(tmp_path, capsys):
     assert main([*run, "--overwrite"]) == 0
     assert "ground truth       none (no groundtruth.txt): no ATE/RPE" in capsys.readouterr().out
     assert not (out / "errors.png").exists()  # the earlier run's, with ground truth: not left behind
-    # depths read at the wrong scale leave no usable pixel: a warning, not only unconverged pairs
+    # depths read at the wrong scale leave no usable pixel, or are implausible: a warning, not only
+    # unconverged pairs or a large error
     assert main([*run, "--overwrite", "--depth-scale", "1e9"]) == 0
     report = capsys.readouterr().out
     assert "warning            only 0.0% of the pixels were usable" in report and "--depth-scale (1e+09" in report
+    assert "median depth is" in report
     assert json.loads((out / "metrics.json").read_text())["median_valid_fraction"] == 0.0
+    assert main([*run, "--overwrite", "--depth-scale", "5"]) == 0  # TUM's 5000 read as 5: depths of km
+    report = capsys.readouterr().out
+    assert re.search(r"warning            the first frame's median depth is \d+ m: check --depth-scale \(5 units",
+                     report), report
+    assert main([*run, "--overwrite"]) == 0
+    assert "warning" not in capsys.readouterr().out
 
 
 def test_track_cli_end_to_end_with_the_direct_aligner(tmp_path, capsys):

@@ -55,6 +55,7 @@ METHODS = ("direct", "vo", "vo+direct")
 MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
 MAX_ITERATIONS = 1000
 LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the summary warns (depth scale, images)
+PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth suggests a wrong --depth-scale
 
 
 def intrinsics_arg(text: str):
@@ -300,6 +301,12 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
                                                            else ""))]
     if policy:
         rows.append(("keyframes", str(len(result.keyframes))))
+    depth0 = seq.depth(0)
+    depth0 = depth0[np.isfinite(depth0) & (depth0 > 0)]
+    metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
+    if depth0.size and not PLAUSIBLE_DEPTH_M[0] <= np.median(depth0) <= PLAUSIBLE_DEPTH_M[1]:
+        rows.append(("warning", f"the first frame's median depth is {np.median(depth0):.4g} m: check --depth-scale "
+                                f"({seq.depth_scale:g} units per metre)"))
     valid = metrics["median_valid_fraction"]
     if valid is not None and valid < LOW_VALID_FRACTION:
         rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
