@@ -342,15 +342,14 @@ def track(
 
     tracker = Tracker(aligner, n_frames, start_pose=start_pose, keyframes=keyframes, init=init, warmup=warmup,
                       pipeline=pipeline)
-    if n_frames > 0:
-        # frame 0 (with the warm-up, which loads or first compiles the kernels) before the bar, so
-        # that a compile notice is not printed into it and its rate counts tracked frames only
-        tracker.add(*read_frame(0))
-    with tqdm(total=n_frames, initial=min(n_frames, 1), unit="frame", disable=not progress, desc=desc,
-              dynamic_ncols=True) as bar:
+    # frame 0 (with the warm-up, which loads or first compiles the kernels) before the bar, so that
+    # a compile notice is not printed into it and its rate counts tracked frames only (the Tracker
+    # has refused n_frames < 1)
+    tracker.add(*read_frame(0))
+    with tqdm(total=n_frames, initial=1, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
         for i in range(1, n_frames):
             tracker.add(*read_frame(i))
             bar.update(1)
-            if progress and i > 0 and (i % 10 == 0 or i == n_frames - 1):
+            if progress and (i % 10 == 0 or i == n_frames - 1):
                 bar.set_postfix_str(f"{tracker.ms_per_pair:.1f} ms/pair", refresh=False)
     return tracker.result()

@@ -155,7 +155,8 @@ def _summary(rows: list[tuple[str, str]]) -> str:
 
 
 RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png")
-KEYFRAME_OPTIONS = ("keyframe_trans", "keyframe_rot", "keyframe_valid")
+KEYFRAME_OPTIONS = {"keyframe_trans": "max_trans_m", "keyframe_rot": "max_rot_deg", "keyframe_valid": "min_valid"}
+# (option -> its KeyframePolicy field)
 
 
 def check(args: argparse.Namespace):
@@ -253,8 +254,8 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
     start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
     policy = None
     if args.keyframes:  # the options given, else the policy's defaults
-        values = zip(("max_trans_m", "max_rot_deg", "min_valid"), (getattr(args, o, None) for o in KEYFRAME_OPTIONS))
-        policy = KeyframePolicy(**{field: v for field, v in values if v is not None})
+        given = {field: getattr(args, option, None) for option, field in KEYFRAME_OPTIONS.items()}
+        policy = KeyframePolicy(**{field: v for field, v in given.items() if v is not None})
     result = track(lambda i: (seq.image(i, gray=gray), seq.depth(i)), n, aligner, start_pose=start,
                    keyframes=policy, init=args.init, progress=not args.no_progress)
 
@@ -303,9 +304,9 @@ def _track_and_report(args, seq, n: int, aligner) -> int:
         rows.append(("keyframes", str(len(result.keyframes))))
     depth0 = seq.depth(0)
     depth0 = depth0[np.isfinite(depth0) & (depth0 > 0)]
-    metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
-    if depth0.size and not PLAUSIBLE_DEPTH_M[0] <= np.median(depth0) <= PLAUSIBLE_DEPTH_M[1]:
-        rows.append(("warning", f"the first frame's median depth is {np.median(depth0):.4g} m: check --depth-scale "
+    median0 = metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
+    if median0 is not None and not PLAUSIBLE_DEPTH_M[0] <= median0 <= PLAUSIBLE_DEPTH_M[1]:
+        rows.append(("warning", f"the first frame's median depth is {median0:.4g} m: check --depth-scale "
                                 f"({seq.depth_scale:g} units per metre)"))
     valid = metrics["median_valid_fraction"]
     if valid is not None and valid < LOW_VALID_FRACTION:
