@@ -375,12 +375,15 @@ def _preset_from_name(root: Path) -> str | None:
 # Images
 
 
-def _open_image(path: Path, what: str):
+def _open_image(path: Path, what: str, load: bool = True):
+    """The Pillow image at ``path`` (its pixels read unless ``load`` is False: the header only);
+    DatasetError naming the file if it is missing or cannot be read."""
     from PIL import Image, UnidentifiedImageError
 
     try:
         im = Image.open(path)
-        im.load()
+        if load:
+            im.load()
     except FileNotFoundError:
         raise DatasetError(f"{path}: missing {what} image") from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
@@ -522,18 +525,11 @@ class TUMSequence:
         exists and can be opened, has a colour / 16-bit depth format and the sequence's size.
         Raises DatasetError naming the first bad file, so that a long run does not stop at it
         (Pillow reads only the headers: ~0.1 ms per file)."""
-        from PIL import Image, UnidentifiedImageError
-
         for k in range(len(self) if n is None else min(n, len(self))):
             for path, what, check in ((self.rgb_files[k], "colour", _check_rgb_mode),
                                       (self.depth_files[k], "depth", _check_depth_mode)):
-                try:
-                    with Image.open(path) as im:
-                        mode, size = im.mode, im.size
-                except FileNotFoundError:
-                    raise DatasetError(f"{path}: missing {what} image") from None
-                except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-                    raise DatasetError(f"{path}: cannot read {what} image ({type(e).__name__}: {e})") from None
+                with _open_image(path, what, load=False) as im:
+                    mode, size = im.mode, im.size
                 check(path, mode)
                 if size != (self.width, self.height):
                     raise DatasetError(f"{path}: {what} image is {size[0]}x{size[1]}, the sequence's first image is "
