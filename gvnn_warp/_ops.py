@@ -82,8 +82,6 @@ warp_frame_depth = warp_op(
 )
 
 
-
-
 def _lanes_kernel(C, H, W, hw, align_corners, padding):
     if not sampling_kernels.fits_lanes(hw, H, W):
         raise ValueError(f"bilinear_sample_lanes: needs hw % 8 == 0 and H*W <= 2^24, got hw={hw}, H*W={H * W}")
