@@ -140,7 +140,23 @@ def _replay(forward, bounds, args, keep) -> Callable[[], None]:
         forward(bounds, args)
 
     replay.keep = keep  # the ctypes values the pointers refer to
+    replay.args = keep[2]  # the argument struct (see set_replay_arg)
     return replay
+
+
+def set_replay_arg(cmd, runs: Sequence[Callable[[], None]], index: int) -> bool:
+    """Copy argument ``index`` of the recorded launch ``cmd`` (0 = the kernel's first argument, as
+    ``cmd.set_param_at_index``; set it there first) into the argument structs of its replays
+    ``runs`` (:func:`replay_pieces`), in place: ~1 us per replay against ~30 us per piece for
+    building them again. The argument of a piece's ``offset`` (index 0) is not touched. Returns
+    False (nothing changed) where ``runs`` are not such replays: build them again then."""
+    if index == 0 or not all(hasattr(run, "args") for run in runs):
+        return False
+    label = cmd.kernel.adj.args[index].label
+    value = cmd.params[1 + index]
+    for run in runs:
+        setattr(run.args, label, value)
+    return True
 
 
 def replay_function(cmd) -> Callable[[], None]:

@@ -293,8 +293,9 @@ class RecordedLaunch:
     recording.
 
     The pieces' replay functions (:func:`._compat.replay_pieces`, one argument struct each) are
-    built on the first call and again after :meth:`set_arg`; where they do not apply, one launch
-    per piece is recorded then and replayed by Warp. ``n`` <= 0: calls do nothing. The replays
+    built on the first call; :meth:`set_arg` updates their structs in place. Where they do not
+    apply, one launch per piece is recorded then and replayed by Warp, and recorded again after
+    :meth:`set_arg`. ``n`` <= 0: calls do nothing. The replays
     bypass ``wp.Tape`` and Warp's CPU graph capture (neither records them).
     """
 
@@ -310,13 +311,17 @@ class RecordedLaunch:
         self._runs = None  # the replay functions, built on the first call
 
     def set_arg(self, index: int, value) -> None:
-        """Replace argument ``index`` (0 = the first after ``offset``)."""
+        """Replace argument ``index`` (0 = the first after ``offset``): a few microseconds once the
+        launch has run (an array descriptor, :func:`._compat.array_descriptor`, is the cheapest
+        value for an array argument)."""
         if not 0 <= index < len(self._args):
             raise IndexError(f"RecordedLaunch.set_arg: index must be in [0, {len(self._args)}), got {index}")
-        if self._cmd is not None:
-            self._cmd.set_param_at_index(index + 1, value)
         self._args[index] = value
-        self._runs = None  # rebuilt on the next call
+        if self._cmd is None:
+            return
+        self._cmd.set_param_at_index(index + 1, value)
+        if self._runs is not None and not _compat.set_replay_arg(self._cmd, self._runs, index + 1):
+            self._runs = None  # Warp's replays (the fallback): recorded again on the next call
 
     def __call__(self) -> None:
         runs = self._runs

@@ -109,6 +109,27 @@ def test_replay_pieces_sets_each_pieces_offset_and_size():
     assert wcompat.replay_pieces(adjoint, [(0, 4)]) is None  # not a forward launch: the caller's fallback
 
 
+def test_set_replay_arg_updates_the_replays_in_place():
+    # an argument set on the recorded launch (Warp's public set_param_at_index) and copied into the
+    # replays' structs: scalars and arrays; the offset and non-replays are refused (False)
+    import numpy as np
+
+    x = wp.array(np.arange(10.0), dtype=wp.float64, device="cpu")
+    x2 = wp.array(np.arange(10.0) + 100, dtype=wp.float64, device="cpu")
+    y = wp.array(np.full(10, -1.0), dtype=wp.float64, device="cpu")
+    cmd = wp.launch(_scale, dim=4, inputs=[0, x, 2], outputs=[y], device="cpu", record_cmd=True)
+    runs = wcompat.replay_pieces(cmd, [(0, 5), (5, 5)])
+    cmd.set_param_at_index(2, 3)
+    assert wcompat.set_replay_arg(cmd, runs, 2)
+    cmd.set_param_at_index(1, x2)
+    assert wcompat.set_replay_arg(cmd, runs, 1)
+    for run in runs:
+        run()
+    assert y.numpy().tolist() == [3.0 * (k + 100) for k in range(10)]
+    assert not wcompat.set_replay_arg(cmd, runs, 0)  # each piece's own offset
+    assert not wcompat.set_replay_arg(cmd, [cmd.launch], 1)  # not replay_pieces' replays
+
+
 def test_warp_type_attributes():
     assert wcompat.scalar_type(wp.vec3f) is wp.float32 and wcompat.scalar_type(wp.float64) is wp.float64
     assert wcompat.scalar_type(L.mat34d) is wp.float64

@@ -393,9 +393,10 @@ def _affine(offset: int, x: wp.array(dtype=float), a: float, y: wp.array(dtype=f
 @pytest.mark.parametrize("n_threads", [1, 2])
 def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
     # RecordedLaunch packs the arguments once and runs one replay function per piece (each piece
-    # its own offset and size), built on the first call and again after a set_arg, which takes
-    # effect on the next call; and the same results through Warp's Launch.launch where the fast
-    # replay does not apply
+    # its own offset and size), built on the first call; a set_arg (a scalar, an array, an array
+    # descriptor) takes effect on the next call, updating the replays in place; and the same
+    # results through Warp's Launch.launch where the fast replay does not apply (recorded again
+    # after each set_arg)
     import numpy as np
     from gvnn_warp.kernels import _compat
 
@@ -404,8 +405,9 @@ def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
     real = _compat.replay_pieces
     n = 1001  # unequal pieces on 2 threads
     x = wp.array(np.arange(n, dtype=np.float32))
+    x2 = wp.array(np.arange(n, dtype=np.float32)[::-1].copy())
     y = wp.zeros(n, dtype=float)
-    expect = lambda a: np.arange(n, dtype=np.float32) * np.float32(a) + np.arange(n, dtype=np.float32)  # noqa: E731
+    y2 = wp.zeros(n, dtype=float)
     for fast in (True, False):
         def counted(cmd, pieces, fast=fast):
             built.append(pieces)
@@ -417,14 +419,24 @@ def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
             assert len(rec._pieces) == n_threads and not built  # nothing built when recording
             if first != 2.0:
                 rec.set_arg(1, first)  # before the first call
-            for k, a in enumerate((first, 5.0, 7.0)):
+            steps = [(1, first), (1, 5.0), (0, x2), (2, y2), (2, _compat.array_descriptor(y.ptr, n, 4)),
+                     (0, x), (1, 7.0)]
+            a, src, dst = first, x, y
+            for k, (index, value) in enumerate(steps):
                 if k:
-                    rec.set_arg(1, a)
-                for _ in range(3):
-                    y.fill_(-1.0)
+                    rec.set_arg(index, value)
+                    if index == 1:
+                        a = value
+                    elif index == 0:
+                        src = value
+                    else:
+                        dst = y if value is not y2 else y2
+                for _ in range(2):
+                    dst.fill_(-1.0)
                     rec()
-                    np.testing.assert_array_equal(y.numpy(), expect(a))
-                    assert len(built) == k + 1  # built on the first call, again after each set_arg
+                    expect = src.numpy() * np.float32(a) + np.arange(n, dtype=np.float32)
+                    np.testing.assert_array_equal(dst.numpy(), expect)
+                    assert len(built) == (1 if fast else k + 1)  # fallback: recorded again after each set_arg
             assert [p[1] for p in built[0]] == [n * (k + 1) // n_threads - n * k // n_threads for k in range(n_threads)]
             with pytest.raises(IndexError, match="set_arg"):
                 rec.set_arg(-1, 1.0)
