@@ -6,12 +6,14 @@ entry points are in :mod:`gvnn_warp.photometric`.
 
 from __future__ import annotations
 
+import threading
+
 import torch
 
 from ._bridge import _FLOAT_TYPES, Output, Param, _descriptor, _null, _skip_lazy_dynamo_import, warp_op
 from .kernels import photometric_error_kernels as pek
 from .kernels import photometric_kernels as pk
-from .kernels.launch import RecordedLaunch, launch
+from .kernels.launch import RecordedLaunch, get_num_threads, launch
 
 wp_float64 = _FLOAT_TYPES[torch.float64]
 
@@ -56,6 +58,69 @@ def _ne_shapes(ref_image):
     return (B, 6, 6), (B, 6), (B,), (B,)
 
 
+class _Recorded(threading.local):
+    """Per thread, the normal equations' recorded launches (the row kernel, the reduction) and
+    their scratch buffers, by what they depend on other than data addresses: the kernel, the
+    shapes, the scalar arguments and the thread count. A call with new tensors of the same shapes
+    only points the launches at them (``RecordedLaunch.set_arg`` with array descriptors), which
+    spares it the ~0.2 ms of recording two launches (a Gauss-Newton loop calls with new tensors
+    each time). At most :data:`SIZE` entries (least recently used dropped), e.g. the levels of a
+    pyramid, of at most :data:`MAX_BYTES` of scratch each (larger calls take milliseconds: they
+    record their launches each time). Per thread, so threads never share a scratch buffer."""
+
+    SIZE = 8
+    MAX_BYTES = 4 << 20
+
+    def __init__(self):
+        self.entries: dict[tuple, tuple] = {}
+
+
+_RECORDED = _Recorded()
+
+
+def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, outs: list, acc: bool) -> None:
+    """Run ``rows_kernel`` (its array inputs ``arrays`` (tensors and element kinds), then
+    ``scalars``, then the float64 row sums (B*H*ROW_STRIDE,) and, with ``acc``, 8-lane scratch of
+    the same length) and the reduction into ``outs`` (JtWJ, JtWr, cost, count)."""
+    B, C, H, W = ref_image.shape
+    ft = _FLOAT_TYPES[ref_image.dtype]
+    key = (rows_kernel, B, C, H, W, ref_image.dtype, *(t.numel() for t, _ in arrays), *scalars, get_num_threads())
+    # the inputs' addresses (None: not contiguous, a copy each call)
+    pointers = [t.data_ptr() if t.is_contiguous() else None for t, _ in arrays]
+    out_d = [_descriptor(o, "scalar", ft) for o in outs]
+    entries = _RECORDED.entries
+    entry = entries.pop(key, None)
+    if entry is None:
+        rows = torch.empty(B * H * pk.ROW_STRIDE, dtype=torch.float64)
+        scratch = [rows]
+        rows_d = _descriptor(rows, "scalar", wp_float64)
+        extra = [rows_d]
+        if acc:  # the row kernel's 8-lane running sums
+            scratch.append(torch.empty(B * H * pk.ROW_STRIDE * 8, dtype=ref_image.dtype))
+            extra.append(_descriptor(scratch[-1], "vec8", ft))
+        # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
+        inputs = [_descriptor(t, kind, ft) for t, kind in arrays]
+        entry = (scratch, RecordedLaunch(rows_kernel, B * H, [*inputs, *scalars, *extra], work=W,
+                                         grain=pk._GRAIN_PIXELS),
+                 RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d],
+                                grain=pk._GRAIN_PIXELS),
+                 pointers)
+    else:
+        _, rows_launch, reduce_launch, last = entry
+        for i, (t, kind) in enumerate(arrays):  # (in a Gauss-Newton loop, only the pose changes)
+            if pointers[i] is None or pointers[i] != last[i]:
+                rows_launch.set_arg(i, _descriptor(t, kind, ft))
+                last[i] = pointers[i]
+        for i, d in enumerate(out_d):
+            reduce_launch.set_arg(2 + i, d)
+    if sum(t.numel() * t.element_size() for t in entry[0]) <= _Recorded.MAX_BYTES:
+        if len(entries) >= _Recorded.SIZE:
+            del entries[next(iter(entries))]
+        entries[key] = entry  # (the most recently used last)
+    entry[1]()
+    entry[2]()
+
+
 @torch.library.custom_op("gvnn_warp::photometric_normal_equations", mutates_args=())
 def photometric_normal_equations(
     ref_image: torch.Tensor,
@@ -72,28 +137,17 @@ def photometric_normal_equations(
     """images (B, C, H, W), depths (B, 1, H, W) (live_depth: empty for none), pose (B, 3, 4),
     K (B, 3, 3) -> JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,). Not differentiable."""
     B, C, H, W = ref_image.shape
-    ft = _FLOAT_TYPES[ref_image.dtype]
     outs = [torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image)]
     if B == 0:
         return tuple(outs)
-    rows = torch.empty(B * H * pk.ROW_STRIDE, dtype=torch.float64)
+    if H * W == 0:
+        for o in outs:
+            o.zero_()
+        return tuple(outs)
     depth_term = live_depth.numel() > 0 and depth_weight > 0
-    arrays = [
-        _descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image, live_depth)
-    ] + [_descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
-    rows_d = _descriptor(rows, "scalar", wp_float64)
-    acc = torch.empty(B * H * pk.ROW_STRIDE * 8, dtype=ref_image.dtype)  # the row kernel's 8-lane running sums
-    # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
-    if H * W > 0:
-        RecordedLaunch(
-            pk.normal_equations_lanes_for(int(depth_term), C, kind)[ft], B * H,
-            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, rows_d,
-             _descriptor(acc, "vec8", ft)], work=W, grain=pk._GRAIN_PIXELS,
-        )()
-    else:
-        rows.zero_()
-    out_d = [_descriptor(o, "scalar", ft) for o in outs]
-    RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d], grain=pk._GRAIN_PIXELS)()
+    arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [(pose, "mat34"), (K, "mat33")]
+    _run_normal_equations(pk.normal_equations_lanes_for(int(depth_term), C, kind)[_FLOAT_TYPES[ref_image.dtype]],
+                          ref_image, arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
     return tuple(outs)
 
 
@@ -125,29 +179,21 @@ def photometric_normal_equations_lens(
     """photometric_normal_equations through a distorted lens: + dist (B, 8), rays (Bc*H*W, 3) of
     ``pixel_rays`` (ray_stride H*W, or 0 when shared by the batch). Not differentiable."""
     B, C, H, W = ref_image.shape
-    ft = _FLOAT_TYPES[ref_image.dtype]
     outs = [torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image)]
     if B == 0:
         return tuple(outs)
-    rows = torch.empty(B * H * pk.ROW_STRIDE, dtype=torch.float64)
-    depth_term = live_depth.numel() > 0 and depth_weight > 0
-    arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image, live_depth)] + [
-        _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft), _descriptor(dist, "vec8", ft),
-        _descriptor(rays, "vec3", ft),
-    ]
-    rows_d = _descriptor(rows, "scalar", wp_float64)
-    if H * W > 0:
-        from .kernels import photometric_lens_kernels as plk  # (on first use: see gvnn_warp._lens_ops)
+    if H * W == 0:
+        for o in outs:
+            o.zero_()
+        return tuple(outs)
+    from .kernels import photometric_lens_kernels as plk  # (on first use: see gvnn_warp._lens_ops)
 
-        RecordedLaunch(
-            plk.normal_equations_rows_lens[int(depth_term)][ft], B * H,
-            [*arrays, C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride, rows_d], work=W,
-            grain=pk._GRAIN_PIXELS,
-        )()
-    else:
-        rows.zero_()
-    out_d = [_descriptor(o, "scalar", ft) for o in outs]
-    RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d], grain=pk._GRAIN_PIXELS)()
+    depth_term = live_depth.numel() > 0 and depth_weight > 0
+    arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [
+        (pose, "mat34"), (K, "mat33"), (dist, "vec8"), (rays, "vec3")]
+    _run_normal_equations(plk.normal_equations_rows_lens[int(depth_term)][_FLOAT_TYPES[ref_image.dtype]], ref_image,
+                          arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride], outs,
+                          acc=False)
     return tuple(outs)
 
 

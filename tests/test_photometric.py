@@ -643,6 +643,77 @@ def test_normal_equations_torch_equals_pure_warp():
         assert torch.equal(a, b) and not a.requires_grad
 
 
+def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch):
+    # each torch call brings new tensors; calls of the same shapes and settings replay the launches
+    # recorded by an earlier one, pointed at the new memory. Every call must equal a fresh
+    # pure-Warp call, bitwise, through cache hits, misses, evictions and thread counts, and calls
+    # from two threads at once must not share scratch buffers
+    import threading
+
+    from gvnn_warp import _photometric_ops as ops
+    from gvnn_warp.photometric import photometric_normal_equations
+
+    recorded = []
+    real = launch.RecordedLaunch.__init__
+
+    def counting(self, *args, **kwargs):
+        recorded.append(args[0])
+        real(self, *args, **kwargs)
+
+    monkeypatch.setattr(launch.RecordedLaunch, "__init__", counting)
+    monkeypatch.setattr(ops._Recorded, "SIZE", 2)
+    ops._RECORDED.entries.clear()
+
+    def check(seed, H, W, robust="huber", depth_weight=0.0, dtype=torch.float64):
+        ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=H, W=W, seed=seed, dtype=dtype)
+        extra = dict(live_depth=live_depth, depth_weight=depth_weight) if depth_weight else {}
+        got = photometric_normal_equations(ref, depth, live, pose, K, robust=robust, scale=0.2, **extra)
+        arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+        if depth_weight:
+            extra["live_depth"] = ld
+        want = pp.photometric_normal_equations(*arrays, robust=robust, scale=0.2, **extra)
+        for g, w in zip(got, want.numpy()):
+            assert np.array_equal(g.numpy(), w)
+
+    check(1, 9, 11)
+    first = len(recorded)  # the torch call's two launches, and the pure-Warp call's
+    for seed in (2, 3):
+        check(seed, 9, 11)
+    assert len(recorded) == first + 2 * 2  # only the pure-Warp calls recorded theirs
+    for seed, H, W, robust, dw, dtype in [
+        (4, 12, 16, "huber", 0.0, torch.float64),  # another shape
+        (5, 9, 11, "cauchy", 0.0, torch.float64),  # another penalty: a third entry, (9, 11, huber) dropped
+        (6, 9, 11, "huber", 0.0, torch.float64),  # recorded again
+        (7, 9, 11, "huber", 0.5, torch.float64),  # the depth term
+        (8, 9, 11, "huber", 0.0, torch.float32),
+        (9, 9, 11, "huber", 0.0, torch.float32),
+    ]:
+        check(seed, H, W, robust, dw, dtype)
+    try:
+        launch.set_num_threads(1)
+        check(10, 9, 11, dtype=torch.float32)
+    finally:
+        launch.set_num_threads(None)
+    check(11, 9, 11, dtype=torch.float32)
+
+    monkeypatch.setattr(ops._Recorded, "SIZE", 8)
+    errors = []
+
+    def worker(seed):
+        try:
+            for k in range(20):
+                check(seed + k, 30, 40 + seed % 2)
+        except Exception as e:  # reported below
+            errors.append(e)
+
+    workers = [threading.Thread(target=worker, args=(s,)) for s in (100, 200, 301)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    assert not errors, errors
+
+
 def test_torch_functions_bad_arguments():
     from gvnn_warp.photometric import PhotometricLoss, photometric_error, photometric_normal_equations
 
