@@ -66,7 +66,10 @@ class _Recorded(threading.local):
     spares it the ~0.2 ms of recording two launches (a Gauss-Newton loop calls with new tensors
     each time). At most :data:`SIZE` entries (least recently used dropped), e.g. the levels of a
     pyramid, of at most :data:`MAX_BYTES` of scratch each (larger calls take milliseconds: they
-    record their launches each time). Per thread, so threads never share a scratch buffer."""
+    record their launches each time). Per thread, so threads never share a scratch buffer; a
+    thread's entries (up to 32 MiB of scratch, and the copy of the last non-contiguous input
+    of each) live as long as the thread, and ``_RECORDED.entries.clear()`` drops the calling
+    thread's."""
 
     SIZE = 8
     MAX_BYTES = 4 << 20
@@ -113,12 +116,14 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
                 last[i] = pointers[i]
         for i, d in enumerate(out_d):
             reduce_launch.set_arg(2 + i, d)
-    if sum(t.numel() * t.element_size() for t in entry[0]) <= _Recorded.MAX_BYTES:
-        if len(entries) >= _Recorded.SIZE:
-            del entries[next(iter(entries))]
-        entries[key] = entry  # (the most recently used last)
     entry[1]()
     entry[2]()
+    # back into the cache once run (a call of the same key in between, on this thread, cannot
+    # re-point it), the most recently used last
+    if sum(t.numel() * t.element_size() for t in entry[0]) <= _Recorded.MAX_BYTES and _Recorded.SIZE > 0:
+        while len(entries) >= _Recorded.SIZE:
+            del entries[next(iter(entries))]
+        entries[key] = entry
 
 
 @torch.library.custom_op("gvnn_warp::photometric_normal_equations", mutates_args=())

@@ -103,7 +103,8 @@ def replay_pieces(cmd, pieces: Sequence[tuple[int, int]] | None = None) -> list[
     struct type (constructed from a size). Returns None where that does not apply (adjoint, GPU,
     block launches, pieces of a launch over more than one dimension, a missing attribute): replay
     the launch with ``cmd.launch`` then. Neither a ``wp.Tape`` nor Warp's CPU graph capture records
-    these replays. Build them again after ``cmd.set_param_at_index``."""
+    these replays. After ``cmd.set_param_at_index``, update them with :func:`set_replay_arg` (or
+    build them again)."""
     try:
         if not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1 or cmd.hooks.forward is None:
             return None
@@ -154,8 +155,11 @@ def set_replay_arg(cmd, runs: Sequence[Callable[[], None]], index: int) -> bool:
         return False
     label = cmd.kernel.adj.args[index].label
     value = cmd.params[1 + index]
-    for run in runs:
-        setattr(run.args, label, value)
+    try:
+        for run in runs:
+            setattr(run.args, label, value)
+    except TypeError:  # a value of another ctypes type than when built: build them again
+        return False
     return True
 
 

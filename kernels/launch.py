@@ -316,10 +316,9 @@ class RecordedLaunch:
         value for an array argument)."""
         if not 0 <= index < len(self._args):
             raise IndexError(f"RecordedLaunch.set_arg: index must be in [0, {len(self._args)}), got {index}")
+        if self._cmd is not None:
+            self._cmd.set_param_at_index(index + 1, value)  # first: a value Warp refuses changes nothing
         self._args[index] = value
-        if self._cmd is None:
-            return
-        self._cmd.set_param_at_index(index + 1, value)
         if self._runs is not None and not _compat.set_replay_arg(self._cmd, self._runs, index + 1):
             self._runs = None  # Warp's replays (the fallback): recorded again on the next call
 

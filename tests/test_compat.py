@@ -239,6 +239,7 @@ def test_free_threaded_interpreter_runs_launches_on_one_thread(monkeypatch):
 def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     from gvnn_warp.kernels import photometric_error_kernels as pek
     from gvnn_warp.kernels import photometric_kernels as pk
+    from gvnn_warp.kernels import pyramid
     from gvnn_warp.kernels import sampling_kernels as sk
     from gvnn_warp.kernels.kinds import LANES_MODULE_OPTIONS
 
@@ -254,5 +255,5 @@ def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     assert "slp-recursion-max-depth" not in flags and "-march=native" in flags.split()
     # every 8-lane kernel family compiles with them
     for fk in (pek.error_lanes(0, 3, 320), pk.normal_equations_lanes_for(0, 1, 2), pk.normal_equations_lanes[3],
-               sk.bilinear_sample_lanes(3, 0, 0)):
+               sk.bilinear_sample_lanes(3, 0, 0), pyramid.level0_lanes_kernel(3), pyramid.downsample_lanes_kernel(1)):
         assert fk.kernel.module.options["cpu_compiler_flags"] == flags, fk

@@ -646,11 +646,13 @@ def test_normal_equations_torch_equals_pure_warp():
 def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch):
     # each torch call brings new tensors; calls of the same shapes and settings replay the launches
     # recorded by an earlier one, pointed at the new memory. Every call must equal a fresh
-    # pure-Warp call, bitwise, through cache hits, misses, evictions and thread counts, and calls
-    # from two threads at once must not share scratch buffers
+    # pure-Warp call (pinhole) or the op with nothing cached (lens cameras), bitwise, through cache
+    # hits, misses, evictions, thread counts and settings that differ only in a scalar, and calls
+    # from several threads at once must not share scratch buffers
     import threading
 
     from gvnn_warp import _photometric_ops as ops
+    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
     from gvnn_warp.photometric import photometric_normal_equations
 
     recorded = []
@@ -664,15 +666,30 @@ def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch)
     monkeypatch.setattr(ops._Recorded, "SIZE", 2)
     ops._RECORDED.entries.clear()
 
-    def check(seed, H, W, robust="huber", depth_weight=0.0, dtype=torch.float64):
+    def check(seed, H, W, robust="huber", depth_weight=0.0, dtype=torch.float64, scale=0.2, min_depth=MIN_DEPTH,
+              lens=None):
         ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=H, W=W, seed=seed, dtype=dtype)
         extra = dict(live_depth=live_depth, depth_weight=depth_weight) if depth_weight else {}
-        got = photometric_normal_equations(ref, depth, live, pose, K, robust=robust, scale=0.2, **extra)
-        arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
-        if depth_weight:
-            extra["live_depth"] = ld
-        want = pp.photometric_normal_equations(*arrays, robust=robust, scale=0.2, **extra)
-        for g, w in zip(got, want.numpy()):
+        settings = dict(robust=robust, scale=scale, min_depth=min_depth, **extra)
+        if lens is not None:  # (model, batched): one camera for the batch, or one per item
+            model, batched = lens
+            dist = torch.tensor([0.02, -0.01, 0.003, 0.001, 0.0][:5 if model is RadTanCamera else 4], dtype=dtype)
+            cam = model(K.expand(2, 3, 3) if batched else K, dist)
+            got = photometric_normal_equations(ref, depth, live, pose, cam, **settings)
+            kept = ops._RECORDED.entries
+            ops._RECORDED.entries = {}
+            try:
+                want = photometric_normal_equations(ref, depth, live, pose, cam, **settings)
+            finally:
+                ops._RECORDED.entries = kept
+            want = [w.numpy() for w in want]
+        else:
+            got = photometric_normal_equations(ref, depth, live, pose, K, **settings)
+            arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+            if depth_weight:
+                settings["live_depth"] = ld
+            want = pp.photometric_normal_equations(*arrays, **settings).numpy()
+        for g, w in zip(got, want):
             assert np.array_equal(g.numpy(), w)
 
     check(1, 9, 11)
@@ -689,6 +706,14 @@ def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch)
         (9, 9, 11, "huber", 0.0, torch.float32),
     ]:
         check(seed, H, W, robust, dw, dtype)
+    # settings that differ only in a scalar, one after the other
+    for seed, scale, min_depth, dw in [(20, 0.2, MIN_DEPTH, 0.5), (21, 0.05, MIN_DEPTH, 0.5), (22, 0.2, 2.0, 0.5),
+                                       (23, 0.2, 2.0, 2.0), (24, 0.05, MIN_DEPTH, 0.5)]:
+        check(seed, 9, 11, depth_weight=dw, scale=scale, min_depth=min_depth)
+    # lens cameras of the same shapes: the model, a camera shared by the batch or one per item
+    for seed, lens in enumerate([(RadTanCamera, False), (FisheyeCamera, False), (RadTanCamera, False),
+                                 (RadTanCamera, True), (FisheyeCamera, True), (RadTanCamera, False)]):
+        check(30 + seed, 9, 11, lens=lens)
     try:
         launch.set_num_threads(1)
         check(10, 9, 11, dtype=torch.float32)
@@ -697,16 +722,17 @@ def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch)
     check(11, 9, 11, dtype=torch.float32)
 
     monkeypatch.setattr(ops._Recorded, "SIZE", 8)
+    check(99, 30, 40)  # (the kernels loaded before the threads start)
     errors = []
 
     def worker(seed):
         try:
             for k in range(20):
-                check(seed + k, 30, 40 + seed % 2)
+                check(seed + k, 30, 40)  # all of the same shapes
         except Exception as e:  # reported below
             errors.append(e)
 
-    workers = [threading.Thread(target=worker, args=(s,)) for s in (100, 200, 301)]
+    workers = [threading.Thread(target=worker, args=(s,)) for s in (100, 200, 300)]
     for w in workers:
         w.start()
     for w in workers:

@@ -438,6 +438,11 @@ def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
                     np.testing.assert_array_equal(dst.numpy(), expect)
                     assert len(built) == (1 if fast else k + 1)  # fallback: recorded again after each set_arg
             assert [p[1] for p in built[0]] == [n * (k + 1) // n_threads - n * k // n_threads for k in range(n_threads)]
+            with pytest.raises(RuntimeError):  # Warp refuses the value: the launch is left as it was
+                rec.set_arg(0, wp.zeros(4, dtype=wp.vec2))
+            dst.fill_(-1.0)
+            rec()
+            np.testing.assert_array_equal(dst.numpy(), expect)
             with pytest.raises(IndexError, match="set_arg"):
                 rec.set_arg(-1, 1.0)
             with pytest.raises(IndexError, match="set_arg"):
