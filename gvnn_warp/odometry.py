@@ -692,7 +692,7 @@ class _State:
             step_kernel = _lm.lm_step
         lm = []
         for first in (1, 0):
-            lm.append(wp.launch(
+            lm.append(_launch.wp_launch(
                 step_kernel, dim=self.B,
                 inputs=[*system, self.zmean, first,
                         self.min_count[level], self.f[level], al.tolerance, max(al.tolerance, al.take_step / 2**level),

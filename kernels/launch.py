@@ -31,12 +31,20 @@ A kernel may also register a *blocked* variant with the same arguments that hand
 consecutive elements per thread (e.g. one image row, which amortises per-row work and keeps
 reductions in registers); :func:`launch` uses it transparently.
 
+First launches
+--------------
+A kernel's first launch builds or loads its module and looks its entry points up in Warp's CPU
+JIT, which is not safe from several threads at once (Warp 1.19 crashed). Every launch in
+gvnn_warp goes through :func:`wp_launch`, which makes each kernel's first launch under one lock;
+later launches take no lock.
+
 This module never imports torch.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -84,6 +92,22 @@ REDUCTION_PIECES = 2
 CHUNKS_PER_THREAD = 4
 
 _LOADED: set[int] = set()  # kernels launched once already (their module is loaded)
+_FIRST_LAUNCH_LOCK = threading.RLock()
+
+
+def wp_launch(kernel, *args, **kwargs):
+    """``wp.launch(kernel, ...)`` (same arguments, same result: a tape records it, ``record_cmd``
+    returns the launch) whose first call for each kernel holds a lock. A kernel's first launch
+    builds or loads its module and looks its entry points up in Warp's CPU JIT; with Warp 1.19,
+    two threads doing that at once crashed the process (a segmentation fault in ``wp_lookup``
+    while another module loaded). Every launch in gvnn_warp goes through here, so first uses from
+    several threads are safe; a user's own kernels loading at the same moment are not covered."""
+    if id(kernel) in _LOADED:
+        return wp.launch(kernel, *args, **kwargs)
+    with _FIRST_LAUNCH_LOCK:
+        out = wp.launch(kernel, *args, **kwargs)
+        _LOADED.add(id(kernel))
+    return out
 
 
 def _even_chunks(n: int, count: int) -> list[tuple[int, int]]:
@@ -138,7 +162,7 @@ _planner = plan_chunks
 
 def _launch_one(kernel, start, size, inputs, outputs, adjoint, adj_inputs, adj_outputs) -> None:
     if adjoint:
-        wp.launch(
+        wp_launch(
             kernel,
             dim=size,
             inputs=[start, *inputs],
@@ -149,7 +173,7 @@ def _launch_one(kernel, start, size, inputs, outputs, adjoint, adj_inputs, adj_o
             device="cpu",
         )
     else:
-        wp.launch(kernel, dim=size, inputs=[start, *inputs], outputs=outputs, device="cpu")
+        wp_launch(kernel, dim=size, inputs=[start, *inputs], outputs=outputs, device="cpu")
 
 
 @wp.kernel
@@ -169,7 +193,7 @@ def _run_jobs(jobs: list, n_threads: int) -> None:
 
     def run(c: int) -> None:
         kernel, arrays, start, size = jobs[c]
-        wp.launch(kernel, dim=size, inputs=[start, *arrays], device="cpu")
+        wp_launch(kernel, dim=size, inputs=[start, *arrays], device="cpu")
 
     first = 0
     if jobs and id(jobs[0][0]) not in _LOADED:  # load the module before threads start
@@ -306,7 +330,7 @@ class RecordedLaunch:
         self._kernel, self._args = kernel, [*inputs, *outputs]
         self._cmd = None  # nothing to run (n <= 0)
         if pieces:
-            self._cmd = wp.launch(kernel, dim=self._pieces[0][1], inputs=[0, *self._args], device="cpu",
+            self._cmd = wp_launch(kernel, dim=self._pieces[0][1], inputs=[0, *self._args], device="cpu",
                                   record_cmd=True)
         self._runs = None  # the replay functions, built on the first call
 
@@ -336,7 +360,7 @@ class RecordedLaunch:
 
     def _fallback(self, start: int, size: int) -> Callable[[], None]:
         # where the fast replay does not apply: Warp's own replay of one recorded launch per piece
-        return wp.launch(self._kernel, dim=size, inputs=[start, *self._args], device="cpu", record_cmd=True).launch
+        return wp_launch(self._kernel, dim=size, inputs=[start, *self._args], device="cpu", record_cmd=True).launch
 
 
 __all__ = [
@@ -364,4 +388,5 @@ __all__ = [
     "vec16f",
     "vec8d",
     "vec8f",
+    "wp_launch",
 ]

@@ -328,9 +328,9 @@ def photometric_error(
         from . import photometric_lens_kernels as plk  # (on first use: the lens models are slow to define)
 
         kernel, inputs = plk.photometric_rows_lens[ft], [*frames, dist, rays.flatten(), *penalty, m, H * W]
-    wp.launch(kernel, dim=B * H, inputs=inputs, outputs=[row_sum, row_count], device="cpu")
-    wp.launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C], outputs=[error, count],
-              device="cpu")
+    _launch.wp_launch(kernel, dim=B * H, inputs=inputs, outputs=[row_sum, row_count], device="cpu")
+    _launch.wp_launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C],
+                      outputs=[error, count], device="cpu")
     return error, count
 
 

@@ -24,6 +24,7 @@ import warp as wp
 
 from . import _compat, lens, sampling_kernels
 from .camera import MIN_DEPTH
+from .launch import wp_launch
 from .sampler import PADDING_MODES as _PADDING
 
 
@@ -80,7 +81,7 @@ def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
     rays = wp.zeros((B, H, W), dtype=vec3, device=K.device, requires_grad=K.requires_grad or dist.requires_grad)
     from . import sampling_lens_kernels  # (on first use: the lens models' adjoints are slow to define)
 
-    wp.launch(sampling_lens_kernels.pixel_rays[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
+    wp_launch(sampling_lens_kernels.pixel_rays[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
               outputs=[rays.flatten()], device=K.device)
     return rays
 
@@ -133,7 +134,7 @@ def warp_frame_depth(
         rays = pixel_rays(K, dist, H, W, m)
         kernel = sampling_lens_kernels.warp_frame_depth_lens[ft]
         inputs = [0, *common, dist, rays.flatten(), *params, m, H * W]
-    wp.launch(
+    wp_launch(
         kernel,
         dim=B * H,  # one thread per image row, as in the torch op
         inputs=inputs,
@@ -169,7 +170,7 @@ def masked_squared_error(a: wp.array, b: wp.array, valid: wp.array) -> wp.array:
     B, C, H, W = a.shape
     _expect(fn, "valid", tuple(valid.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}", valid.shape)
     loss = wp.zeros(1, dtype=a.dtype, device=a.device, requires_grad=a.requires_grad or b.requires_grad)
-    wp.launch(
+    wp_launch(
         _masked_squared_error, dim=a.size, inputs=[a.flatten(), b.flatten(), valid.flatten(), H * W, C],
         outputs=[loss], device=a.device,
     )

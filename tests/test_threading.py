@@ -459,3 +459,61 @@ def test_recorded_launch_of_no_elements_does_nothing():
     rec.set_arg(1, 3.0)
     rec()
     assert y.numpy().tolist() == [7.0] * 4
+
+
+_FIRST_USES = """if True:
+    import random, sys, threading
+    import torch
+    import gvnn_warp as G
+    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
+
+    def jobs(dtype):
+        g = torch.Generator().manual_seed(0)
+        B, C, H, W = 2, 3, 12, 16
+        img = torch.rand(B, C, H, W, generator=g, dtype=dtype)
+        dep = 1 + torch.rand(B, 1, H, W, generator=g, dtype=dtype)
+        pose = torch.eye(4, dtype=dtype)[:3].expand(B, 3, 4).contiguous()
+        K = torch.tensor([[20.0, 0, 8], [0, 20, 6], [0, 0, 1]], dtype=dtype)
+        rt = RadTanCamera(K, torch.tensor([0.01, 0, 0, 0, 0], dtype=dtype))
+        fe = FisheyeCamera(K, torch.tensor([0.01, 0, 0, 0], dtype=dtype))
+        v = torch.rand(B, 3, generator=g, dtype=dtype)
+        return [
+            lambda: G.photometric_normal_equations(img, dep, img, pose, K),
+            lambda: G.photometric_normal_equations(img[:, :1], dep, img[:, :1], pose, rt),
+            lambda: G.photometric_normal_equations(img, dep, img, pose, fe, live_depth=dep, depth_weight=1.0),
+            lambda: G.photometric_error(img, dep, img, pose, K),
+            lambda: G.photometric_error(img, dep, img, pose, rt),
+            lambda: G.warp_frame_depth(img, dep, pose, K),
+            lambda: G.warp_frame_depth(img, dep, pose, fe),
+            lambda: G.so3_exp(v),
+            lambda: G.se3_exp(torch.cat([v, v], 1)),
+        ]
+
+    every = jobs(torch.float32) + jobs(torch.float64)
+
+    def run(seed):
+        order = list(range(len(every)))
+        random.Random(seed).shuffle(order)
+        for k in order:
+            every[k]()
+
+    workers = [threading.Thread(target=run, args=(s,)) for s in range(6)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    print("ok")
+"""
+
+
+@once
+def test_first_uses_of_many_kernels_from_several_threads_at_once():
+    # the first launch of a kernel loads its module and looks its entry points up in Warp's CPU
+    # JIT; done by several threads at once this crashed the process (a segmentation fault: 3 runs
+    # of 4 before kernels.launch.wp_launch serialised first launches). In a fresh process, so
+    # every kernel's first launch happens here
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _FIRST_USES], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip().endswith("ok"), (out.returncode, out.stderr[-3000:])

@@ -21,6 +21,7 @@ import threading
 import numpy as np
 import warp as wp
 
+from ..kernels.launch import wp_launch
 from .scene import RoomScene
 
 wp.set_module_options({"enable_backward": False})
@@ -292,7 +293,7 @@ def _launch_split(kernel, total: int, inputs: list, n_threads: int) -> None:
 
     def launch(start: int, stop: int) -> None:
         if stop > start:
-            wp.launch(kernel, dim=stop - start, inputs=[start, *inputs], device="cpu")
+            wp_launch(kernel, dim=stop - start, inputs=[start, *inputs], device="cpu")
 
     chunks = zip(bounds[1:-1], bounds[2:], strict=True)
     threads = [threading.Thread(target=launch, args=(int(a), int(b))) for a, b in chunks]
