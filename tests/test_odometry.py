@@ -125,6 +125,7 @@ def test_prepared_pyramid_lanes_kernels_equal_scalar_kernels(C):
     rng = np.random.default_rng(4)
     image = rng.random((C, 240, 320)).astype(np.float32)
     image[0, 5, 7], image[-1, 9, 9], image[0, 100, 317] = np.nan, np.inf, -np.inf
+    image[-1, 50, 3], image[0, 60, 8] = 3.3e38, -0.0  # finite, however large
     depth = _depth_with_holes(rng, 1, 240, 320)[0].astype(np.float32)
     aligner = DirectAligner(np.array([[240.0, 0, 159.5], [0, 240.0, 119.5], [0, 0, 1]]))
     img = wp.empty((1, 1, 240, 320), dtype=wp.float32, device="cpu")
@@ -146,11 +147,11 @@ def test_prepared_pyramid_lanes_kernels_equal_scalar_kernels(C):
         np.testing.assert_array_equal(no_depth.images[level].numpy(), want_i)
 
 
-def test_prepared_base_level_edge_shortcut_equals_scalar_kernel():
-    # the 8-lane base level skips the per-pixel edge test for blocks whose depths and neighbours
-    # span less than the tolerance: surfaces without holes whose spread straddles it (ratios just
-    # below, at and above 1 + tolerance), a few NaN / inf / 0 depths, two frames: bitwise the
-    # scalar kernel's depths
+def test_prepared_base_level_edge_test_equals_scalar_kernel():
+    # the 8-lane base level tests its pixels' depth edges as lanes (neighbours by shifting the
+    # block one lane): surfaces without holes whose spread straddles the tolerance (ratios just
+    # below, at and above 1 + tolerance, also across the 8-pixel blocks' borders), a few NaN / inf
+    # / 0 depths, two frames: bitwise the scalar kernel's depths
     rng = np.random.default_rng(5)
     B, H, W = 2, 24, 64
     aligner = DirectAligner(np.array([[40.0, 0, 31.5], [0, 40.0, 11.5], [0, 0, 1]]))
@@ -172,6 +173,26 @@ def test_prepared_base_level_edge_shortcut_equals_scalar_kernel():
     frame = aligner.prepare(image, depth)
     np.testing.assert_array_equal(frame.images[0].numpy(), img.numpy())
     np.testing.assert_array_equal(frame.depths[0].numpy(), want)
+
+
+def test_prepared_base_level_edge_test_at_exactly_the_tolerance():
+    # |d - e| == tolerance min(d, e) exactly (tolerance 1/16, depths 2 and 2.125): not an edge, at
+    # every lane of the 8-pixel blocks and across their borders, in rows and columns; 2.25 is one
+    tol = 0.0625
+    aligner = DirectAligner(np.array([[40.0, 0, 31.5], [0, 40.0, 11.5], [0, 0, 1]]), depth_tolerance=tol)
+    H, W = 12, 32
+    depth = np.full((1, 1, H, W), 2.0, np.float32)
+    depth[0, 0, 2, 3::5] = 2.125  # along a row: every lane position over the row
+    depth[0, 0, 5:, 9] = 2.125  # a column: its neighbours above and below
+    depth[0, 0, 9, 20] = 2.25  # an edge
+    image = np.zeros((1, 1, H, W), np.float32)
+    img = wp.empty((1, 1, H, W), dtype=wp.float32, device="cpu")
+    dep = wp.empty((1, 1, H, W), dtype=wp.float32, device="cpu")
+    pyramid.prepare_level0(wp.array(image, device="cpu"), aligner._channel_weights(1), wp.array(depth, device="cpu"),
+                           img, dep, tolerance=tol)
+    want = dep.numpy()
+    assert (want == 0).sum() == 5  # only 2.25 and its four neighbours
+    np.testing.assert_array_equal(aligner.prepare(image[0], depth[0]).depths[0].numpy(), want)
 
 
 def test_pyramid_errors():
