@@ -213,7 +213,7 @@ class Tracker:
         fa, i = self.fa, self.n
         if i >= self.poses.shape[0]:
             raise IndexError(f"track: more than the {self.poses.shape[0]} frames announced")
-        if i > 1 and self.pipeline:  # (frame 1 alone: its alignment loads the kernels, which is not thread-safe)
+        if i > 1 and self.pipeline:  # (frame 1 alone: its alignment loads the kernels, not worth overlapping)
             t = time.perf_counter()
             job = _prepare_pool().submit(fa.prepare, image, depth)
             pending, self.pending = self.pending, None
@@ -230,7 +230,7 @@ class Tracker:
             if self.warmup:  # untimed: one-off costs (compiled kernels, buffers) out of the first pairs' times
                 eye = np.eye(4)
                 frames = [fa.prepare(image, depth), fa.prepare(image, depth)]
-                fa.align_frames(frames[0], frames[1], init=eye)  # loads the kernels (not thread-safe): alone
+                fa.align_frames(frames[0], frames[1], init=eye)  # loads the kernels: alone, before the helper thread
                 if self.pipeline:  # the helper thread, and a third frame's buffers as the pipeline has it
                     job = _prepare_pool().submit(fa.prepare, image, depth)
                     fa.align_frames(frames[1], frames[0], init=eye)
