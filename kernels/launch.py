@@ -1,8 +1,8 @@
 """The launch layer: :func:`launch`, through which every torch op and the non-recording pure-Warp
 functions run their kernels (a kernel's range cut into chunks over threads), and
 :class:`RecordedLaunch`, arguments packed once and replayed in pieces (the normal equations, the
-pyramids). The pure-Warp functions a ``wp.Tape`` can record call ``wp.launch`` themselves, on one
-thread.
+pyramids). The pure-Warp functions a ``wp.Tape`` can record launch on one thread through
+:func:`wp_launch` (``wp.launch`` with safe first loads).
 
 The other jobs of the launch layer live in their own modules: :mod:`.kinds` (array kinds, the
 float32/float64 overloads of :class:`FloatKernel` and each kernel's declaration of how it may be
@@ -35,8 +35,8 @@ First launches
 --------------
 A kernel's first launch builds or loads its module and looks its entry points up in Warp's CPU
 JIT, which is not safe from several threads at once (Warp 1.19 crashed). Every launch in
-gvnn_warp goes through :func:`wp_launch`, which makes each kernel's first launch under one lock;
-later launches take no lock.
+gvnn_warp goes through :func:`wp_launch`, which does that loading first, under one lock
+(:func:`ensure_loaded`), and runs the kernel outside it; later launches take no lock.
 
 This module never imports torch.
 """
@@ -44,7 +44,9 @@ This module never imports torch.
 from __future__ import annotations
 
 import math
+import os
 import threading
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -91,23 +93,50 @@ REDUCTION_PIECES = 2
 # for load balancing when other processes share the cores.
 CHUNKS_PER_THREAD = 4
 
-_LOADED: set[int] = set()  # kernels launched once already (their module is loaded)
+_LOADED: weakref.WeakSet = weakref.WeakSet()  # kernels whose module is loaded and entry points looked up
 _FIRST_LAUNCH_LOCK = threading.RLock()
+
+
+def _new_lock_in_child() -> None:
+    # a fork while another thread held the lock would leave the child's copy held forever
+    global _FIRST_LAUNCH_LOCK
+    _FIRST_LAUNCH_LOCK = threading.RLock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_new_lock_in_child)
+
+
+def ensure_loaded(kernel, *args, **kwargs) -> None:
+    """Load ``kernel``'s module and look its entry points up in Warp's CPU JIT, under a lock, unless
+    done before; the arguments are those of a ``wp.launch`` of it (packed, not run). Two threads
+    doing this at once crashed the process with Warp 1.19 (a segmentation fault in ``wp_lookup``
+    while another module loaded). Not covered: a module changed after it was loaded (new kernels
+    or functions added to it: its next launch reloads it), and a user's own kernels loading at
+    the same moment."""
+    if kernel in _LOADED:
+        return
+    with _FIRST_LAUNCH_LOCK:
+        if kernel not in _LOADED:
+            # record_cmd: Warp loads the module and looks the kernel up, then returns the launch
+            # without running it (and without recording it on a tape)
+            wp.launch(kernel, *args, **{**kwargs, "record_cmd": True})
+            _LOADED.add(kernel)
 
 
 def wp_launch(kernel, *args, **kwargs):
     """``wp.launch(kernel, ...)`` (same arguments, same result: a tape records it, ``record_cmd``
-    returns the launch) whose first call for each kernel holds a lock. A kernel's first launch
-    builds or loads its module and looks its entry points up in Warp's CPU JIT; with Warp 1.19,
-    two threads doing that at once crashed the process (a segmentation fault in ``wp_lookup``
-    while another module loaded). Every launch in gvnn_warp goes through here, so first uses from
-    several threads are safe; a user's own kernels loading at the same moment are not covered."""
-    if id(kernel) in _LOADED:
-        return wp.launch(kernel, *args, **kwargs)
+    returns the launch), after :func:`ensure_loaded`. Every launch in gvnn_warp goes through here,
+    so first uses from several threads are safe; only the loading holds the lock, not the run."""
+    ensure_loaded(kernel, *args, **kwargs)
+    return wp.launch(kernel, *args, **kwargs)
+
+
+def load_module(module, device: str = "cpu") -> None:
+    """``wp.load_module(module, device)`` (compile or load it now) under the lock of
+    :func:`ensure_loaded`."""
     with _FIRST_LAUNCH_LOCK:
-        out = wp.launch(kernel, *args, **kwargs)
-        _LOADED.add(id(kernel))
-    return out
+        wp.load_module(module, device=device)
 
 
 def _even_chunks(n: int, count: int) -> list[tuple[int, int]]:
@@ -196,9 +225,8 @@ def _run_jobs(jobs: list, n_threads: int) -> None:
         wp_launch(kernel, dim=size, inputs=[start, *arrays], device="cpu")
 
     first = 0
-    if jobs and id(jobs[0][0]) not in _LOADED:  # load the module before threads start
+    if jobs and jobs[0][0] not in _LOADED:  # load the module before threads start
         run(0)
-        _LOADED.add(id(jobs[0][0]))
         first = 1
     threads.pool().run(lambda c: run(c + first), len(jobs) - first, n_threads)
 
@@ -285,9 +313,8 @@ def launch(
         _launch_one(kernel, start, size, inputs, outputs, adjoint, adj, adj_outputs)
 
     first = 0
-    if id(kernel) not in _LOADED:  # load (compile) the module on this thread before threads start
+    if kernel not in _LOADED:  # load (compile) the module on this thread before threads start
         run(0)
-        _LOADED.add(id(kernel))
         first = 1
     threads.pool().run(lambda c: run(c + first), len(plan) - first, n_threads)
 
@@ -388,5 +415,7 @@ __all__ = [
     "vec16f",
     "vec8d",
     "vec8f",
+    "ensure_loaded",
+    "load_module",
     "wp_launch",
 ]

@@ -258,8 +258,10 @@ def _block_depth8(d0: Any, d1: Any, d2: Any, d3: Any, tolerance: Any):
 
 @wp.func
 def _no_jump8(d: Any, e: Any, tolerance: Any):
-    """1 - :func:`_depth_jump` per lane (the same operations), for neighbours ``e`` inside the image
-    (one outside is passed as the pixel itself, never a jump)."""
+    """1 - :func:`_depth_jump` per lane, for neighbours ``e`` inside the image (one outside is
+    passed as the pixel itself, never a jump). The same results bit for bit: max(t, -t) is |t|
+    (Warp's min and max return NaN only when both operands are; -0 and +0 compare equal) and
+    the product's operands are swapped (exact either way)."""
     t = d - e
     a = wp.max(t, -t)
     lim = wp.min(d, e) * tolerance
@@ -459,11 +461,6 @@ def scale_intrinsics(K: np.ndarray, level: int) -> np.ndarray:
     return K
 
 
-def _edge_tolerance(tolerance: float) -> float:
-    """The level-0 kernel's tolerance argument: infinity as the largest float32 (no edge test)."""
-    return min(float(tolerance), 3.0e38)
-
-
 def _expect(fn: str, name: str, cond: bool, what: str, got, exc: type[Exception] = ValueError) -> None:
     if not cond:
         raise exc(f"gvnn_warp.kernels.pyramid.{fn}: argument '{name}' must be {what}, got {got}")
@@ -514,7 +511,7 @@ def prepare_level0(
         level0_kernel(C, Co)[ft],
         B * H,
         [image.flatten(), weights.flatten(), depth.flatten() if depth is not None else empty, H, W,
-         int(depth is not None), _edge_tolerance(tolerance)],
+         int(depth is not None), float(tolerance)],
         [out_image.flatten(), out_depth.flatten() if out_depth is not None else empty],
     )
 

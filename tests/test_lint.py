@@ -16,17 +16,22 @@ def test_ruff_clean():
 
 
 def test_launches_go_through_wp_launch():
-    # kernels.launch.wp_launch makes each kernel's first launch under a lock (Warp's JIT crashed
-    # when threads loaded kernels at once): no package module calls wp.launch itself
-    import re
+    # kernels.launch.wp_launch / ensure_loaded / load_module load modules under a lock (Warp's JIT
+    # crashed when threads loaded kernels at once): no other package module calls Warp's launch or
+    # module loading itself, under any name
+    import ast
 
-    calls = re.compile(r"\bwp\.launch\(")
-    offenders = [
-        f"{path.relative_to(ROOT)}:{n}"
-        for folder in ("gvnn_warp", "kernels")
-        for path in sorted((ROOT / folder).rglob("*.py"))
-        if path != ROOT / "kernels" / "launch.py"
-        for n, line in enumerate(path.read_text().splitlines(), 1)
-        if calls.search(line.split("#")[0]) and "``" not in line
-    ]
+    loaders = {"launch", "load_module", "force_load"}
+    offenders = []
+    for folder in ("gvnn_warp", "kernels"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            if path == ROOT / "kernels" / "launch.py":
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                bad = (isinstance(node, ast.Attribute) and node.attr in loaders and isinstance(node.value, ast.Name)
+                       and node.value.id in ("wp", "warp")) or (
+                    isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "warp"
+                    and any(alias.name in loaders for alias in node.names))
+                if bad:
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert not offenders, offenders

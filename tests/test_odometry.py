@@ -117,25 +117,30 @@ def test_prepared_pyramid_matches_numpy():
         img, d = _numpy_downsample(img, d, pyramid.DEPTH_TOLERANCE)
 
 
-@pytest.mark.parametrize("C", [1, 3])
-def test_prepared_pyramid_lanes_kernels_equal_scalar_kernels(C):
+@pytest.mark.parametrize("C, color, B, tolerance", [(1, False, 1, None), (3, False, 1, None), (3, True, 2, None),
+                                                    (3, False, 2, 0.0625), (1, False, 1, 0.0)])
+def test_prepared_pyramid_lanes_kernels_equal_scalar_kernels(C, color, B, tolerance):
     # prepare() uses the 8-lane pyramid kernels where rows are whole vectors (320 -> ... -> 40
-    # pixels wide; 20 and 10 wide: the scalar kernels): bitwise the public scalar kernels' levels,
-    # non-finite intensities and depths included, with and without depth
+    # pixels wide; 20 and 10 wide: the scalar kernels; a colour aligner's base level: the scalar
+    # kernel, its halvings: the 3-channel 8-lane kernel): bitwise the public scalar kernels' levels,
+    # non-finite intensities and depths included, with and without depth, batches, tolerances
     rng = np.random.default_rng(4)
-    image = rng.random((C, 240, 320)).astype(np.float32)
-    image[0, 5, 7], image[-1, 9, 9], image[0, 100, 317] = np.nan, np.inf, -np.inf
-    image[-1, 50, 3], image[0, 60, 8] = 3.3e38, -0.0  # finite, however large
-    depth = _depth_with_holes(rng, 1, 240, 320)[0].astype(np.float32)
-    aligner = DirectAligner(np.array([[240.0, 0, 159.5], [0, 240.0, 119.5], [0, 0, 1]]))
-    img = wp.empty((1, 1, 240, 320), dtype=wp.float32, device="cpu")
-    dep = wp.empty((1, 1, 240, 320), dtype=wp.float32, device="cpu")
-    pyramid.prepare_level0(wp.array(image[None], device="cpu"), aligner._channel_weights(C),
-                           wp.array(depth[None], device="cpu"), img, dep)
+    image = rng.random((B, C, 240, 320)).astype(np.float32)
+    image[0, 0, 5, 7], image[-1, -1, 9, 9], image[0, 0, 100, 317] = np.nan, np.inf, -np.inf
+    image[-1, -1, 50, 3], image[0, 0, 60, 8] = 3.3e38, -0.0  # finite, however large
+    depth = _depth_with_holes(rng, B, 240, 320).astype(np.float32)
+    extra = {} if tolerance is None else {"depth_tolerance": tolerance}
+    aligner = DirectAligner(np.array([[240.0, 0, 159.5], [0, 240.0, 119.5], [0, 0, 1]]), color=color, **extra)
+    Co = C if color else 1
+    img = wp.empty((B, Co, 240, 320), dtype=wp.float32, device="cpu")
+    dep = wp.empty((B, 1, 240, 320), dtype=wp.float32, device="cpu")
+    pyramid.prepare_level0(wp.array(image, device="cpu"), aligner._channel_weights(C), wp.array(depth, device="cpu"),
+                           img, dep, tolerance=aligner.depth_tolerance)
     want = [(img.numpy(), dep.numpy())]
     for _ in range(5):
         h, w = img.shape[2] // 2, img.shape[3] // 2
-        out_i, out_d = (wp.empty((1, 1, h, w), dtype=wp.float32, device="cpu") for _ in range(2))
+        out_i = wp.empty((B, Co, h, w), dtype=wp.float32, device="cpu")
+        out_d = wp.empty((B, 1, h, w), dtype=wp.float32, device="cpu")
         pyramid.downsample(img, dep, out_i, out_d, tolerance=aligner.depth_tolerance)
         img, dep = out_i, out_d
         want.append((img.numpy(), dep.numpy()))
@@ -162,7 +167,7 @@ def test_prepared_base_level_edge_test_equals_scalar_kernel():
     depth[0, 0, 5, 9::8] = np.float32(2.0) * (np.float32(1.0) + tol)  # exactly at the tolerance
     depth[0, 0, 5, 17] = np.nextafter(np.float32(2.0) * (np.float32(1.0) + tol), np.float32(9.0))
     depth[0, 0, 8, 12], depth[1, 0, 0, 40], depth[1, 0, 23, 63] = np.nan, np.inf, 0.0
-    depth[1, 0, 10:14, 16:24] = 2.0  # a flat block: the shortcut
+    depth[1, 0, 10:14, 16:24] = 2.0  # a flat block
     image = rng.random((B, 1, H, W)).astype(np.float32)
     img = wp.empty((B, 1, H, W), dtype=wp.float32, device="cpu")
     dep = wp.empty((B, 1, H, W), dtype=wp.float32, device="cpu")
@@ -182,7 +187,7 @@ def test_prepared_base_level_edge_test_at_exactly_the_tolerance():
     aligner = DirectAligner(np.array([[40.0, 0, 31.5], [0, 40.0, 11.5], [0, 0, 1]]), depth_tolerance=tol)
     H, W = 12, 32
     depth = np.full((1, 1, H, W), 2.0, np.float32)
-    depth[0, 0, 2, 3::5] = 2.125  # along a row: every lane position over the row
+    depth[0, 0, 2, 1::3] = 2.125  # along a row, at every lane position (columns 1, 4, ..., 31)
     depth[0, 0, 5:, 9] = 2.125  # a column: its neighbours above and below
     depth[0, 0, 9, 20] = 2.25  # an edge
     image = np.zeros((1, 1, H, W), np.float32)

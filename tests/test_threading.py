@@ -517,3 +517,95 @@ def test_first_uses_of_many_kernels_from_several_threads_at_once():
 
     out = subprocess.run([sys.executable, "-c", _FIRST_USES], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip().endswith("ok"), (out.returncode, out.stderr[-3000:])
+
+
+_LOADS_UNDER_THE_LOCK = """if True:
+    import sys
+    sys.path.insert(0, sys.argv[1])
+    import numpy as np, torch, warp as wp
+    import gvnn_warp as G
+    from gvnn_warp.kernels import launch as L
+    from warp._src import context  # Warp's CPU JIT entry points (pinned: warp-lang 1.19.x)
+
+    wp.init()
+    llvm = context.runtime.llvm
+    calls, unlocked = [], []
+    for name in ("wp_load_obj", "wp_lookup"):
+        def wrapped(*args, _real=getattr(llvm, name), _name=name):
+            calls.append(_name)
+            if not L._FIRST_LAUNCH_LOCK._is_owned():
+                unlocked.append(_name)
+            return _real(*args)
+        setattr(llvm, name, wrapped)
+
+    from gvnn_warp.cameras import RadTanCamera
+    from gvnn_warp.odometry import DirectAligner
+    from odometry_refs import motion, rendered_pair  # renders with gvnn_warp.synthetic
+
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(2, 3, 12, 16, generator=g, dtype=torch.float64, requires_grad=True)
+    dep = (1 + torch.rand(2, 1, 12, 16, generator=g, dtype=torch.float64)).requires_grad_()
+    pose = torch.eye(4, dtype=torch.float64)[:3].expand(2, 3, 4).contiguous().requires_grad_()
+    K = torch.tensor([[20.0, 0, 8], [0, 20, 6], [0, 0, 1]], dtype=torch.float64)
+    rt = RadTanCamera(K, torch.tensor([0.01, 0, 0, 0, 0], dtype=torch.float64))
+    G.photometric_error(img, dep, img, pose, K)[0].sum().backward()
+    G.photometric_error(img, dep, img, pose, rt)[0].sum().backward()
+    G.photometric_normal_equations(img.detach(), dep.detach(), img.detach(), pose.detach(), rt)
+    G.warp_frame_depth(img, dep, pose, K)[0].sum().backward()
+    G.so3_exp(torch.rand(2, 3, dtype=torch.float64, requires_grad=True)).sum().backward()
+    G.flow_warp(img, torch.rand(2, 2, 12, 16, generator=g, dtype=torch.float64)).sum().backward()
+    ri, rd, li, ld, Kk, T = rendered_pair(motion((1, 0, 0), (0.01, 0, 0)), width=64, height=48)
+    DirectAligner(Kk).align(ri, rd, li, ld)
+    DirectAligner(Kk, color=True).align(ri, rd, li, ld)
+    print(len(calls), len(unlocked))
+"""
+
+
+@once
+def test_every_module_load_holds_the_first_launch_lock():
+    # deterministic twin of the test above: in a fresh process, every module load and entry-point
+    # lookup of Warp's CPU JIT (torch ops forward and backward, a lens camera, the aligner and its
+    # pyramids, the synthetic renderer) happens with kernels.launch's lock held
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = subprocess.run([sys.executable, "-c", _LOADS_UNDER_THE_LOCK, str(Path(__file__).parent)],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    calls, unlocked = map(int, out.stdout.split()[-2:])
+    assert calls > 20 and unlocked == 0, out.stdout
+
+
+@once
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_a_fork_while_another_thread_loads_a_kernel_does_not_hang_the_child():
+    # the child of a fork made while another thread held the first-launch lock gets a new lock
+    import threading
+    import time
+
+    holding, release = threading.Event(), threading.Event()
+
+    def loader():
+        with L._FIRST_LAUNCH_LOCK:
+            holding.set()
+            release.wait(10)
+
+    t = threading.Thread(target=loader)
+    t.start()
+    holding.wait(10)
+    try:
+        pid = os.fork()
+        if pid == 0:  # the child: the lock must be free
+            ok = L._FIRST_LAUNCH_LOCK.acquire(timeout=5)
+            os._exit(0 if ok else 1)
+        deadline = time.monotonic() + 30
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+    finally:
+        release.set()
+        t.join()
+    assert done and os.waitstatus_to_exitcode(status) == 0

@@ -21,7 +21,7 @@ import threading
 import numpy as np
 import warp as wp
 
-from ..kernels.launch import wp_launch
+from ..kernels.launch import load_module, wp_launch
 from .scene import RoomScene
 
 wp.set_module_options({"enable_backward": False})
@@ -366,7 +366,7 @@ def render_rgbd(
     surface_wp = wp.array(surface, dtype=wp.int32, device="cpu", copy=False)
     image_wp = wp.array(image, dtype=wp.float32, device="cpu", copy=False)
 
-    wp.load_module(_cast_kernel.module, device="cpu")  # compile before the threads start
+    load_module(_cast_kernel.module)  # compile before the threads start
     _launch_split(_cast_kernel, total, [width, height, *camera, depth_wp, surface_wp], n_threads)
     _launch_split(
         _shade_kernel,
