@@ -151,7 +151,7 @@ def photometric_normal_equations(
         return tuple(outs)
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [(pose, "mat34"), (K, "mat33")]
-    _run_normal_equations(pk.normal_equations_lanes_for(int(depth_term), C, kind)[_FLOAT_TYPES[ref_image.dtype]],
+    _run_normal_equations(pk.normal_equations_lanes_for(int(depth_term), C, kind, W)[_FLOAT_TYPES[ref_image.dtype]],
                           ref_image, arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
     return tuple(outs)
 

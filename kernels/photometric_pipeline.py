@@ -239,7 +239,7 @@ def photometric_normal_equations(
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
-    rows_kernel = pk.normal_equations_lanes_for(variant, C, NORMAL_EQUATIONS_KINDS_CODES[robust])[ft]
+    rows_kernel = pk.normal_equations_lanes_for(variant, C, NORMAL_EQUATIONS_KINDS_CODES[robust], W)[ft]
     out._cmds = [
         _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=pk._GRAIN_PIXELS),
         _launch.RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [out._rows, H, *outputs],

@@ -254,6 +254,6 @@ def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     flags = LANES_MODULE_OPTIONS["cpu_compiler_flags"]
     assert "slp-recursion-max-depth" not in flags and "-march=native" in flags.split()
     # every 8-lane kernel family compiles with them
-    for fk in (pek.error_lanes(0, 3, 320), pk.normal_equations_lanes_for(0, 1, 2), pk.normal_equations_lanes[3],
+    for fk in (pek.error_lanes(0, 3, 320), pk.normal_equations_lanes_for(0, 1, 2, 320), pk.normal_equations_lanes[3],
                sk.bilinear_sample_lanes(3, 0, 0), pyramid.level0_lanes_kernel(3), pyramid.downsample_lanes_kernel(1)):
         assert fk.kernel.module.options["cpu_compiler_flags"] == flags, fk

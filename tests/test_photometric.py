@@ -772,12 +772,14 @@ def test_torch_functions_bad_arguments():
         PhotometricLoss(robust="huberr")
 
 
-def test_normal_equations_lanes_kernel_equals_scalar_kernel():
+@pytest.mark.parametrize("width", [13, 6])
+def test_normal_equations_lanes_kernel_equals_scalar_kernel(width):
     # the 8-lane row kernel (used) against the plain one-pixel-at-a-time kernel, row by row,
-    # with a width that is not a multiple of 8 (masked tail lanes)
+    # with a width that is not a multiple of 8 (the last step reads the row's last 8 pixels and
+    # masks those of the step before) and one narrower than 8 (clamped lanes)
     from gvnn_warp.kernels import photometric_kernels as pk
 
-    ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=13, seed=15)
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=width, seed=15)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
     counts = []
@@ -785,7 +787,7 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
         rows = []
         # the generic lane kernel and the one compiled for the penalty (huber, code 0)
         for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes[variant],
-                       pk.normal_equations_lanes_for(variant, C, 0)):
+                       pk.normal_equations_lanes_for(variant, C, 0, W)):
             out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
             # the lane kernels' running sums (memory slots per row; filled with garbage first: the
             # kernel must clear its own)
@@ -801,12 +803,12 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel():
         counts.append(rows[0][:, 28].sum())
     assert counts[2] < counts[0] and counts[3] < counts[1]  # the occlusion test dropped pixels
     # one channel (the aligner's case): the kernels compiled for C = 1 (channel loop unrolled)
-    ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=6, W=19, seed=17)
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=6, W=width + 6, seed=17)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
     for variant in range(4):
         rows = []
-        for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes_for(variant, 1, 0)):  # huber
+        for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes_for(variant, 1, 0, W)):  # huber
             out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
             acc = [] if kernel is pk.normal_equations_rows[variant] else \
                 [wp.full(B * H * pk.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
