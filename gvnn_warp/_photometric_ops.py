@@ -87,7 +87,8 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
     the same length) and the reduction into ``outs`` (JtWJ, JtWr, cost, count)."""
     B, C, H, W = ref_image.shape
     ft = _FLOAT_TYPES[ref_image.dtype]
-    key = (rows_kernel, B, C, H, W, ref_image.dtype, *(t.numel() for t, _ in arrays), *scalars, get_num_threads())
+    # (the kernel is the float type's overload; C, H and W are among the scalars)
+    key = (rows_kernel, B, *(t.numel() for t, _ in arrays), *scalars, get_num_threads())
     # the inputs' addresses (None: not contiguous, a copy each call)
     pointers = [t.data_ptr() if t.is_contiguous() else None for t, _ in arrays]
     out_d = [_descriptor(o, "scalar", ft) for o in outs]
@@ -108,7 +109,9 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
                  RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d],
                                 grain=pk._GRAIN_PIXELS),
                  pointers)
+        keep = sum(t.numel() * t.element_size() for t in scratch) <= _Recorded.MAX_BYTES
     else:
+        keep = True  # (only entries within MAX_BYTES are kept)
         _, rows_launch, reduce_launch, last = entry
         for i, (t, kind) in enumerate(arrays):  # (in a Gauss-Newton loop, only the pose changes)
             if pointers[i] is None or pointers[i] != last[i]:
@@ -120,7 +123,7 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
     entry[2]()
     # back into the cache once run (a call of the same key in between, on this thread, cannot
     # re-point it), the most recently used last
-    if sum(t.numel() * t.element_size() for t in entry[0]) <= _Recorded.MAX_BYTES and _Recorded.SIZE > 0:
+    if keep and _Recorded.SIZE > 0:
         while len(entries) >= _Recorded.SIZE:
             del entries[next(iter(entries))]
         entries[key] = entry
@@ -143,9 +146,7 @@ def photometric_normal_equations(
     K (B, 3, 3) -> JtWJ (B, 6, 6), JtWr (B, 6), cost (B,), count (B,). Not differentiable."""
     B, C, H, W = ref_image.shape
     outs = [torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image)]
-    if B == 0:
-        return tuple(outs)
-    if H * W == 0:
+    if B * H * W == 0:  # nothing to sum
         for o in outs:
             o.zero_()
         return tuple(outs)
@@ -185,9 +186,7 @@ def photometric_normal_equations_lens(
     ``pixel_rays`` (ray_stride H*W, or 0 when shared by the batch). Not differentiable."""
     B, C, H, W = ref_image.shape
     outs = [torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image)]
-    if B == 0:
-        return tuple(outs)
-    if H * W == 0:
+    if B * H * W == 0:  # nothing to sum
         for o in outs:
             o.zero_()
         return tuple(outs)
