@@ -12,11 +12,13 @@ import json
 
 import torch
 import warp as wp
-from gvnn_warp.kernels import camera_kernels, launch, lie_kernels, sampling_kernels
+from gvnn_warp.kernels.core import launch
+from gvnn_warp.kernels.geometry import camera_kernels, lie_kernels
+from gvnn_warp.kernels.sampling import kernels as sampling_kernels
 
 import gvnn_warp  # noqa: F401  (initialises Warp quietly)
 from benchmarks.common import Case, affine_grid, interleaved, wfd_scene
-from gvnn_warp._bridge import _descriptor, _null
+from gvnn_warp.ops.bridge import _descriptor, _null
 
 F32 = wp.float32
 

@@ -56,9 +56,9 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from gvnn_warp.datasets.tum import read_tum  # noqa: E402
-from gvnn_warp.evaluation import FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.odometry.evaluation import FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.odometry.tracking import Tracker, frame_aligner  # noqa: E402
 from gvnn_warp.synthetic import relative_pose  # noqa: E402
-from gvnn_warp.tracking import Tracker, frame_aligner  # noqa: E402
 
 OPEN3D_DEPTH_MAX = 10.0  # metres; the rendered room is 8 m deep (Open3D's default, 3 m, drops much of it)
 
@@ -114,7 +114,7 @@ def our_aligner(K: np.ndarray):
     """``gvnn_warp.odometry.DirectAligner`` with the settings ``gvnn-warp track`` uses, or None if
     that module is not there yet."""
     try:
-        from gvnn_warp.demos.track import make_aligner
+        from gvnn_warp.cli.track import make_aligner
     except ImportError:
         return None
     try:
@@ -156,8 +156,8 @@ class NormalEquationsProbe:
 
     def __init__(self, K: np.ndarray, width: int, height: int, calls: int = 3):
         import warp as wp
-        from gvnn_warp.kernels import photometric_pipeline
-        from gvnn_warp.kernels.launch import mat34f
+        from gvnn_warp.kernels.core.launch import mat34f
+        from gvnn_warp.kernels.photometric import pipeline as photometric_pipeline
 
         self.ne, self.calls = photometric_pipeline.photometric_normal_equations, calls
         shape = (1, 1, height, width)
@@ -294,7 +294,7 @@ def machine() -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gvnn_warp.demos._args import image_size, positive_int
+    from gvnn_warp.cli.args import image_size, positive_int
 
     p = argparse.ArgumentParser(prog="python -m benchmarks.odometry", description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=positive_int, default=200, help="frames to render (default 200)")
@@ -321,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
         sources = [(args.data, None)] if args.data else [(Path(tmp) / f"{w}x{h}", (w, h)) for w, h in sizes]
         for folder, size in sources:
             if size is not None:
-                from gvnn_warp.demos.render import render_sequence
+                from gvnn_warp.cli.render import render_sequence
 
                 t = time.perf_counter()
                 render_sequence(folder, "se3", args.frames, size, args.seed, progress=False)

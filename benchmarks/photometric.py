@@ -36,8 +36,8 @@ import kornia  # noqa: E402
 import numpy as np  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 import warp as wp  # noqa: E402
-from gvnn_warp.kernels import photometric_pipeline  # noqa: E402
-from gvnn_warp.kernels.launch import mat34f  # noqa: E402
+from gvnn_warp.kernels.core.launch import mat34f  # noqa: E402
+from gvnn_warp.kernels.photometric import pipeline as photometric_pipeline  # noqa: E402
 
 import gvnn_warp as G  # noqa: E402
 from benchmarks.common import Case, affine_grid, clear_grads, interleaved, leaves, machine, wfd_scene  # noqa: E402
@@ -119,8 +119,8 @@ def cpu_ms(fn, n=5) -> float:
 
 def one_thread_table(n: int) -> dict:
     """ns per pixel on one thread (thread CPU time)."""
-    from gvnn_warp.kernels import launch
-    from gvnn_warp.kernels import photometric_kernels as pk
+    from gvnn_warp.kernels.core import launch
+    from gvnn_warp.kernels.photometric import normal_equations as pk
 
     torch.set_num_threads(1)
     launch.set_num_threads(1)
@@ -142,7 +142,7 @@ def one_thread_table(n: int) -> dict:
             G.photometric_error(ref, d, image, p, K)[0].sum().backward()
 
         def fb_reference():  # the same through the reference row kernel and its Warp adjoint
-            from gvnn_warp import _photometric_ops as ops
+            from gvnn_warp.ops import photometric as ops
 
             d.grad = p.grad = None
             rows = ops.photometric_rows(ref, d, image, p, K, C, H, W, 5, 1.0, 1e-3)

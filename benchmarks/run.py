@@ -102,8 +102,8 @@ def lens_cases(B, C, H, W) -> list[Case]:
     camera shared by the batch (their rays cached, as for any fixed camera), and a radtan camera
     whose rays are recomputed in every call (a camera that changes every call: its own cache entry
     is dropped before each call, untimed, and the other cameras' entries are left alone)."""
-    from gvnn_warp import functional as Fn
-    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
+    from gvnn_warp.cameras.models import FisheyeCamera, RadTanCamera
+    from gvnn_warp.functional import geometry as Fn
 
     image, depth, pose, _, K = wfd_scene(B, C, H, W)
     K0 = K[0].clone()

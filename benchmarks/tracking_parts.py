@@ -29,10 +29,10 @@ def main(argv=None) -> None:
     p.add_argument("--occlusion-levels", type=int, default=None)
     args = p.parse_args(argv)
 
-    from gvnn_warp.kernels import launch
+    from gvnn_warp.kernels.core import launch
 
-    from gvnn_warp import odometry
     from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.odometry import aligner as odometry
 
     if args.threads is not None:
         launch.set_num_threads(args.threads)

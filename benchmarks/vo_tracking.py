@@ -49,9 +49,9 @@ if str(ROOT) not in sys.path:
 
 from benchmarks.odometry import machine  # noqa: E402
 from gvnn_warp.datasets.tum import read_tum  # noqa: E402
-from gvnn_warp.evaluation import evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.odometry.evaluation import evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.odometry.tracking import Tracker  # noqa: E402
 from gvnn_warp.synthetic import relative_pose  # noqa: E402
-from gvnn_warp.tracking import Tracker  # noqa: E402
 
 FAIL_ROT_DEG = 2.0
 FAIL_TRANS_M = 0.05
@@ -69,7 +69,7 @@ class Identity:
 
 
 def make_methods(seq, network, spec) -> dict:
-    from gvnn_warp.demos.track import make_aligner
+    from gvnn_warp.cli.track import make_aligner
     from gvnn_warp.vo.frontend import NetworkAligner
 
     size = (seq.width, seq.height)
@@ -136,7 +136,7 @@ def run_pairs(frames, methods: dict, gt, gaps: list[int], progress: bool) -> dic
 def run_motion(motion: str, ckpt: Path, args, tmp: Path) -> dict | None:
     import torch
 
-    from gvnn_warp.demos.render import render_sequence
+    from gvnn_warp.cli.render import render_sequence
     from gvnn_warp.vo.checkpoint import load_network, read_checkpoint
 
     if not ckpt.exists():
@@ -187,7 +187,7 @@ def table(results: dict, gaps: list[int]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gvnn_warp.demos._args import bounded_int_list, image_size, positive_int
+    from gvnn_warp.cli.args import bounded_int_list, image_size, positive_int
 
     p = argparse.ArgumentParser(prog="python -m benchmarks.vo_tracking", description=__doc__.split("\n\n")[0])
     p.add_argument("--se3", type=Path, default=Path("out/vo_se3/checkpoint.pt"), help="se3 checkpoint")

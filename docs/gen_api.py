@@ -11,16 +11,17 @@ import sys
 from pathlib import Path
 
 SECTIONS = [
-    ("Global transformations and the 3D spatial transformer", "gvnn_warp.functional"),
+    ("Global transformations and the 3D spatial transformer", "gvnn_warp.functional.geometry"),
     ("Camera models: pinhole, radial-tangential, fisheye", "gvnn_warp.cameras"),
-    ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.perpixel"),
-    ("Layers (nn.Module)", "gvnn_warp.layers"),
-    ("Per-pixel layers (nn.Module)", "gvnn_warp.perpixel_layers"),
-    ("The fused photometric objective (direct RGB-D alignment)", "gvnn_warp.photometric"),
+    ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.functional.perpixel"),
+    ("The fused photometric objective (direct RGB-D alignment)", "gvnn_warp.functional.photometric"),
+    ("Layers (nn.Module)", "gvnn_warp.nn.layers"),
+    ("Per-pixel layers (nn.Module)", "gvnn_warp.nn.perpixel"),
+    ("The photometric loss layer (nn.Module)", "gvnn_warp.nn.photometric"),
     ("Threads and diagnostics", "gvnn_warp", ["get_num_threads", "info", "set_num_threads"]),
     (
         "Pure Warp: the fused photometric objective on wp.arrays (from gvnn_warp.kernels, no torch)",
-        "gvnn_warp.kernels.photometric_pipeline",
+        "gvnn_warp.kernels.photometric.pipeline",
         ["NormalEquations", "photometric_error", "photometric_normal_equations"],
     ),
     ("Direct RGB-D odometry (from gvnn_warp.odometry; numpy or torch, no torch needed)", "gvnn_warp.odometry"),
@@ -34,7 +35,7 @@ def render() -> str:
         "Generated from the docstrings by `docs/gen_api.py`. Conventions (pixel centres, (x, y) order,",
         "`[omega, t]` order, quaternion order, units, valid masks, minimum depth):",
         "[conventions.md](conventions.md). Each section names the module it documents; the functions",
-        "and layers of the first seven (all but the cameras' base class `Camera`) are also importable",
+        "and layers of the first eight (all but the cameras' base class `Camera`) are also importable",
         "from `gvnn_warp` itself.",
         "",
     ]

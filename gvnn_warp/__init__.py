@@ -1,7 +1,18 @@
 """gvnn_warp: differentiable geometric computer-vision layers as NVIDIA Warp kernels.
 
-The torch-facing names (functions and ``nn.Module`` layers) are loaded lazily on first use, so
-``import gvnn_warp.kernels`` (the pure-Warp building blocks) never imports torch.
+The package, by layer (``docs/architecture.md``):
+
+- :mod:`gvnn_warp.kernels`: pure Warp (never imports torch): ``@wp.func`` libraries, thin kernels,
+  the launch layer;
+- :mod:`gvnn_warp.ops`: each kernel registered as a torch custom op whose backward is the kernel's
+  Warp adjoint (the bridge, the argument checks);
+- the torch front: :mod:`gvnn_warp.functional` (functions), :mod:`gvnn_warp.nn` (``nn.Module``
+  layers), :mod:`gvnn_warp.cameras` (camera models); their public names are also this package's;
+- applications: :mod:`gvnn_warp.odometry` (direct RGB-D alignment, tracking, evaluation; no
+  torch), :mod:`gvnn_warp.vo` (learned visual odometry), :mod:`gvnn_warp.datasets`,
+  :mod:`gvnn_warp.synthetic` (rendered RGB-D data), :mod:`gvnn_warp.cli` (``gvnn-warp``).
+
+``import gvnn_warp`` does not import torch: the torch front's names load on first use.
 """
 
 from __future__ import annotations
@@ -22,88 +33,24 @@ init_warp_quietly()
 
 __version__ = "0.1.0"
 
-from .kernels.launch import get_num_threads, set_num_threads  # noqa: E402  (pure Warp, no torch)
+from .kernels.core.launch import get_num_threads as get_num_threads  # noqa: E402  (pure Warp, no torch)
+from .kernels.core.launch import set_num_threads as set_num_threads  # noqa: E402
+from .kernels.core.moved import moved  # noqa: E402
 
-_FUNCTIONAL = (
-    "MIN_DEPTH",
-    "bilinear_sample",
-    "depth_to_points",
-    "euler_to_matrix",
-    "project_points",
-    "quaternion_to_matrix",
-    "se3_exp",
-    "se3_log",
-    "se3_to_matrix",
-    "sim3_to_matrix",
-    "so3_exp",
-    "so3_log",
-    "transform_points",
-    "warp_frame_depth",
-)
-_LAYERS = (
-    "SO3",
-    "SE3",
-    "Sim3",
-    "GridGenerator3D",
-    "PinholeProjection",
-    "BilinearSampler",
-    "SpatialTransformer3D",
-)
-_PERPIXEL = (
-    "affine_flow",
-    "affine_flow_warp",
-    "affine_grid",
-    "disparity_warp",
-    "flow_warp",
-    "homography_flow",
-    "pointwise_se3",
-    "pointwise_sim3",
-    "pointwise_transform10",
-    "robust_psi",
-    "robust_rho",
-    "se2_flow",
-    "slanted_plane_disparity",
-    "smoothness_loss",
-)
-_PERPIXEL_LAYERS = (
-    "AffineFlow",
-    "AffineFlowWarp",
-    "AffineGridGenerator",
-    "DisparityWarp",
-    "FlowWarp",
-    "HomographyFlow",
-    "PointwiseSE3",
-    "PointwiseSim3",
-    "PointwiseTransform10",
-    "RobustLoss",
-    "SE2Flow",
-    "SlantedPlaneDisparity",
-    "SmoothnessLoss",
-)
-_PHOTOMETRIC = ("PhotometricLoss", "photometric_error", "photometric_normal_equations")
-_CAMERAS = (
-    "FisheyeCamera",
-    "PinholeCamera",
-    "RadTanCamera",
-    "distort_points",
-    "undistort_image",
-    "undistort_points",
-    "unproject_points",
-)
-_LAZY = {
-    **{n: "functional" for n in _FUNCTIONAL},
-    **{n: "layers" for n in _LAYERS},
-    **{n: "perpixel" for n in _PERPIXEL},
-    **{n: "perpixel_layers" for n in _PERPIXEL_LAYERS},
-    **{n: "photometric" for n in _PHOTOMETRIC},
-    **{n: "cameras" for n in _CAMERAS},
-}
-_SUBMODULES = ("cameras", "functional", "layers", "perpixel", "perpixel_layers", "photometric")
+# the torch front, whose public names (their __all__) are gvnn_warp's, in the order they are searched
+_FRONT = ("functional", "nn", "cameras")
+_SUBPACKAGES = (*_FRONT, "cli", "datasets", "kernels", "odometry", "ops", "synthetic", "vo")
 
-__all__ = [
-    *_FUNCTIONAL, *_LAYERS, *_PERPIXEL, *_PERPIXEL_LAYERS, *_PHOTOMETRIC, *_CAMERAS, *_SUBMODULES,
-    "kernels", "get_num_threads", "info", "set_num_threads",
-]
+# the module paths of earlier releases, kept importable (a tuple: the old module's names now live in several)
+moved({f"{__name__}.{old}": new if isinstance(new, tuple) else f"{__name__}.{new}" for old, new in {
+    "layers": "nn.layers",
+    "perpixel_layers": "nn.perpixel",
+    "perpixel": "functional.perpixel",
+    "photometric": (f"{__name__}.functional.photometric", f"{__name__}.nn.photometric"),
+    "tracking": "odometry.tracking",
+    "evaluation": "odometry.evaluation",
+    "_lens_ops": "ops.lens",
+}.items()})
 
 
 def info() -> dict:
@@ -114,10 +61,10 @@ def info() -> dict:
     if torch is installed, since that is where the backend is chosen."""
     import platform
 
-    from .kernels import threads
+    from .kernels.core import threads
 
     try:
-        importlib.import_module("._bridge", __name__)
+        importlib.import_module(".ops.bridge", __name__)
         import torch
 
         torch_version = torch.__version__
@@ -134,15 +81,24 @@ def info() -> dict:
     }
 
 
+def _front_names() -> list[str]:
+    """The public names of the torch front (imports it, and so torch)."""
+    return [n for pkg in _FRONT for n in importlib.import_module(f".{pkg}", __name__).__all__]
+
+
 def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    if name in _SUBMODULES:
+    if name in _SUBPACKAGES:
         return importlib.import_module(f".{name}", __name__)
+    if name == "__all__":  # derived from the front's lists (PEP 562 serves it like any other name)
+        return sorted({*_front_names(), *_SUBPACKAGES, "get_num_threads", "info", "set_num_threads"})
+    if not name.startswith("_"):
+        for pkg in _FRONT:
+            module = importlib.import_module(f".{pkg}", __name__)
+            if name in module.__all__:
+                value = globals()[name] = getattr(module, name)
+                return value
     raise AttributeError(f"module 'gvnn_warp' has no attribute {name!r}")
 
 
 def __dir__():
-    return sorted(set(globals()) | set(__all__))
+    return sorted(set(globals()) | set(__getattr__("__all__")))

@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from . import photometric as ph
-from .kinds import LANES_MODULE_OPTIONS
-from .launch import FloatKernel, launch
+from .core.kinds import LANES_MODULE_OPTIONS
+from .core.launch import FloatKernel, launch
+from .photometric import residual as ph
 
 wp.set_module_options({"enable_backward": False})
 

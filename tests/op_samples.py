@@ -6,13 +6,13 @@ every launch into many pieces).
 """
 
 import torch
-from gvnn_warp.kernels import lens
-from gvnn_warp.kernels.photometric import KINDS as PHOTOMETRIC_CODES
+from gvnn_warp.kernels.geometry import lens
+from gvnn_warp.kernels.photometric.residual import KINDS as PHOTOMETRIC_CODES
 from gvnn_warp.kernels.robust import KINDS as ROBUST_CODES
 from refs import intrinsics
 
 import gvnn_warp as G
-import gvnn_warp._lens_ops  # noqa: F401  (registers the ops through lens models)
+from gvnn_warp.ops import lens as lens_ops
 
 
 def op_samples(B=2, C=2, H=5, W=6, seed=0):
@@ -42,7 +42,7 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
     radtan = torch.from_numpy(lens.pack_dist(lens.RADTAN, [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]))
     fisheye = torch.from_numpy(lens.pack_dist(lens.FISHEYE, [0.08, -0.02, 0.004, -0.001]))
     radtan, fisheye = (d.expand(B, 8).contiguous() for d in (radtan, fisheye))
-    rays = G._lens_ops.pixel_rays(K[:1].contiguous(), radtan[:1].contiguous(), H, W, lens.RADTAN)  # shared by the batch
+    rays = lens_ops.pixel_rays(K[:1].contiguous(), radtan[:1].contiguous(), H, W, lens.RADTAN)  # shared by the batch
     return {
         # gvnn_warp._ops
         "so3_exp": (r(n, 3),),

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from gvnn_warp.kernels import lens
+from gvnn_warp.kernels.geometry import lens
 from torch.autograd import gradcheck
 
 import gvnn_warp as G
@@ -343,7 +343,7 @@ def test_lens_funcs_in_a_users_own_kernel_under_tape():
     """The pure-Warp contract: a user's kernel calling kernels.lens.project, differentiated by
     wp.Tape, gives the torch op's values and gradients."""
     import warp as wp
-    from gvnn_warp.kernels.kinds import vec8d
+    from gvnn_warp.kernels.core.kinds import vec8d
 
     @wp.kernel
     def user_project(points: wp.array(dtype=wp.vec3d), K: wp.array(dtype=wp.mat33d), dist: wp.array(dtype=vec8d),

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from gvnn_warp import cli
-from gvnn_warp.demos import _args
+from gvnn_warp.cli import args as _args
 
 BAD = "BAD"  # replaced by the path of an existing file
 FILE_CHILD = "BAD/sub"  # a directory below that file
@@ -238,14 +238,14 @@ def test_help_is_plain_text_with_defaults_and_descriptions():
 
 def test_readme_torchrun_line_is_the_help_one():
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    line = "torchrun --standalone --nproc_per_node=2 -m gvnn_warp.demos.vo"
+    line = "torchrun --standalone --nproc_per_node=2 -m gvnn_warp.cli.vo"
     assert line in readme
     _, commands = _subparsers()
     assert line in commands["vo"].format_help().replace("\n", " ")
 
 
 def test_vo_loss_choices_match_the_losses():
-    from gvnn_warp.demos.vo import _losses
+    from gvnn_warp.cli.vo import _losses
     from gvnn_warp.vo.loss import LOSSES
 
     assert _losses() == LOSSES
@@ -267,7 +267,7 @@ def test_keyboard_interrupt_anywhere_in_a_command(command, tmp_path, capsys, mon
     """The handling is cli's, so every command (new ones too) gets it."""
     import importlib
 
-    module = importlib.import_module(f"gvnn_warp.demos.{command}")
+    module = importlib.import_module(f"gvnn_warp.cli.{command}")
 
     def interrupted(args):
         raise KeyboardInterrupt
@@ -279,7 +279,7 @@ def test_keyboard_interrupt_anywhere_in_a_command(command, tmp_path, capsys, mon
 
 
 def test_a_file_the_command_cannot_write_is_one_line(tmp_path, capsys, monkeypatch):
-    from gvnn_warp.demos import render
+    from gvnn_warp.cli import render
 
     def unwritable(args):
         raise PermissionError(13, "Permission denied", str(tmp_path / "o" / "rgb.txt"))
@@ -301,7 +301,7 @@ def test_keyboard_interrupt_during_the_clean_up_still_exits_130(tmp_path, capsys
     """A second interrupt while run_command cleans up (after it reported the first) must not end the
     process as killed by SIGINT: one line, status 130."""
     import gvnn_warp._warp_setup as warp_setup
-    from gvnn_warp.demos import align
+    from gvnn_warp.cli import align
 
     def interrupted(*args):
         raise KeyboardInterrupt
@@ -467,7 +467,7 @@ def _colorbar_labels(fig):
 def test_align_figure_has_a_labelled_colour_bar():
     import matplotlib.pyplot as plt
 
-    from gvnn_warp.demos.align import figure
+    from gvnn_warp.cli.align import figure
 
     g = torch.Generator().manual_seed(0)
     ref, live, before, after = (torch.rand(3, 24, 32, generator=g) for _ in range(4))
@@ -485,7 +485,7 @@ def test_align_figure_has_a_labelled_colour_bar():
 def test_flow_figure_colour_bars_have_units():
     import matplotlib.pyplot as plt
 
-    from gvnn_warp.demos.flow import figure
+    from gvnn_warp.cli.flow import figure
 
     g = torch.Generator().manual_seed(0)
     f1, f2, warped = (torch.rand(1, 3, 24, 32, generator=g) for _ in range(3))

@@ -12,12 +12,14 @@ from typing import Any
 
 import torch
 import warp as wp
-from gvnn_warp.kernels import _compat as wcompat
-from gvnn_warp.kernels import launch as L
-from gvnn_warp.kernels import lie_kernels, threads
+from gvnn_warp.kernels.core import compat as wcompat
+from gvnn_warp.kernels.core import launch as L
+from gvnn_warp.kernels.core import threads
+from gvnn_warp.kernels.geometry import lie_kernels
 
 import gvnn_warp as G
-from gvnn_warp import _bridge, _compat, _ops  # noqa: F401  (_ops registers the ops)
+from gvnn_warp.ops import bridge as _bridge  # noqa: F401  (_ops registers the ops)
+from gvnn_warp.ops import compat as _compat
 
 
 @wp.kernel
@@ -77,7 +79,7 @@ def test_replay_function_runs_the_recorded_launch():
     wcompat.replay_function(cmd)()
     assert y.numpy().tolist() == [0, 4, 6, 8, 10, 12, 14, 0]
     # a recorded launch of the normal equations replays to the same bits either way
-    from gvnn_warp.kernels.photometric_pipeline import photometric_normal_equations
+    from gvnn_warp.kernels.photometric.pipeline import photometric_normal_equations
 
     img = wp.array(np.random.default_rng(0).random((1, 1, 8, 16)), dtype=wp.float64, device="cpu")
     depth = wp.array(np.full((1, 1, 8, 16), 2.0), dtype=wp.float64, device="cpu")
@@ -174,7 +176,7 @@ def test_pinhole_work_does_not_define_the_lens_models():
         G.warp_frame_depth(img, depth, torch.eye(4)[None], K)[0].sum().backward()
         G.photometric_error(img, depth, img, torch.eye(4)[None], K)[0].backward()
         DirectAligner(K.numpy()).align(img[0].detach().numpy(), depth[0].detach().numpy(), img[0].detach().numpy())
-        lensed = ('gvnn_warp.kernels.lens_rays' in sys.modules, 'gvnn_warp._lens_ops' in sys.modules,
+        lensed = ('gvnn_warp.kernels.geometry.lens_rays' in sys.modules, 'gvnn_warp.ops.lens' in sys.modules,
                   'project' in vars(lens))
         G.warp_frame_depth(img, depth, torch.eye(4)[None], G.RadTanCamera(K, torch.tensor([0.1, 0, 0, 0, 0])))
         print(lensed, 'project' in vars(lens))
@@ -237,11 +239,11 @@ def test_free_threaded_interpreter_runs_launches_on_one_thread(monkeypatch):
 
 
 def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
-    from gvnn_warp.kernels import photometric_error_kernels as pek
-    from gvnn_warp.kernels import photometric_kernels as pk
     from gvnn_warp.kernels import pyramid
-    from gvnn_warp.kernels import sampling_kernels as sk
-    from gvnn_warp.kernels.kinds import LANES_MODULE_OPTIONS
+    from gvnn_warp.kernels.core.kinds import LANES_MODULE_OPTIONS
+    from gvnn_warp.kernels.photometric import error as pek
+    from gvnn_warp.kernels.photometric import normal_equations as pk
+    from gvnn_warp.kernels.sampling import kernels as sk
 
     # the Warp default this works around: a cap on the SLP vectoriser's depth (if an upgrade drops
     # it, lanes_compiler_flags has nothing left to do)

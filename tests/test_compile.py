@@ -6,7 +6,8 @@ from op_samples import op_samples
 from refs import assert_only_wanted_gradients, intrinsics
 
 import gvnn_warp as G
-from gvnn_warp import _bridge, _lens_ops, _ops, _perpixel_ops  # noqa: F401  (register the ops)
+from gvnn_warp.ops import bridge as _bridge  # noqa: F401  (register the ops)
+from gvnn_warp.ops import geometry as _ops
 
 OP_NAMES = sorted(_bridge.OPS)  # every registered op; samples in tests/op_samples.py
 
@@ -47,7 +48,7 @@ def test_compile_fullgraph_matches_eager():
 
 
 def test_backward_from_needs_the_same_signature():
-    from gvnn_warp._bridge import Output, Param, warp_op
+    from gvnn_warp.ops.bridge import Output, Param, warp_op
 
     with pytest.raises(ValueError, match="backward_from must be a warp_op with the same inputs"):
         warp_op(

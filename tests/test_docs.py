@@ -22,29 +22,25 @@ def test_every_public_name_documented_with_shapes():
 
     text = (DOCS / "api.md").read_text()
     for name in gvnn_warp.__all__:
-        submodules = ("cameras", "functional", "layers", "perpixel", "perpixel_layers", "photometric", "kernels")
-        if name[0].isupper() or name in submodules:
+        if name[0].isupper() or name in gvnn_warp._SUBPACKAGES:
             continue
         assert f"### `{name}(" in text or name == "MIN_DEPTH", name
     assert "(undocumented)" not in text
 
 
-def test_lazy_export_lists_match_modules():
-    # gvnn_warp/__init__.py lists the torch-facing names statically (so importing it stays free of
-    # torch); they must be exactly the modules' public names.
+def test_top_level_names_are_the_fronts():
+    # gvnn_warp/__init__.py derives its torch-facing names from the front's sub-packages (importing it
+    # stays free of torch): each name is the sub-package's own object, and nothing else is public
     import gvnn_warp
-    from gvnn_warp import functional, layers, perpixel, perpixel_layers, photometric
+    from gvnn_warp import cameras, functional, nn
 
-    for listed, module in [
-        (gvnn_warp._FUNCTIONAL, functional),
-        (gvnn_warp._LAYERS, layers),
-        (gvnn_warp._PERPIXEL, perpixel),
-        (gvnn_warp._PERPIXEL_LAYERS, perpixel_layers),
-        (gvnn_warp._PHOTOMETRIC, photometric),
-    ]:
-        constants = ("HOMOGRAPHY_MIN_DEN", "ROBUST_KINDS", "ERROR_KINDS", "NORMAL_EQUATIONS_KINDS")
-        public = {n for n in module.__all__ if n not in constants}
-        assert set(listed) == public, module.__name__
+    front = [*functional.__all__, *nn.__all__, *cameras.__all__]
+    assert len(front) == len(set(front)), "a name is exported by two front sub-packages"
+    for module in (functional, nn, cameras):
+        for name in module.__all__:
+            assert getattr(gvnn_warp, name) is getattr(module, name), name
+    extra = set(gvnn_warp.__all__) - set(front) - set(gvnn_warp._SUBPACKAGES)
+    assert extra == {"get_num_threads", "info", "set_num_threads"}
 
 
 # ----------------------------------------------------------------------------- README code blocks
@@ -95,7 +91,7 @@ def test_readme_shell_commands_are_valid():
     from packaging.requirements import Requirement
 
     from gvnn_warp import cli
-    from gvnn_warp.demos import vo
+    from gvnn_warp.cli import vo
 
     ci = (DOCS.parent / ".ci" / "run").read_text()
     # the quick start's two lines (set-up and main job; tests) are exactly CI's two commands
@@ -119,7 +115,7 @@ def test_readme_shell_commands_are_valid():
             if prog == "gvnn-warp":
                 cli.build_parser().parse_args(cmd[1:])
             elif prog == "torchrun":
-                assert cmd[1:4] == ["--standalone", "--nproc_per_node=2", "-m"] and cmd[4] == "gvnn_warp.demos.vo"
+                assert cmd[1:4] == ["--standalone", "--nproc_per_node=2", "-m"] and cmd[4] == "gvnn_warp.cli.vo"
                 parser = __import__("argparse").ArgumentParser()
                 vo.add_arguments(parser)
                 parser.parse_args(cmd[5:])

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import torch
 import warp as wp
-from gvnn_warp.kernels import lens
-from gvnn_warp.kernels import pipeline as P
-from gvnn_warp.kernels.kinds import mat34d, mat34f, vec8d
+from gvnn_warp.kernels.core.kinds import mat34d, mat34f, vec8d
+from gvnn_warp.kernels.geometry import lens
+from gvnn_warp.kernels.sampling import pipeline as P
 
 import gvnn_warp as G
-from gvnn_warp import functional as Fn
-from gvnn_warp.cameras import FisheyeCamera, PinholeCamera, RadTanCamera
+from gvnn_warp.cameras.models import FisheyeCamera, PinholeCamera, RadTanCamera
+from gvnn_warp.functional import geometry as Fn
 
 f64 = torch.float64
 FR1 = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]  # TUM freiburg1's published radtan coefficients
@@ -412,7 +412,7 @@ def test_normal_equations_with_a_distorted_camera_match_autograd(model, robust):
 def test_pure_warp_normal_equations_with_a_distorted_camera_match_the_torch_op():
     # three scenes of the same shapes: the torch op's second and third calls replay the launches
     # its first recorded, pointed at new tensors
-    from gvnn_warp.kernels import photometric_pipeline as PP
+    from gvnn_warp.kernels.photometric import pipeline as PP
 
     for seed in (6, 7, 8):
         ref, depth, live, pose, K = photometric_scene(B=2, C=1, H=8, W=10, seed=seed)
@@ -458,7 +458,7 @@ def render_room(T_cam_world, K, model, c, H, W):
 
 
 def test_aligner_with_the_distorted_camera_recovers_the_motion_and_beats_ignoring_it():
-    from gvnn_warp.odometry import DirectAligner
+    from gvnn_warp.odometry.aligner import DirectAligner
 
     H, W = 96, 128
     K = tum_like_K(W, H)  # TUM freiburg1's camera at 128 x 96 (the corners move ~1.5 px)
@@ -486,7 +486,7 @@ def test_aligner_with_the_distorted_camera_recovers_the_motion_and_beats_ignorin
 
 
 def test_aligner_refuses_bad_camera_arguments():
-    from gvnn_warp.odometry import DirectAligner
+    from gvnn_warp.odometry.aligner import DirectAligner
 
     K = tum_like_K(32, 24).numpy()
     with pytest.raises(ValueError, match="argument 'model' must be one of"):

@@ -13,7 +13,7 @@ import warp as wp
 from gvnn_warp.kernels import pyramid
 from odometry_refs import motion, normal_equations_torch, pose_error, rendered_pair
 
-from gvnn_warp.odometry import DirectAligner, Frame
+from gvnn_warp.odometry.aligner import DirectAligner, Frame
 
 # ----------------------------------------------------------------------------- pyramid kernels
 
@@ -242,9 +242,9 @@ def test_lm_step_on_row_sums_equals_reduction_then_lm_step():
     """The aligner's LM step reduces the normal equations' per-row sums itself (one launch fewer per
     trial): bitwise the normal equations' own reduction followed by the step, for a first and a
     next call, accepted and rejected trials, an item that stopped and one without enough pixels."""
-    from gvnn_warp.kernels import lm
-    from gvnn_warp.kernels import photometric_kernels as pk
-    from gvnn_warp.kernels.launch import mat34d, mat34f
+    from gvnn_warp.kernels.core.launch import mat34d, mat34f
+    from gvnn_warp.kernels.photometric import lm
+    from gvnn_warp.kernels.photometric import normal_equations as pk
 
     B, H, S = 4, 7, int(pk.ROW_STRIDE)
     rng = np.random.default_rng(0)

@@ -3,11 +3,14 @@ need, and this test lists what is missing for each (see CONTRIBUTING.md, "Adding
 
 from pathlib import Path
 
-from gvnn_warp.kernels import kinds
+from gvnn_warp.kernels.core import kinds
 from op_samples import op_samples
 
 import gvnn_warp
-from gvnn_warp import _bridge, _lens_ops, _ops, _perpixel_ops, _photometric_ops  # noqa: F401  (registers every op)
+from gvnn_warp.ops import bridge as _bridge  # noqa: F401  (registers every op)
+from gvnn_warp.ops import geometry as _ops
+from gvnn_warp.ops import perpixel as _perpixel_ops
+from gvnn_warp.ops import photometric as _photometric_ops
 
 API_DOC = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
 

@@ -13,8 +13,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from gvnn_warp import perpixel as P
-from gvnn_warp import perpixel_layers as L
+from gvnn_warp.functional import perpixel as P
+from gvnn_warp.nn import perpixel as L
 
 D = torch.float64
 KINDS = ("huber", "cauchy", "geman_mcclure", "tukey")
@@ -646,7 +646,7 @@ def test_inputs_not_modified_and_noncontiguous_ok():
 def test_flow_demo_smoke(tmp_path, capsys):
     import argparse
 
-    from gvnn_warp.demos import flow
+    from gvnn_warp.cli import flow
 
     parser = argparse.ArgumentParser(prog="gvnn-warp")
     flow.add_parser(parser.add_subparsers(dest="command", required=True))
@@ -665,7 +665,7 @@ def test_flow_demo_smoke(tmp_path, capsys):
 def test_threaded_launches_bitwise_equal_single_thread(B):
     """Big enough to be split over threads (and, for B = 1, to cut a batch item into pieces):
     outputs and gradients must not depend on the thread count."""
-    from gvnn_warp.kernels import launch
+    from gvnn_warp.kernels.core import launch
 
     H, W = 96, 128  # 12288 pixels per batch item: split even for B = 1
     image = rand(B, 3, H, W, seed=60)

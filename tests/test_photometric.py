@@ -8,9 +8,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 import warp as wp
-from gvnn_warp.kernels import _compat, launch
-from gvnn_warp.kernels import photometric_pipeline as pp
-from gvnn_warp.kernels.launch import mat34d, mat34f
+from gvnn_warp.kernels.core import compat as _compat
+from gvnn_warp.kernels.core import launch
+from gvnn_warp.kernels.core.launch import mat34d, mat34f
+from gvnn_warp.kernels.photometric import pipeline as pp
 from refs import intrinsics, skew
 
 MIN_DEPTH = 1e-3
@@ -388,7 +389,7 @@ def unfused_error(ref, depth, live, pose, K, kind, c):
 
 @pytest.mark.parametrize("kind, c", KINDS)
 def test_error_matches_unfused_path(kind, c, dtype):
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = (t.to(dtype) for t in scene(B=3, C=3, H=10, W=12, seed=2))
     err, n = photometric_error(ref, depth, live, pose, K, robust=kind, scale=c)
@@ -408,7 +409,7 @@ def test_error_matches_unfused_path(kind, c, dtype):
 
 @pytest.mark.parametrize("kind, c", [("l1", 1.0), ("huber", 0.15), ("tukey", 0.6), ("cauchy", 0.2)])
 def test_error_gradcheck_every_input(kind, c):
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=2, C=1, H=6, W=7, seed=4, angle=0.03, shift=0.04)
     args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(2, 3, 3).contiguous())]
@@ -432,7 +433,7 @@ def test_error_gradcheck_every_input(kind, c):
 
 
 def test_error_invalid_inputs_are_skipped_with_finite_gradients():
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=3, C=2, H=8, W=9, seed=6)
     depth[0] = float("nan")  # nothing valid
@@ -453,9 +454,9 @@ def test_error_invalid_inputs_are_skipped_with_finite_gradients():
 
 
 def test_error_deterministic_across_threads_and_batch():
-    from gvnn_warp.kernels.launch import set_num_threads
+    from gvnn_warp.kernels.core.launch import set_num_threads
 
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     def run(B, C, H, W):
         ref, depth, live, pose, K, _ = scene(B=B, C=C, H=H, W=W, seed=8)
@@ -490,7 +491,7 @@ def test_error_only_wanted_gradients_and_layer():
     from refs import assert_only_wanted_gradients
 
     import gvnn_warp as G
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=2, C=2, H=7, W=8, seed=9)
     assert_only_wanted_gradients(lambda *a: photometric_error(*a, robust="cauchy", scale=0.3)[0],
@@ -508,7 +509,7 @@ def test_error_value_only_and_backward_without_zero_filled_gradients(C, kind, c,
     # the value with and without gradients comes from one kernel (its gradient part skipped at run
     # time): bitwise the same; and the backward allocates no zero-filled gradient for the outputs it
     # does not use (autograd materialised one of each output's size, an image for dS/d depth)
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=2, C=C, H=12, W=20, seed=31, dtype=dtype)
     with torch.no_grad():
@@ -528,9 +529,9 @@ def test_error_value_only_and_backward_without_zero_filled_gradients(C, kind, c,
 def reference_error(ref, depth, live, pose, K, kind, c):
     """photometric_error through the reference ops: the row kernel and the mean, differentiated
     by their Warp adjoints (the fast path computes its gradient analytically in the forward pass)."""
-    from gvnn_warp.kernels.photometric import KINDS as CODES
+    from gvnn_warp.kernels.photometric.residual import KINDS as CODES
 
-    from gvnn_warp import _photometric_ops as ops
+    from gvnn_warp.ops import photometric as ops
 
     _, C, H, W = ref.shape
     row_sum, row_count = ops.photometric_rows(ref, depth, live, pose, K, C, H, W, CODES[kind], c, MIN_DEPTH)
@@ -540,7 +541,7 @@ def reference_error(ref, depth, live, pose, K, kind, c):
 @pytest.mark.parametrize("kind, c", KINDS)
 @pytest.mark.parametrize("C", [1, 2, 3])  # compiled-in channel counts (1, 3) and the run-time loop (2)
 def test_error_fast_gradients_equal_warp_adjoint(kind, c, C):
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=3, C=C, H=9, W=21, seed=20 + C)  # W: two full blocks of 8 and a tail
     live[1, 0, 4, 6] = float("nan")  # a non-finite live pixel: its residuals are skipped
@@ -567,7 +568,7 @@ def test_error_fast_gradients_equal_warp_adjoint(kind, c, C):
 
 
 def test_error_fast_path_float32_and_second_order():
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=2, C=3, H=12, W=16, seed=30, holes=False)
     args64 = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(2, 3, 3).contiguous())]
@@ -591,7 +592,7 @@ def test_error_fast_path_float32_and_second_order():
 def test_error_large_planes_take_the_reference_path(monkeypatch):
     # planes beyond 2^24 pixels (float tap addresses of the 8-lane kernel no longer exact) run the
     # reference kernel and its Warp adjoint: same values and gradients to rounding
-    from gvnn_warp import photometric as P
+    from gvnn_warp.functional import photometric as P
 
     ref, depth, live, pose, K, _ = scene(B=2, C=2, H=6, W=9, seed=31)
     outs = []
@@ -607,7 +608,7 @@ def test_error_large_planes_take_the_reference_path(monkeypatch):
 
 
 def test_error_pure_warp_tape_matches_torch():
-    from gvnn_warp.photometric import photometric_error
+    from gvnn_warp.functional.photometric import photometric_error
 
     ref, depth, live, pose, K, _ = scene(B=2, C=2, H=7, W=9, seed=10)
     args = [t.clone().requires_grad_() for t in (ref, depth, live, pose, K.expand(2, 3, 3).contiguous())]
@@ -626,7 +627,7 @@ def test_error_pure_warp_tape_matches_torch():
 
 
 def test_normal_equations_torch_equals_pure_warp():
-    from gvnn_warp.photometric import photometric_normal_equations
+    from gvnn_warp.functional.photometric import photometric_normal_equations
 
     ref, depth, live, pose, K, live_depth = scene(seed=14)
     got = photometric_normal_equations(ref, depth, live, pose, K, robust="tukey", scale=0.4,
@@ -651,9 +652,9 @@ def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch)
     # from several threads at once must not share scratch buffers
     import threading
 
-    from gvnn_warp import _photometric_ops as ops
-    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
-    from gvnn_warp.photometric import photometric_normal_equations
+    from gvnn_warp.cameras.models import FisheyeCamera, RadTanCamera
+    from gvnn_warp.functional.photometric import photometric_normal_equations
+    from gvnn_warp.ops import photometric as ops
 
     recorded = []
     real = launch.RecordedLaunch.__init__
@@ -741,7 +742,8 @@ def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch)
 
 
 def test_torch_functions_bad_arguments():
-    from gvnn_warp.photometric import PhotometricLoss, photometric_error, photometric_normal_equations
+    from gvnn_warp.functional.photometric import photometric_error, photometric_normal_equations
+    from gvnn_warp.nn.photometric import PhotometricLoss
 
     ref, depth, live, pose, K, live_depth = scene(B=2, C=2, H=5, W=6, holes=False)
     for fn, name in ((photometric_error, "photometric_error"),
@@ -777,7 +779,7 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel(width):
     # the 8-lane row kernel (used) against the plain one-pixel-at-a-time kernel, row by row,
     # with a width that is not a multiple of 8 (the last step reads the row's last 8 pixels and
     # masks those of the step before) and one narrower than 8 (clamped lanes)
-    from gvnn_warp.kernels import photometric_kernels as pk
+    from gvnn_warp.kernels.photometric import normal_equations as pk
 
     ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=width, seed=15)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
@@ -821,9 +823,9 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel(width):
 
 
 def test_opcheck_photometric_ops():
-    from gvnn_warp.kernels.photometric import KINDS as CODES
+    from gvnn_warp.kernels.photometric.residual import KINDS as CODES
 
-    from gvnn_warp import _photometric_ops as ops
+    from gvnn_warp.ops import photometric as ops
 
     ref, depth, live, pose, K, live_depth = scene(B=2, C=2, H=5, W=6, seed=16, holes=False)
     Kb = K.expand(2, 3, 3).contiguous()
@@ -848,7 +850,7 @@ def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
     # the backward's scaling: segments shorter and longer than a launch element's span, runs that
     # cross spans, short tails, a launch cut into one-element chunks; out[i] = src[i] g[b] / (C count[b]),
     # b = i // seg
-    from gvnn_warp.kernels import photometric_error_kernels as pek
+    from gvnn_warp.kernels.photometric import error as pek
 
     if threads > 1:
         monkeypatch.setattr(launch, "_planner", lambda n, *a: [(i, 1, 0) for i in range(n)])

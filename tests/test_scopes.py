@@ -7,13 +7,13 @@ import math
 
 import pytest
 import torch
-from gvnn_warp.kernels import kinds
-from gvnn_warp.kernels import launch as L
+from gvnn_warp.kernels.core import kinds
+from gvnn_warp.kernels.core import launch as L
 from op_samples import op_samples
 from refs import gradients_of
 
 import gvnn_warp  # noqa: F401
-from gvnn_warp import _bridge, _lens_ops, _ops, _perpixel_ops, _photometric_ops  # noqa: F401  (registers every op)
+from gvnn_warp.ops import bridge as _bridge  # noqa: F401  (registers every op)
 
 MAX_PIECES = 256
 

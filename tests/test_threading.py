@@ -9,8 +9,10 @@ from typing import Any
 import pytest
 import torch
 import warp as wp
-from gvnn_warp.kernels import launch as L
-from gvnn_warp.kernels import lie_kernels, sampling_kernels, threads
+from gvnn_warp.kernels.core import launch as L
+from gvnn_warp.kernels.core import threads
+from gvnn_warp.kernels.geometry import lie_kernels
+from gvnn_warp.kernels.sampling import kernels as sampling_kernels
 from refs import gradients_of, weighted_backward
 
 import gvnn_warp as G
@@ -297,7 +299,7 @@ def test_env_var_in_subprocess(tmp_path, backend):
 
 
 def test_torch_openmp_team_is_the_default():
-    from gvnn_warp._compat import torch_openmp_library
+    from gvnn_warp.ops.compat import torch_openmp_library
 
     if torch_openmp_library()[0] is None or os.environ.get("GVNN_WARP_OPENMP") == "0":
         pytest.skip("torch does not run on OpenMP here, or it was turned off")
@@ -398,7 +400,7 @@ def test_recorded_launch_pieces_and_set_arg(n_threads, monkeypatch):
     # results through Warp's Launch.launch where the fast replay does not apply (recorded again
     # after each set_arg)
     import numpy as np
-    from gvnn_warp.kernels import _compat
+    from gvnn_warp.kernels.core import compat as _compat
 
     monkeypatch.setattr(threads, "get_num_threads", lambda: n_threads)
     built = []

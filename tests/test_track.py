@@ -10,7 +10,7 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from gvnn_warp.datasets.tum import read_trajectory, read_tum
-from gvnn_warp.evaluation import (
+from gvnn_warp.odometry.evaluation import (
     ATE_ALIGNMENT,
     ATE_ALIGNMENT_ORIGIN,
     FAIL_ROT_DEG,
@@ -18,8 +18,8 @@ from gvnn_warp.evaluation import (
     evaluate_trajectory,
     pose_error,
 )
+from gvnn_warp.odometry.tracking import KeyframePolicy, Tracker, track
 from gvnn_warp.synthetic import relative_pose
-from gvnn_warp.tracking import KeyframePolicy, Tracker, track
 
 
 def _circle_trajectory(n=8, radius=1.0, seed=0):
@@ -229,7 +229,7 @@ def test_pipelined_tracking_reports_a_failing_prepare_and_keeps_working():
 
 def test_direct_aligner_pipelines_with_bitwise_the_sequential_poses(tmp_path):
     from gvnn_warp.datasets.tum import read_tum
-    from gvnn_warp.odometry import DirectAligner
+    from gvnn_warp.odometry.aligner import DirectAligner
 
     seq = read_tum(_render(tmp_path, frames=6, size="80x60", seed=3))
     frames = [(seq.image(i, gray=True), seq.depth(i)) for i in range(len(seq))]
@@ -256,7 +256,7 @@ def _render(tmp_path, frames=6, size="80x60", seed=0):
 def test_track_cli_writes_files_and_reports_failures(tmp_path, monkeypatch, capsys):
     # the CLI around a test aligner that knows the truth, perturbed once: files, metrics, figures
     from gvnn_warp.cli import main
-    from gvnn_warp.demos import track as track_cli
+    from gvnn_warp.cli import track as track_cli
 
     data = _render(tmp_path)
     gt = read_tum(data).gt_poses
@@ -288,7 +288,7 @@ def test_track_cli_writes_files_and_reports_failures(tmp_path, monkeypatch, caps
 
 def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
     from gvnn_warp.cli import main
-    from gvnn_warp.demos import track as track_cli
+    from gvnn_warp.cli import track as track_cli
 
     data = _render(tmp_path, frames=3, size="32x24")
     gt = read_tum(data).gt_poses
@@ -432,7 +432,7 @@ def test_track_cli_end_to_end_with_the_direct_aligner(tmp_path, capsys):
 
 def test_track_cli_ctrl_c_exits_130_with_one_line(tmp_path, monkeypatch, capsys):
     from gvnn_warp.cli import main
-    from gvnn_warp.demos import track as track_cli
+    from gvnn_warp.cli import track as track_cli
 
     data = _render(tmp_path, frames=3, size="16x16")
 
@@ -483,7 +483,7 @@ def test_odometry_benchmark_normal_equations_summary():
 
 def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch):
     from gvnn_warp.cli import main
-    from gvnn_warp.demos import track as track_cli
+    from gvnn_warp.cli import track as track_cli
 
     data = _render(tmp_path)
     gt = read_tum(data).gt_poses

@@ -319,7 +319,7 @@ def test_robust_loss_option(tiny_pairs):
     _, live, ref_d, _, pose, _ = ps.batch(torch.arange(2))
     gt_w, gt_v = warp_live(live, ref_d, pose, ps.K)
     try:
-        import gvnn_warp.perpixel  # noqa: F401
+        import gvnn_warp.functional.perpixel  # noqa: F401
     except ImportError:
         with pytest.raises(RuntimeError, match="robust_rho"):
             photometric_loss(torch.zeros(2, 3), live, ref_d, gt_w, gt_v, ps.K, "huber")
@@ -468,7 +468,7 @@ def test_too_few_training_pairs_for_the_batch(tmp_path):
 def test_cli_interrupt_and_resume(tmp_path):
     """SIGINT mid-run saves a checkpoint and exits 130; --resume continues from its step."""
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "gvnn_warp.demos.vo", "--motion", "se3", "--out", str(out), "--size", "64x48",
+    cmd = [sys.executable, "-m", "gvnn_warp.cli.vo", "--motion", "se3", "--out", str(out), "--size", "64x48",
            "--batch-size", "4", "--frames", "12", "--trajectories", "1", "--no-progress",
            "--stages", "1", "--refine", "0", "--gaps", "1"]  # the smallest network: the test is about the CLI
     proc = subprocess.Popen([*cmd, "--steps", "100000"], env=_env(), stdout=subprocess.PIPE,
@@ -505,7 +505,7 @@ def test_cli_interrupt_and_resume(tmp_path):
 def test_ddp_two_ranks(tmp_path):
     torchrun = shutil.which("torchrun", path=str(Path(sys.executable).parent))
     out = tmp_path / "ddp"
-    cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.demos.vo", "--motion", "se3",
+    cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.cli.vo", "--motion", "se3",
            "--out", str(out), "--size", "64x48", "--batch-size", "8", "--frames", "12", "--trajectories", "1",
            "--steps", "6", "--no-progress", "--stages", "1", "--refine", "0", "--gaps", "1"]
     res = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=120)

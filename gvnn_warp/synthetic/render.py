@@ -21,7 +21,7 @@ import threading
 import numpy as np
 import warp as wp
 
-from ..kernels.launch import load_module, wp_launch
+from ..kernels.core.launch import load_module, wp_launch
 from .scene import RoomScene
 
 wp.set_module_options({"enable_backward": False})

@@ -60,7 +60,7 @@ def split_seeds(seed: int, split: str, n: int) -> list[int]:
 
 
 def _trajectory(motion: str, n_frames: int, seed: int, **kwargs) -> np.ndarray:
-    from gvnn_warp import synthetic
+    from .. import synthetic
 
     if motion == "so3":
         return synthetic.rotation_trajectory(n_frames, seed, **kwargs)
@@ -71,7 +71,7 @@ def _trajectory(motion: str, n_frames: int, seed: int, **kwargs) -> np.ndarray:
 
 def make_pairs(T_world_cam: np.ndarray, gaps: tuple[int, ...], both_directions: bool) -> tuple[np.ndarray, ...]:
     """Index pairs (ref, live) within one trajectory and their poses ``T_live_ref`` (float64)."""
-    from gvnn_warp.synthetic import relative_pose
+    from ..synthetic import relative_pose
 
     n = T_world_cam.shape[0]
     ref, live = [], []
@@ -104,7 +104,7 @@ def render_split(
     ``motion`` picks the trajectory family: ``so3`` = ``rotation_trajectory`` (pure rotation,
     several degrees per frame), ``se3`` = ``smooth_se3_trajectory`` (6-DoF, a few cm per frame).
     """
-    from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd
+    from ..synthetic import default_intrinsics, make_room_scene, render_rgbd
 
     W, H = size
     K = default_intrinsics(W, H)
@@ -127,7 +127,7 @@ def render_split(
 def tum_frames(root, max_frames: int | None = None):
     """The TUM sequence in folder ``root`` (``gvnn_warp.datasets.tum.read_tum``) and the indices of
     its first ``max_frames`` frames that have ground truth; ``DatasetError`` if it has none."""
-    from gvnn_warp.datasets.tum import DatasetError, read_tum
+    from ..datasets.tum import DatasetError, read_tum
 
     seq = read_tum(root)
     if seq.gt_poses is None:
@@ -153,8 +153,7 @@ def read_split(
     frames with ground truth; its pose is ``T_live_ref`` from the ground truth. The folders must
     have the same intrinsics once resized (the network is trained for one camera).
     """
-    from gvnn_warp.datasets.tum import DatasetError
-
+    from ..datasets.tum import DatasetError
     from .frontend import resize_frame, scale_intrinsics
 
     images, depths, refs, lives, poses = [], [], [], [], []
@@ -182,7 +181,7 @@ def read_split(
 
 
 def _pair_set(images, depths, refs, lives, poses, K) -> PairSet:
-    from gvnn_warp import so3_log
+    from .. import so3_log
 
     pose = torch.from_numpy(np.concatenate(poses))
     omega = so3_log(pose[:, :3, :3].contiguous())

@@ -111,7 +111,7 @@ class NetworkAligner:
 
     def predict(self, ref: VOFrame, live: VOFrame) -> np.ndarray:
         """The network's ``T_live_ref`` (4, 4) float64."""
-        from gvnn_warp import se3_to_matrix
+        from .. import se3_to_matrix
 
         with torch.no_grad():
             xi = self.net.predict(ref.image, live.image, ref.depth, live.depth, self.K_net, refine=self.refine,

@@ -44,7 +44,7 @@ def full_xi(pred: Tensor) -> Tensor:
 
 def warp_live(live: Tensor, ref_depth: Tensor, pose: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     """The live image warped into the reference frame by ``pose`` = T_live_ref ((B, 3|4, 4))."""
-    from gvnn_warp import warp_frame_depth
+    from .. import warp_frame_depth
 
     return warp_frame_depth(live, ref_depth, pose, K)
 
@@ -57,7 +57,7 @@ def penalty(r: Tensor, kind: str = DEFAULT_LOSS, scale: float = 0.1) -> Tensor:
         return r.square()
     if kind in ROBUST_LOSSES:
         try:
-            from gvnn_warp.perpixel import robust_rho
+            from ..functional.perpixel import robust_rho
         except ImportError as e:  # the M-estimators live in gvnn_warp.perpixel
             raise RuntimeError(
                 f"--loss {kind} needs gvnn_warp.perpixel.robust_rho, which is not available ({e})"
@@ -89,7 +89,7 @@ def photometric_loss(
         loss (B,): the mean penalty over the channels of the pixels valid in both warps;
         pred_warp (B, 3, H, W): the live image warped with the prediction; valid (B, 1, H, W).
     """
-    from gvnn_warp import se3_to_matrix
+    from .. import se3_to_matrix
 
     pred_warp, pred_valid = warp_live(live, ref_depth, se3_to_matrix(full_xi(pred)), K)
     valid = pred_valid & gt_valid
@@ -113,8 +113,7 @@ def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor, t_weight: float = 1
     ``t_weight |t - t_gt|_1 / d`` with ``d`` the median reference depth (a translation's parallax,
     in radians).
     The ground-truth rotation vector is ``so3_log(R_gt)`` (no gradient needed)."""
-    from gvnn_warp import so3_log
-
+    from .. import so3_log
     from .model import median_depth
 
     with torch.no_grad():
@@ -128,8 +127,8 @@ def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor, t_weight: float = 1
 def pose_errors(pred: Tensor, T_gt: Tensor) -> tuple[Tensor, Tensor]:
     """Rotation error (degrees, geodesic angle of R_pred^T R_gt) and translation error (metres,
     |t_pred - t_gt|) per pair, computed in float64; ``pred`` as from the network ((B, 3) or (B, 6))."""
-    from gvnn_warp import se3_to_matrix
-    from gvnn_warp.synthetic import pose_error
+    from .. import se3_to_matrix
+    from ..synthetic import pose_error
 
     T_pred = se3_to_matrix(full_xi(pred.detach()).double())
     rot, trans = pose_error(T_pred.numpy(), T_gt.detach().double().cpu().numpy())

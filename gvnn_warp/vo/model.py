@@ -180,7 +180,7 @@ def compose_pose(a: Tensor, b: Tensor) -> Tensor:
 
     ``omega = so3_log(exp(a_omega) exp(b_omega))`` and ``t = exp(a_omega) b_t + a_t``; differentiable
     in both (gvnn_warp's Warp ops)."""
-    from gvnn_warp import so3_exp, so3_log
+    from .. import so3_exp, so3_log
 
     R_a = so3_exp(a[:, :3])
     omega = so3_log((R_a @ so3_exp(b[:, :3])).contiguous())
@@ -194,7 +194,7 @@ def invert_pose(xi: Tensor) -> Tensor:
     """Pose vector of ``T^-1`` for ``T`` = (omega) or ([omega, t]): ``-omega`` and ``-R^T t``."""
     if xi.shape[1] == 3:
         return -xi
-    from gvnn_warp import so3_exp
+    from .. import so3_exp
 
     R = so3_exp(xi[:, :3].contiguous())
     return torch.cat([-xi[:, :3], -(R.transpose(1, 2) @ xi[:, 3:, None])[:, :, 0]], dim=1)
@@ -268,7 +268,7 @@ class CascadeVO(nn.Module):
         with the estimate so far (test-time iterative refinement: the last network was trained to
         correct an estimate from the pair it leaves; training itself uses ``refine=0``).
         """
-        from gvnn_warp import se3_to_matrix, warp_frame_depth
+        from .. import se3_to_matrix, warp_frame_depth
 
         if refine < 0 or (refine and len(self.stages) < 2):
             raise ValueError(f"CascadeVO: refine must be >= 0 and needs at least 2 stages, got {refine!r}")

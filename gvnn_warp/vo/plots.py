@@ -67,7 +67,7 @@ def panel_figure(
     (live warped with the predicted pose, its pose error below), the ground truth (live warped with
     the true pose) and |prediction - ground truth| (mean over RGB, 0 where either warp is invalid),
     with one colour bar for the residuals."""
-    from gvnn_warp import se3_to_matrix
+    from .. import se3_to_matrix
 
     plt = _plt()
     steps = sorted(stages)

@@ -161,7 +161,7 @@ def n_pairs(cfg: VOConfig, n_traj: int) -> int:
 
 def _folder_frames(cfg: VOConfig, roots) -> list[int]:
     """Frames with ground truth used from each TUM folder (DatasetError as ConfigError)."""
-    from gvnn_warp.datasets.tum import DatasetError
+    from ..datasets.tum import DatasetError
 
     out = []
     for root in roots:
@@ -425,7 +425,7 @@ def train(cfg: VOConfig) -> dict:
         trajectory_kwargs=dict(cfg.trajectory_kwargs),
     )
     if cfg.data:
-        from gvnn_warp.datasets.tum import DatasetError
+        from ..datasets.tum import DatasetError
 
         kw = dict(size=cfg.size, gaps=tuple(cfg.gaps), both_directions=cfg.both_directions,
                   max_frames=cfg.data_max_frames or None)

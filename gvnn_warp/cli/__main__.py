@@ -1,0 +1,7 @@
+"""``python -m gvnn_warp.cli ...``: the same as ``gvnn-warp ...``."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,1 +1,0 @@
-"""Demos of gvnn_warp, exposed as ``gvnn-warp`` sub-commands."""

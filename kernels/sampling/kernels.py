@@ -1,0 +1,191 @@
+"""Bilinear sampler and the fused 3D spatial transformer (unproject -> move -> project -> sample).
+
+The fused kernel is the point of this package: one pass over the depth map, no (B, H, W, 3)
+point or (B, H, W, 2) grid intermediates, and its adjoint (Warp's) scatters image gradients and
+accumulates depth, pose and intrinsics gradients in the same pass. One kernel body serves both
+fronts (the torch op and :func:`.pipeline.warp_frame_depth`).
+
+Speed. The per-pixel work is two building blocks with hand-shaped Warp adjoints
+(:func:`.camera.project_moved_ray` and :func:`.sampler.sample_channels`, both ``@wp.func_grad``): tap
+addresses and weights are computed once for all channels, and the backward pass does not re-sample
+the image. ``warp_frame_depth`` runs one thread per image row (launch size B * H): per-row
+quantities are computed once, and the pose and intrinsics gradients of a row are summed in
+registers before one write; :func:`.launch.launch` splits launches over threads by batch item
+(see :meth:`.launch.FloatKernel.set_parallel`).
+:func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
+thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
+scalar); it gives the same values and shares the sampler's adjoint.
+"""
+
+import threading
+from typing import Any
+
+import warp as wp
+
+from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
+from ..geometry import camera, lie
+from . import sampler
+
+# A projection counts as inside the image when it lies in [-tol, W - 1 + tol] x [-tol, H - 1 + tol]
+# (pixel units): all four bilinear taps are then real pixels, up to rounding (so the identity pose
+# keeps the last row and column valid).
+INSIDE_TOLERANCE = 1.0e-3
+
+# Fewest pixels worth a separate chunk of a threaded launch (~0.2 ms of work: a chunk costs
+# ~20 us of launch and hand-over).
+_GRAIN_PIXELS = 8192
+
+
+@wp.kernel(module="unique")
+def _bilinear_sample(
+    offset: int,
+    image: wp.array(dtype=Any),
+    grid: wp.array(dtype=Any),
+    C: int,
+    H: int,
+    W: int,
+    hw: int,
+    align_corners: int,
+    padding: int,
+    out: wp.array(dtype=Any),
+):
+    i = wp.tid() + offset  # flat (b, output location)
+    b = i // hw
+    j = i - b * hw
+    g = grid[wp.max(i, 0)]
+    x = sampler.normalized_to_pixel(g[0], W, align_corners)
+    y = sampler.normalized_to_pixel(g[1], H, align_corners)
+    xs, ys, inside = sampler.sample_position(x, y, H, W, padding)
+    sampler.sample_channels(image, out, b * C * H * W, b * C * hw + j, C, H * W, hw, H, W, xs, ys, inside)
+
+
+_LANES_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
+_LANES_LOCK = threading.Lock()
+# the array kinds of every bilinear_sample_lanes kernel
+LANES_ARRAY_KINDS = {"image": "scalar", "grid": "vec16", "out": "vec8"}
+
+
+def fits_lanes(n_out: int, H: int, W: int) -> bool:
+    """Whether :func:`bilinear_sample_lanes` applies: ``n_out`` output locations per batch item
+    fill whole 8-lane blocks and an H x W plane's addresses are exact as float32."""
+    return n_out % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
+
+
+def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKernel:
+    """The forward of :data:`bilinear_sample` with 8 output locations per thread.
+
+    Compiled for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else read at run
+    time), ``align_corners`` and ``padding``: constants fold the branches away, which the
+    vectorised code needs to be fast (made on first use, one kernel per combination). Same
+    arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16") and ``out`` written as
+    8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For :func:`fits_lanes`
+    sizes. It computes bitwise the values of
+    :data:`bilinear_sample` (see :func:`.sampler.sample_lanes`) and has no adjoint of its own:
+    use that kernel's.
+    """
+    # compile-time constants (named apart from the kernel's arguments)
+    key = (C if 0 < C <= sampler.UNROLLED_CHANNELS else 0, int(align_corners), int(padding))
+    with _LANES_LOCK:  # one kernel per key, also when threads ask at once
+        if key not in _LANES_KERNELS:
+            _LANES_KERNELS[key] = _make_bilinear_sample_lanes(*key)
+        return _LANES_KERNELS[key]
+
+
+def _make_bilinear_sample_lanes(static_c: int, static_align: int, static_padding: int) -> FloatKernel:
+    """The kernel of :func:`bilinear_sample_lanes` for one combination (static_c 0: C at run time)."""
+
+    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
+    def _bilinear_sample_lanes(
+        offset: int,
+        image: wp.array(dtype=Any),
+        grid: wp.array(dtype=Any),
+        C: int,
+        H: int,
+        W: int,
+        hw: int,
+        align_corners: int,
+        padding: int,
+        out: wp.array(dtype=Any),
+    ):
+        t = wp.tid() + offset  # flat (b, block of 8 output locations)
+        hw8 = hw // wp.static(sampler.LANES)
+        b = t // hw8
+        g = grid[t]  # the 8 (x, y) pairs
+        gx = out.dtype(g[0], g[2], g[4], g[6], g[8], g[10], g[12], g[14])
+        gy = out.dtype(g[1], g[3], g[5], g[7], g[9], g[11], g[13], g[15])
+        x = sampler.normalized_to_pixel_lanes(gx, W, wp.static(static_align))
+        y = sampler.normalized_to_pixel_lanes(gy, H, wp.static(static_align))
+        xs, ys, inside = sampler.sample_position_lanes(x, y, H, W, wp.static(static_padding))
+        nc = C
+        if wp.static(static_c > 0):
+            nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
+        dst = b * nc * hw8 + t - b * hw8
+        sampler.sample_lanes(image, out, b * nc * H * W, dst, nc, H * W, hw8, H, W, xs, ys, inside)
+
+    return FloatKernel(_bilinear_sample_lanes, **LANES_ARRAY_KINDS).set_parallel(
+        grain=_GRAIN_PIXELS // sampler.LANES
+    )
+
+
+@wp.kernel(module="unique")
+def _warp_frame_depth(
+    offset: int,
+    image: wp.array(dtype=Any),
+    depth: wp.array(dtype=Any),
+    pose: wp.array(dtype=Any),
+    K: wp.array(dtype=Any),
+    C: int,
+    H: int,
+    W: int,
+    min_depth: float,
+    padding: int,
+    out: wp.array(dtype=Any),
+    valid: wp.array(dtype=wp.bool),
+):
+    # One thread per image row: element r = (b, y) covers the pixels [r W, (r + 1) W) of the depth
+    # map's frame; per-row quantities are computed once, and Warp's adjoint sums a row's pose and
+    # intrinsics gradients in registers before one write. Used by both fronts (the torch op and
+    # .pipeline.warp_frame_depth): launch B * H elements.
+    r = wp.tid() + offset  # flat (b, y)
+    b = r // H
+    py = r - b * H
+    hw = H * W
+    Kb = K[b]
+    Tb = pose[b]
+    zmin = type(Kb[0, 0])(min_depth)
+    one = type(zmin)(1.0)
+    tol = type(zmin)(INSIDE_TOLERANCE)
+    umax = type(zmin)(W - 1) + tol
+    vmax = type(zmin)(H - 1) + tol
+    a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
+    t = lie.pose_translation(Tb)
+    src = b * C * hw
+    row = r * W
+    dst = src + py * W
+    for px in range(W):
+        i = wp.max(row + px, 0)
+        d = depth[i]
+        # Invalid depth (<= min, NaN, inf) is replaced by 1 *before* any arithmetic, so neither the
+        # values nor Warp's adjoint ever see it (wp.where routes no gradient to the unused side).
+        depth_ok = d > zmin and d < type(d)(1.0e30)
+        uvz = camera.project_moved_ray(a0, ax, t, Kb, type(d)(px), wp.where(depth_ok, d, one), zmin)
+        ok = depth_ok and uvz[2] > zmin
+        u = uvz[0]
+        v = uvz[1]
+        valid[i] = ok and u >= -tol and u <= umax and v >= -tol and v <= vmax
+        xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+        sampler.sample_channels(image, out, src, dst + px, C, hw, hw, H, W, xs, ys, ok and reachable)
+
+
+bilinear_sample = FloatKernel(_bilinear_sample, image="scalar", grid="vec2", out="scalar").set_parallel(
+    segment=lambda a: a["hw"],  # batch items
+    scopes={"image": "segment", "grid": "element"},
+    grain=_GRAIN_PIXELS,
+)
+warp_frame_depth = FloatKernel(
+    _warp_frame_depth, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
+).set_parallel(
+    segment=lambda a: a["H"],  # rows of one batch item
+    scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
+    grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
+)
