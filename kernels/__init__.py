@@ -36,7 +36,7 @@ _NAMES = {
 # the module paths of earlier releases (gvnn_warp.kernels.lie, ...), kept importable
 _MOVED = {
     "_compat": "core.compat", "kinds": "core.kinds", "launch": "core.launch", "threads": "core.threads",
-    "lie": "geometry.lie", "camera": "geometry.camera", "lens": "geometry.lens", "lens_rays": "geometry.lens_rays",
+    "lie": "geometry.lie", "camera": "geometry.camera", "lens": "geometry.lens", "lens_rays": "geometry.lens.rays",
     "lie_kernels": "geometry.lie_kernels", "camera_kernels": "geometry.camera_kernels",
     "lens_kernels": "geometry.lens_kernels",
     "sampler": "sampling.sampler", "sampling_kernels": "sampling.kernels",

@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .core import lanes
 from .core.kinds import LANES_MODULE_OPTIONS
 from .core.launch import FloatKernel, launch
-from .photometric import residual as ph
 
 wp.set_module_options({"enable_backward": False})
 
@@ -204,7 +204,7 @@ def _make_downsample(C: int):
 # 8 pixels of a row per step as length-8 vectors (LLVM vectorises their arithmetic; see
 # photometric.py), results stored as whole vectors through a vec8 view of the output. The same
 # operations as the scalar kernels: bitwise the same pyramids (tested), ~6x faster. Every value is
-# read as straight vectors (ph.row8; the downsampling's even and odd columns are shuffled out of 16
+# read as straight vectors (lanes.row8; the downsampling's even and odd columns are shuffled out of 16
 # straight values) and every test is a per-lane mask, with no branch: LLVM's SLP vectoriser then
 # turns them into SIMD code (gathers of strided values, a per-lane finiteness test and a branch to a
 # scalar depth-edge test ran 1.7-2.2x slower). Compiled with the other 8-lane kernels' flags
@@ -216,16 +216,16 @@ def _le8(a: Any, b: Any):
     """1 where a <= b, else 0 (NaN: 0), per lane."""
     one = type(a[0])(1.0)
     return type(a)(
-        ph.flag(a[0] <= b[0], one), ph.flag(a[1] <= b[1], one), ph.flag(a[2] <= b[2], one),
-        ph.flag(a[3] <= b[3], one), ph.flag(a[4] <= b[4], one), ph.flag(a[5] <= b[5], one),
-        ph.flag(a[6] <= b[6], one), ph.flag(a[7] <= b[7], one),
+        lanes.flag(a[0] <= b[0], one), lanes.flag(a[1] <= b[1], one), lanes.flag(a[2] <= b[2], one),
+        lanes.flag(a[3] <= b[3], one), lanes.flag(a[4] <= b[4], one), lanes.flag(a[5] <= b[5], one),
+        lanes.flag(a[6] <= b[6], one), lanes.flag(a[7] <= b[7], one),
     )
 
 
 @wp.func
 def _valid8(d: Any):
     """:func:`_valid_depth` per lane, as 1/0."""
-    return ph.open_mask8(d, type(d[0])(0.0), type(d[0])(3.0e38))
+    return lanes.open_mask8(d, type(d[0])(0.0), type(d[0])(3.0e38))
 
 
 @wp.func
@@ -233,27 +233,27 @@ def _block_depth8(d0: Any, d1: Any, d2: Any, d3: Any, tolerance: Any):
     """:func:`_block_depth` on 8 lanes (the same operations in the same order)."""
     zero = type(tolerance)(0.0)
     one = type(tolerance)(1.0)
-    zeros = ph.splat8(zero)
-    ones = ph.splat8(one)
-    bigs = ph.splat8(type(tolerance)(3.0e38))
+    zeros = lanes.splat8(zero)
+    ones = lanes.splat8(one)
+    bigs = lanes.splat8(type(tolerance)(3.0e38))
     v0 = _valid8(d0)
     v1 = _valid8(d1)
     v2 = _valid8(d2)
     v3 = _valid8(d3)
-    e0 = ph.select8(v0, d0, bigs)
-    e1 = ph.select8(v1, d1, bigs)
-    e2 = ph.select8(v2, d2, bigs)
-    e3 = ph.select8(v3, d3, bigs)
+    e0 = lanes.select8(v0, d0, bigs)
+    e1 = lanes.select8(v1, d1, bigs)
+    e2 = lanes.select8(v2, d2, bigs)
+    e3 = lanes.select8(v3, d3, bigs)
     limit = wp.min(wp.min(e0, e1), wp.min(e2, e3)) * (one + tolerance)
     n0 = wp.cw_mul(v0, _le8(e0, limit))
     n1 = wp.cw_mul(v1, _le8(e1, limit))
     n2 = wp.cw_mul(v2, _le8(e2, limit))
     n3 = wp.cw_mul(v3, _le8(e3, limit))
     n = n0 + n1 + n2 + n3
-    s = wp.cw_mul(n0, ph.select8(v0, d0, zeros)) + wp.cw_mul(n1, ph.select8(v1, d1, zeros)) + wp.cw_mul(
-        n2, ph.select8(v2, d2, zeros))
-    s = s + wp.cw_mul(n3, ph.select8(v3, d3, zeros))
-    return ph.select8(ph.open_mask8(n, zero, type(tolerance)(3.0e38)), wp.cw_div(s, wp.max(n, ones)), zeros)
+    s = wp.cw_mul(n0, lanes.select8(v0, d0, zeros)) + wp.cw_mul(n1, lanes.select8(v1, d1, zeros)) + wp.cw_mul(
+        n2, lanes.select8(v2, d2, zeros))
+    s = s + wp.cw_mul(n3, lanes.select8(v3, d3, zeros))
+    return lanes.select8(lanes.open_mask8(n, zero, type(tolerance)(3.0e38)), wp.cw_div(s, wp.max(n, ones)), zeros)
 
 
 @wp.func
@@ -265,17 +265,18 @@ def _no_jump8(d: Any, e: Any, tolerance: Any):
     t = d - e
     a = wp.max(t, -t)
     lim = wp.min(d, e) * tolerance
-    gt = type(d)(ph.above(a[0], lim[0]), ph.above(a[1], lim[1]), ph.above(a[2], lim[2]), ph.above(a[3], lim[3]),
-                 ph.above(a[4], lim[4]), ph.above(a[5], lim[5]), ph.above(a[6], lim[6]), ph.above(a[7], lim[7]))
-    return ph.splat8(type(tolerance)(1.0)) - wp.cw_mul(_valid8(e), gt)
+    gt = type(d)(lanes.above(a[0], lim[0]), lanes.above(a[1], lim[1]), lanes.above(a[2], lim[2]),
+                 lanes.above(a[3], lim[3]), lanes.above(a[4], lim[4]), lanes.above(a[5], lim[5]),
+                 lanes.above(a[6], lim[6]), lanes.above(a[7], lim[7]))
+    return lanes.splat8(type(tolerance)(1.0)) - wp.cw_mul(_valid8(e), gt)
 
 
 @wp.func
 def _pairs8(a: wp.array(dtype=Any), p: int):
     """(a[p], a[p + 2], ..., a[p + 14]) and (a[p + 1], a[p + 3], ..., a[p + 15]) from 16 straight
     values."""
-    u = ph.row8(a, p)
-    w = ph.row8(a, p + 8)
+    u = lanes.row8(a, p)
+    w = lanes.row8(a, p + 8)
     return (type(u)(u[0], u[2], u[4], u[6], w[0], w[2], w[4], w[6]),
             type(u)(u[1], u[3], u[5], u[7], w[1], w[3], w[5], w[7]))
 
@@ -305,15 +306,15 @@ def _make_level0_lanes(C: int):
         zero = weights.dtype(0.0)
         one = weights.dtype(1.0)
         tol = weights.dtype(tolerance)
-        zeros = ph.splat8(zero)
+        zeros = lanes.splat8(zero)
         for k8 in range(W // 8):
             p = p0 + k8 * 8
-            v = ph.splat8(zero)
+            v = lanes.splat8(zero)
             for c in range(C):
-                v = v + ph.row8(image, (b * C + c) * HW + p) * weights[c]
-            finite = ph.open_mask8(wp.max(v, -v), -one, weights.dtype(wp.inf))  # |v| < inf: finite, not NaN
+                v = v + lanes.row8(image, (b * C + c) * HW + p) * weights[c]
+            finite = lanes.open_mask8(wp.max(v, -v), -one, weights.dtype(wp.inf))  # |v| < inf: finite, not NaN
             q = (b * HW + p) // 8
-            out_image[q] = ph.select8(finite, v, zeros)
+            out_image[q] = lanes.select8(finite, v, zeros)
             if has_depth != 0:
                 d = depth8[q]
                 # the scalar kernel's depth-edge test (1 = no edge), lane by lane as vectors: the
@@ -333,7 +334,7 @@ def _make_level0_lanes(C: int):
                     wp.cw_mul(_no_jump8(d, left, tol), _no_jump8(d, right, tol)),
                     wp.cw_mul(_no_jump8(d, up, tol), _no_jump8(d, down, tol)),
                 )
-                out_depth[q] = ph.select8(wp.cw_mul(wp.cw_mul(finite, _valid8(d)), smooth), d, zeros)
+                out_depth[q] = lanes.select8(wp.cw_mul(wp.cw_mul(finite, _valid8(d)), smooth), d, zeros)
 
     kernel = wp.kernel(level0_lanes, module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     return FloatKernel(

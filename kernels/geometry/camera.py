@@ -14,6 +14,8 @@ from typing import Any
 
 import warp as wp
 
+from ..core.cache import float_overloads
+
 # Points (and depths) must have z above this many metres to be projected / used; below it a
 # warp marks the pixel invalid. The paper notes gradients of the projection degrade as z -> 0.
 MIN_DEPTH = 1.0e-3
@@ -60,9 +62,8 @@ def project_grad(K: Any, p: Any, adj_ret: Any):
     return g_K, wp.vector(gxn * inv_z, gyn * inv_z, -(xn * gxn + yn * gyn) * inv_z)
 
 
-def _make_project_clamped(T, project_clamped=None):
-    """float type ``T`` overload of project_clamped (Warp custom adjoints need concrete types);
-    the parameter named like the function is the overload made before (see sampler.py)."""
+def _project_clamped(T):
+    """float type ``T`` overload of project_clamped (Warp custom adjoints need concrete types)."""
     vec2 = wp.types.vector(2, T)
     vec3 = wp.types.vector(3, T)
     mat33 = wp.types.matrix((3, 3), T)
@@ -85,7 +86,7 @@ def _make_project_clamped(T, project_clamped=None):
     return project_clamped
 
 
-project_clamped = _make_project_clamped(wp.float64, _make_project_clamped(wp.float32))
+project_clamped = float_overloads(_project_clamped)
 
 
 @wp.func

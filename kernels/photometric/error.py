@@ -35,6 +35,7 @@ from typing import Any
 
 import warp as wp
 
+from ..core import lanes
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..sampling import sampler
@@ -54,16 +55,16 @@ def project8(a0: Any, ax: Any, t: Any, K: Any, x: Any, d: Any, zmin: Any):
     the pinhole K: returns (q0, q1, q2, inv_z, xn, yn, u, v) with xn = q0 / q2, yn = q1 / q2; where
     q2 <= zmin, q2 is replaced by 1 in inv_z (finite values for the caller to reject)."""
     one = type(K[0, 0])(1.0)
-    ones = ph.splat8(one)
-    q0 = wp.cw_mul(ph.splat8(a0[0]) + x * ax[0], d) + ph.splat8(t[0])
-    q1 = wp.cw_mul(ph.splat8(a0[1]) + x * ax[1], d) + ph.splat8(t[1])
-    q2 = wp.cw_mul(ph.splat8(a0[2]) + x * ax[2], d) + ph.splat8(t[2])
-    front = ph.open_mask8(q2, zmin, type(one)(3.0e38))
-    inv_z = wp.cw_div(ones, ph.select8(front, q2, ones))
+    ones = lanes.splat8(one)
+    q0 = wp.cw_mul(lanes.splat8(a0[0]) + x * ax[0], d) + lanes.splat8(t[0])
+    q1 = wp.cw_mul(lanes.splat8(a0[1]) + x * ax[1], d) + lanes.splat8(t[1])
+    q2 = wp.cw_mul(lanes.splat8(a0[2]) + x * ax[2], d) + lanes.splat8(t[2])
+    front = lanes.open_mask8(q2, zmin, type(one)(3.0e38))
+    inv_z = wp.cw_div(ones, lanes.select8(front, q2, ones))
     xn = wp.cw_mul(q0, inv_z)
     yn = wp.cw_mul(q1, inv_z)
-    u = xn * K[0, 0] + yn * K[0, 1] + ph.splat8(K[0, 2])
-    v = yn * K[1, 1] + ph.splat8(K[1, 2])
+    u = xn * K[0, 0] + yn * K[0, 1] + lanes.splat8(K[0, 2])
+    v = yn * K[1, 1] + lanes.splat8(K[1, 2])
     return q0, q1, q2, inv_z, xn, yn, u, v
 
 
@@ -84,21 +85,21 @@ def psi8(r: Any, kind: int, c: Any):
     """rho'(r) on 8 lanes (finite r): sign(r) (L1, 0 at 0), r (L2), the M-estimators' psi in
     closed forms without branches (as :func:`.robust.psi`)."""
     one = type(c)(1.0)
-    ones = ph.splat8(one)
+    ones = lanes.splat8(one)
     g = r
     if kind == ph.L1:
         g = wp.vector(
-            ph.above(r[0], type(c)(0.0)) - ph.above(-r[0], type(c)(0.0)),
-            ph.above(r[1], type(c)(0.0)) - ph.above(-r[1], type(c)(0.0)),
-            ph.above(r[2], type(c)(0.0)) - ph.above(-r[2], type(c)(0.0)),
-            ph.above(r[3], type(c)(0.0)) - ph.above(-r[3], type(c)(0.0)),
-            ph.above(r[4], type(c)(0.0)) - ph.above(-r[4], type(c)(0.0)),
-            ph.above(r[5], type(c)(0.0)) - ph.above(-r[5], type(c)(0.0)),
-            ph.above(r[6], type(c)(0.0)) - ph.above(-r[6], type(c)(0.0)),
-            ph.above(r[7], type(c)(0.0)) - ph.above(-r[7], type(c)(0.0)),
+            lanes.above(r[0], type(c)(0.0)) - lanes.above(-r[0], type(c)(0.0)),
+            lanes.above(r[1], type(c)(0.0)) - lanes.above(-r[1], type(c)(0.0)),
+            lanes.above(r[2], type(c)(0.0)) - lanes.above(-r[2], type(c)(0.0)),
+            lanes.above(r[3], type(c)(0.0)) - lanes.above(-r[3], type(c)(0.0)),
+            lanes.above(r[4], type(c)(0.0)) - lanes.above(-r[4], type(c)(0.0)),
+            lanes.above(r[5], type(c)(0.0)) - lanes.above(-r[5], type(c)(0.0)),
+            lanes.above(r[6], type(c)(0.0)) - lanes.above(-r[6], type(c)(0.0)),
+            lanes.above(r[7], type(c)(0.0)) - lanes.above(-r[7], type(c)(0.0)),
         )
     elif kind == ph.robust.HUBER:
-        g = wp.min(wp.max(r, ph.splat8(-c)), ph.splat8(c))
+        g = wp.min(wp.max(r, lanes.splat8(-c)), lanes.splat8(c))
     elif kind != ph.L2:
         u2 = wp.cw_mul(r, r) * (one / (c * c))
         w = wp.cw_div(ones, ones + u2)
@@ -141,22 +142,22 @@ def channel8(
     the residuals r = live(taps of ``live_plane``) - ref[ref_i + xs ...] where ``ok`` (and finite),
     and returns (rho(r), rho'(r), rho'(r) d live/du, rho'(r) d live/dv), 0 in masked lanes."""
     one = type(c)(1.0)
-    zeros = ph.splat8(type(c)(0.0))
+    zeros = lanes.splat8(type(c)(0.0))
     big = type(c)(1.0e30)
-    val, gx, gy = ph.interpolate8(
+    val, gx, gy = lanes.interpolate8(
         sampler.gather_lanes(live_plane, 0, i00, m00), sampler.gather_lanes(live_plane, 0, i10, m10),
         sampler.gather_lanes(live_plane, 0, i01, m01), sampler.gather_lanes(live_plane, 0, i11, m11),
         wx1, wy1,
     )
-    res = val - ph.step_load8(ref_image, ref_i, xs, last, narrow)
+    res = val - lanes.step_load8(ref_image, ref_i, xs, last, narrow)
     # finite residual and derivatives (NaN and inf fail the compare)
-    m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gx, -gx) + wp.max(gy, -gy), -one, big))
-    rr = ph.select8(m, res, zeros)
+    m = wp.cw_mul(ok, lanes.open_mask8(wp.max(res, -res) + wp.max(gx, -gx) + wp.max(gy, -gy), -one, big))
+    rr = lanes.select8(m, res, zeros)
     e = wp.cw_mul(wp.max(rr, -rr), m)
     if kind != ph.L1:
         e = wp.cw_mul(ph.penalty8(rr, kind, c), m)
     g = wp.cw_mul(psi8(rr, kind, c), m)
-    return e, g, wp.cw_mul(g, ph.select8(m, gx, zeros)), wp.cw_mul(g, ph.select8(m, gy, zeros))
+    return e, g, wp.cw_mul(g, lanes.select8(m, gx, zeros)), wp.cw_mul(g, lanes.select8(m, gy, zeros))
 
 
 # vec8 running sums per row (memory, not registers: carried through the row loop as vectors, LLVM
@@ -229,35 +230,35 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
         last = W - 1
         want_ref = grad != 0 and g_ref.shape[0] > 0
         want_depth = grad != 0 and g_depth.shape[0] > 0
-        ones = ph.splat8(one)
-        zeros = ph.splat8(zero)
+        ones = lanes.splat8(one)
+        zeros = lanes.splat8(zero)
         a = r * ACC_SLOTS
         for k in range(ACC_SLOTS):
             acc[a + k] = zeros
         for k8 in range((W + 7) // 8):
             x0 = k8 * 8
-            xs = ph.step_start(x0, W, wp.static(static_narrow))  # the step reads pixels xs .. xs + 7
+            xs = lanes.step_start(x0, W, wp.static(static_narrow))  # the step reads pixels xs .. xs + 7
             first = x0 - xs  # the step's own pixels are lanes first .. end - 1
             end = wp.min(W - xs, 8)
-            x = ph.iota8(xs, one)
-            d = ph.step_load8(ref_depth, row, xs, last, wp.static(static_narrow))
+            x = lanes.iota8(xs, one)
+            d = lanes.step_load8(ref_depth, row, xs, last, wp.static(static_narrow))
             # lanes outside the step's own pixels and invalid depths are masked; their depth is replaced by 1
-            mdep = ph.open_mask8(d, zmin, big)
+            mdep = lanes.open_mask8(d, zmin, big)
             if x0 + 8 > W:  # the row's last, partial block: its own pixels are x0 .. W - 1
-                mdep = wp.cw_mul(mdep, ph.closed_mask8(x, type(one)(x0), fW - one))
-            dd = ph.select8(mdep, d, ones)
+                mdep = wp.cw_mul(mdep, lanes.closed_mask8(x, type(one)(x0), fW - one))
+            dd = lanes.select8(mdep, d, ones)
             q0, q1, q2, inv_z, xn, yn, u, v = project8(a0, ax, t, Kb, x, dd, zmin)
             ok = wp.cw_mul(
-                wp.cw_mul(mdep, ph.open_mask8(q2, zmin, type(one)(3.0e38))),
-                wp.cw_mul(ph.closed_mask8(u, -tol, fW - one + tol), ph.closed_mask8(v, -tol, fH - one + tol)),
+                wp.cw_mul(mdep, lanes.open_mask8(q2, zmin, type(one)(3.0e38))),
+                wp.cw_mul(lanes.closed_mask8(u, -tol, fW - one + tol), lanes.closed_mask8(v, -tol, fH - one + tol)),
             )
-            us = ph.select8(ok, u, zeros)
-            vs = ph.select8(ok, v, zeros)
+            us = lanes.select8(ok, u, zeros)
+            vs = lanes.select8(ok, v, zeros)
             # taps as in sampler.sample_lanes: float addresses in the plane, 0/1 masks (in the image)
             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1 = sampler.taps_lanes(us, vs, fW, fH)
             acc[a + 1] = acc[a + 1] + ok
-            gu = ph.splat8(zero)
-            gv = ph.splat8(zero)
+            gu = lanes.splat8(zero)
+            gv = lanes.splat8(zero)
             if wp.static(static_c > 0):  # channels unrolled: gu, gv stay in registers
                 for ch in range(wp.static(static_c)):
                     e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, xs, last,
@@ -286,9 +287,9 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
                 dq0, dq1, dq2, dfx, ds, dcx, dfy, dcy = project8_grad(gu, gv, Kb, inv_z, xn, yn)
                 if want_depth:
                     gd = (
-                        wp.cw_mul(dq0, ph.splat8(a0[0]) + x * ax[0])
-                        + wp.cw_mul(dq1, ph.splat8(a0[1]) + x * ax[1])
-                        + wp.cw_mul(dq2, ph.splat8(a0[2]) + x * ax[2])
+                        wp.cw_mul(dq0, lanes.splat8(a0[0]) + x * ax[0])
+                        + wp.cw_mul(dq1, lanes.splat8(a0[1]) + x * ax[1])
+                        + wp.cw_mul(dq2, lanes.splat8(a0[2]) + x * ax[2])
                     )
                     store8(g_depth, row + xs, first, end, gd)
                 w0 = wp.cw_mul(dq0, dd)
@@ -313,7 +314,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
         if grad != 0:
             n_slots = ROW_SLOTS
         for k in range(n_slots):
-            rows[o + k] = ph.hsum8(acc[a + k])
+            rows[o + k] = lanes.hsum8(acc[a + k])
 
     return FloatKernel(
         _error_lanes, ref_image="scalar", ref_depth="scalar", live_image="scalar", pose="mat34", K="mat33",

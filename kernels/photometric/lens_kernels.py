@@ -19,7 +19,8 @@ from typing import Any
 import warp as wp
 
 from ..core.launch import FloatKernel
-from ..geometry import lens_rays, lie
+from ..geometry import lie
+from ..geometry.lens import rays as lens_rays
 from ..sampling.kernels import INSIDE_TOLERANCE
 from . import residual as ph
 from .normal_equations import _GRAIN_PIXELS, ROW_STRIDE, mat66d, vec6d

@@ -36,6 +36,7 @@ from typing import Any
 
 import warp as wp
 
+from ..core import lanes
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..sampling import sampler
@@ -265,19 +266,19 @@ def channel8(
     ref[ref_i + xs ...], their Jacobians (exact for the bilinear
     interpolant as sampled) and IRLS weights, added to the running sums acc[a_row:a_row + 28]."""
     one = type(c)(1.0)
-    zeros = ph.splat8(type(c)(0.0))
+    zeros = lanes.splat8(type(c)(0.0))
     big = type(c)(1.0e30)
-    val, gu, gv = ph.interpolate8(
+    val, gu, gv = lanes.interpolate8(
         sampler.gather_lanes(live_image, base, i00, m00), sampler.gather_lanes(live_image, base, i10, m10),
         sampler.gather_lanes(live_image, base, i01, m01), sampler.gather_lanes(live_image, base, i11, m11),
         wx1, wy1,
     )
-    res = val - ph.step_load8(ref_image, ref_i, xs, last, narrow)
+    res = val - lanes.step_load8(ref_image, ref_i, xs, last, narrow)
     # finite residual and derivatives (NaN and inf fail the compare)
-    m = wp.cw_mul(ok, ph.open_mask8(wp.max(res, -res) + wp.max(gu, -gu) + wp.max(gv, -gv), -one, big))
-    rr = ph.select8(m, res, zeros)
-    gus = ph.select8(m, gu, zeros)
-    gvs = ph.select8(m, gv, zeros)
+    m = wp.cw_mul(ok, lanes.open_mask8(wp.max(res, -res) + wp.max(gu, -gu) + wp.max(gv, -gv), -one, big))
+    rr = lanes.select8(m, res, zeros)
+    gus = lanes.select8(m, gu, zeros)
+    gvs = lanes.select8(m, gv, zeros)
     # d r / dP = (gu, gv) d(u, v)/dP; J = [P x dr/dP, dr/dP]
     p0 = wp.cw_mul(gus, inv_z) * fx
     p1 = wp.cw_mul(gus * s + gvs * fy, inv_z)
@@ -352,8 +353,8 @@ def _make_normal_equations_lanes(
         live0 = b * C * hw
         dep0 = b * hw
         last = W - 1
-        ones = ph.splat8(one)
-        zeros = ph.splat8(zero)
+        ones = lanes.splat8(one)
+        zeros = lanes.splat8(zero)
         # running sums per lane in this row's own slots of `acc` (memory, not registers: carried
         # through the loop as 29 vectors, LLVM kept them as 232 scalars and rebuilt the vectors
         # lane by lane every step, which made the sums half of the kernel's time)
@@ -368,28 +369,28 @@ def _make_normal_equations_lanes(
             acc[a_row + k] = zeros
         for k8 in range((W + 7) // 8):
             x0 = k8 * 8
-            xs = ph.step_start(x0, W, narrow)  # the step reads pixels xs .. xs + 7
-            x = ph.iota8(xs, one)
-            d = ph.step_load8(ref_depth, row, xs, last, narrow)
+            xs = lanes.step_start(x0, W, narrow)  # the step reads pixels xs .. xs + 7
+            x = lanes.iota8(xs, one)
+            d = lanes.step_load8(ref_depth, row, xs, last, narrow)
             # lanes outside the step's own pixels x0 .. W - 1 and invalid depths are masked; their
             # depth is replaced by 1
-            mdep = wp.cw_mul(ph.open_mask8(d, zmin, big), ph.closed_mask8(x, type(one)(x0), fW - one))
-            dd = ph.select8(mdep, d, ones)
-            q0 = wp.cw_mul(ph.splat8(a0[0]) + x * ax[0], dd) + ph.splat8(t[0])
-            q1 = wp.cw_mul(ph.splat8(a0[1]) + x * ax[1], dd) + ph.splat8(t[1])
-            q2 = wp.cw_mul(ph.splat8(a0[2]) + x * ax[2], dd) + ph.splat8(t[2])
-            front = ph.open_mask8(q2, zmin, type(one)(3.0e38))
-            inv_z = wp.cw_div(ones, ph.select8(front, q2, ones))
+            mdep = wp.cw_mul(lanes.open_mask8(d, zmin, big), lanes.closed_mask8(x, type(one)(x0), fW - one))
+            dd = lanes.select8(mdep, d, ones)
+            q0 = wp.cw_mul(lanes.splat8(a0[0]) + x * ax[0], dd) + lanes.splat8(t[0])
+            q1 = wp.cw_mul(lanes.splat8(a0[1]) + x * ax[1], dd) + lanes.splat8(t[1])
+            q2 = wp.cw_mul(lanes.splat8(a0[2]) + x * ax[2], dd) + lanes.splat8(t[2])
+            front = lanes.open_mask8(q2, zmin, type(one)(3.0e38))
+            inv_z = wp.cw_div(ones, lanes.select8(front, q2, ones))
             xn = wp.cw_mul(q0, inv_z)
             yn = wp.cw_mul(q1, inv_z)
-            u = xn * fx + yn * s + ph.splat8(cx)
-            v = yn * fy + ph.splat8(cy)
+            u = xn * fx + yn * s + lanes.splat8(cx)
+            v = yn * fy + lanes.splat8(cy)
             ok = wp.cw_mul(
                 wp.cw_mul(mdep, front),
-                wp.cw_mul(ph.closed_mask8(u, -tol, fW - one + tol), ph.closed_mask8(v, -tol, fH - one + tol)),
+                wp.cw_mul(lanes.closed_mask8(u, -tol, fW - one + tol), lanes.closed_mask8(v, -tol, fH - one + tol)),
             )
-            us = ph.select8(ok, u, zeros)
-            vs = ph.select8(ok, v, zeros)
+            us = lanes.select8(ok, u, zeros)
+            vs = lanes.select8(ok, v, zeros)
             # taps as in sampler.sample_lanes: float addresses in the plane, 0/1 masks (in the image)
             i00, i10, i01, i11, m00, m10, m01, m11, wx1, wy1 = sampler.taps_lanes(us, vs, fW, fH)
             # a vectorisation seed, stored in a spare slot of the row's scratch and never read:
@@ -406,7 +407,7 @@ def _make_normal_equations_lanes(
                 o00 = sampler.gather_lanes(live_depth, dep0, i00, m00) + wp.cw_mul(ones - m00, q2)
                 o11 = sampler.gather_lanes(live_depth, dep0, i11, m11) + wp.cw_mul(ones - m11, q2)
                 dev = wp.max(wp.max(q2 - o00, o00 - q2), wp.max(q2 - o11, o11 - q2))
-                ok = wp.cw_mul(ok, ph.closed_mask8(q2 * type(one)(occlusion) - dev, zero, big))
+                ok = wp.cw_mul(ok, lanes.closed_mask8(q2 * type(one)(occlusion) - dev, zero, big))
             acc[a_row + 28] = acc[a_row + 28] + ok
             if wp.static(static_channels == 1):
                 channel8(live_image, live0, ref_image, ref0, xs, last, narrow, acc, a_row, i00, i10, i01, i11, m00,
@@ -423,12 +424,12 @@ def _make_normal_equations_lanes(
                 e01 = sampler.gather_lanes(live_depth, dep0, i01, m01)
                 e11 = sampler.gather_lanes(live_depth, dep0, i11, m11)
                 md = wp.cw_mul(
-                    wp.cw_mul(ok, wp.cw_mul(ph.open_mask8(e00, zmin, big), ph.open_mask8(e10, zmin, big))),
-                    wp.cw_mul(ph.open_mask8(e01, zmin, big), ph.open_mask8(e11, zmin, big)),
+                    wp.cw_mul(ok, wp.cw_mul(lanes.open_mask8(e00, zmin, big), lanes.open_mask8(e10, zmin, big))),
+                    wp.cw_mul(lanes.open_mask8(e01, zmin, big), lanes.open_mask8(e11, zmin, big)),
                 )
-                dv, gdu, gdv = ph.interpolate8(
-                    ph.select8(md, e00, ones), ph.select8(md, e10, ones), ph.select8(md, e01, ones),
-                    ph.select8(md, e11, ones), wx1, wy1,
+                dv, gdu, gdv = lanes.interpolate8(
+                    lanes.select8(md, e00, ones), lanes.select8(md, e10, ones), lanes.select8(md, e01, ones),
+                    lanes.select8(md, e11, ones), wx1, wy1,
                 )
                 rd = wp.cw_mul(q2 - dv, md) * sw
                 gdus = wp.cw_mul(gdu, md)
@@ -451,7 +452,7 @@ def _make_normal_equations_lanes(
                 acc[a_row + 27] = acc[a_row + 27] + wp.cw_mul(ph.penalty8(rd, kindc, c), md)
         o = r * ROW_STRIDE
         for k in range(N_SUMS):
-            rows[o + k] = ph.hsum8(acc[a_row + k])
+            rows[o + k] = lanes.hsum8(acc[a_row + k])
 
     return FloatKernel(
         _normal_equations_lanes, ref_image="scalar", ref_depth="scalar", live_image="scalar", live_depth="scalar",

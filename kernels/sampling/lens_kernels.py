@@ -10,7 +10,8 @@ from typing import Any
 import warp as wp
 
 from ..core.kinds import FloatKernel
-from ..geometry import lens_rays, lie
+from ..geometry import lie
+from ..geometry.lens import rays as lens_rays
 from .kernels import _GRAIN_PIXELS, INSIDE_TOLERANCE
 
 

@@ -24,10 +24,10 @@ from typing import Any
 
 import warp as wp
 
-from ..core.kinds import vec8d, vec8f
-from ..photometric import residual as ph
-from ..sampling import sampler
-from . import camera, lens
+from ...core import lanes
+from ...core.kinds import vec8d, vec8f
+from ...sampling import sampler
+from .. import camera, lens
 
 
 @wp.func
@@ -151,7 +151,7 @@ def project_ray_jacobian(model: int, R: Any, t: Any, K: Any, dist: Any, ray: Any
 @wp.func
 def _poly_pair8(w: Any, c0: Any, c1: Any):
     """c0 + c1 w per lane (c0, c1 scalars)."""
-    return ph.splat8(c0) + w * c1
+    return lanes.splat8(c0) + w * c1
 
 
 def _make_estrin20_lanes(coeffs):
@@ -221,9 +221,9 @@ def _make_lanes(jacobian: bool):
         degrees off the axis) c(z) = pi / (2 sqrt(z)) - c(1/z) / z with the polynomial at
         w = 2 / z - 1. One polynomial evaluation for both and no branch (a branch on "any lane
         beyond" cost the block ~4 ns per pixel, taken or not)."""
-        ones = ph.splat8(one)
+        ones = lanes.splat8(one)
         two = type(one)(2.0)
-        big = ph.open_mask8(z, one, type(one)(wp.inf))  # 1 where z > 1 (z is finite here)
+        big = lanes.open_mask8(z, one, type(one)(wp.inf))  # 1 where z > 1 (z is finite here)
         small = ones - big
         zb = wp.max(z, ones)
         iz = wp.cw_div(ones, zb)
@@ -237,7 +237,7 @@ def _make_lanes(jacobian: bool):
         )
         a = wp.cw_mul(root, iz) * type(one)(wp.static(math.pi / 2.0))
         c = wp.cw_mul(small, h) + wp.cw_mul(big, a - wp.cw_mul(h, iz))
-        dc = ph.splat8(type(one)(0.0))
+        dc = lanes.splat8(type(one)(0.0))
         if wp.static(jacobian):
             g = _atan_ratio_g8(w, one)
             dc_big = wp.cw_mul(a * type(one)(-0.5) + wp.cw_mul(h + wp.cw_mul(g, iz) * two, iz), iz)
@@ -253,11 +253,11 @@ def _make_lanes(jacobian: bool):
         yy = wp.cw_mul(y, y)
         xy = wp.cw_mul(x, y)
         r2 = xx + yy
-        ones = ph.splat8(one)
+        ones = lanes.splat8(one)
         xd = x
         yd = y
         J00 = ones
-        J01 = ph.splat8(type(one)(0.0))
+        J01 = lanes.splat8(type(one)(0.0))
         J10 = J01
         J11 = ones
         if model == lens.RADTAN:
@@ -266,11 +266,11 @@ def _make_lanes(jacobian: bool):
             p1 = dist[2]
             p2 = dist[3]
             k3 = dist[4]
-            R = ones + wp.cw_mul(r2, ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(k2) + r2 * k3))
+            R = ones + wp.cw_mul(r2, lanes.splat8(k1) + wp.cw_mul(r2, lanes.splat8(k2) + r2 * k3))
             xd = wp.cw_mul(x, R) + xy * (two * p1) + (r2 + xx * two) * p2
             yd = wp.cw_mul(y, R) + (r2 + yy * two) * p1 + xy * (two * p2)
             if wp.static(jacobian):
-                dR = ph.splat8(k1) + wp.cw_mul(r2, ph.splat8(two * k2) + r2 * (type(one)(3.0) * k3))
+                dR = lanes.splat8(k1) + wp.cw_mul(r2, lanes.splat8(two * k2) + r2 * (type(one)(3.0) * k3))
                 off = wp.cw_mul(xy * two, dR) + x * (two * p1) + y * (two * p2)
                 J00 = R + wp.cw_mul(xx * two, dR) + y * (two * p1) + x * (type(one)(6.0) * p2)
                 J01 = off
@@ -281,14 +281,14 @@ def _make_lanes(jacobian: bool):
             c, dc = atan_ratio8(r2, one)
             cc = wp.cw_mul(c, c)
             t = wp.cw_mul(r2, cc)
-            poly = ones + wp.cw_mul(t, ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(dist[1]) + wp.cw_mul(
-                t, ph.splat8(dist[2]) + t * dist[3])))
+            poly = ones + wp.cw_mul(t, lanes.splat8(dist[0]) + wp.cw_mul(t, lanes.splat8(dist[1]) + wp.cw_mul(
+                t, lanes.splat8(dist[2]) + t * dist[3])))
             s = wp.cw_mul(c, poly)
             xd = wp.cw_mul(s, x)
             yd = wp.cw_mul(s, y)
             if wp.static(jacobian):
-                dpoly = ph.splat8(dist[0]) + wp.cw_mul(t, ph.splat8(two * dist[1]) + wp.cw_mul(
-                    t, ph.splat8(type(one)(3.0) * dist[2]) + t * (type(one)(4.0) * dist[3])))
+                dpoly = lanes.splat8(dist[0]) + wp.cw_mul(t, lanes.splat8(two * dist[1]) + wp.cw_mul(
+                    t, lanes.splat8(type(one)(3.0) * dist[2]) + t * (type(one)(4.0) * dist[3])))
                 dt = cc + wp.cw_mul(r2 * two, wp.cw_mul(c, dc))  # dt/d(r^2)
                 q = (wp.cw_mul(dc, poly) + wp.cw_mul(wp.cw_mul(c, dpoly), dt)) * two
                 qxy = wp.cw_mul(q, xy)
@@ -307,26 +307,26 @@ def _make_lanes(jacobian: bool):
         (du0, du1, du2) and (dv0, dv1, dv2) the rows d(u, v)/dq (zeros without the Jacobian).
         Where not ok: the principal point and the Jacobian there, for the caller to reject."""
         one = type(min_depth)(1.0)
-        ones = ph.splat8(one)
-        zeros = ph.splat8(type(one)(0.0))
+        ones = lanes.splat8(one)
+        zeros = lanes.splat8(type(one)(0.0))
         P0 = wp.cw_mul(rx, d)
         P1 = wp.cw_mul(ry, d)
-        q0 = P0 * R[0, 0] + P1 * R[0, 1] + d * R[0, 2] + ph.splat8(t[0])
-        q1 = P0 * R[1, 0] + P1 * R[1, 1] + d * R[1, 2] + ph.splat8(t[1])
-        q2 = P0 * R[2, 0] + P1 * R[2, 1] + d * R[2, 2] + ph.splat8(t[2])
-        front = ph.open_mask8(q2, min_depth, type(one)(3.0e38))
-        iz = wp.cw_div(ones, ph.select8(front, q2, ones))
+        q0 = P0 * R[0, 0] + P1 * R[0, 1] + d * R[0, 2] + lanes.splat8(t[0])
+        q1 = P0 * R[1, 0] + P1 * R[1, 1] + d * R[1, 2] + lanes.splat8(t[1])
+        q2 = P0 * R[2, 0] + P1 * R[2, 1] + d * R[2, 2] + lanes.splat8(t[2])
+        front = lanes.open_mask8(q2, min_depth, type(one)(3.0e38))
+        iz = wp.cw_div(ones, lanes.select8(front, q2, ones))
         x = wp.cw_mul(q0, iz)
         y = wp.cw_mul(q1, iz)
-        ok = wp.cw_mul(front, ph.open_mask8(wp.cw_mul(x, x) + wp.cw_mul(y, y), -one, dist[lens.LIMIT]))
-        x = ph.select8(ok, x, zeros)
-        y = ph.select8(ok, y, zeros)
+        ok = wp.cw_mul(front, lanes.open_mask8(wp.cw_mul(x, x) + wp.cw_mul(y, y), -one, dist[lens.LIMIT]))
+        x = lanes.select8(ok, x, zeros)
+        y = lanes.select8(ok, y, zeros)
         xd, yd, J00, J01, J10, J11 = distort8(model, dist, x, y, one)
         fx = K[0, 0]
         s = K[0, 1]
         fy = K[1, 1]
-        u = xd * fx + yd * s + ph.splat8(K[0, 2])
-        v = yd * fy + ph.splat8(K[1, 2])
+        u = xd * fx + yd * s + lanes.splat8(K[0, 2])
+        v = yd * fy + lanes.splat8(K[1, 2])
         du0 = zeros
         du1 = zeros
         du2 = zeros
@@ -355,12 +355,12 @@ def _make_lanes(jacobian: bool):
         repeat the last pixel): (u, v, ok, du0, du1, du2, dv0, dv1, dv2) of :func:`project_rays8`, ok
         also 0 where the depth is invalid (<= min, NaN, inf; depth 1 stands in) or the pixel has no ray."""
         one = type(min_depth)(1.0)
-        d = ph.load8(depth, i0, 0, n - 1)
+        d = lanes.load8(depth, i0, 0, n - 1)
         rx, ry, rw = load_rays8(rays, ray0, n - 1)
-        has_ray = ph.open_mask8(rw, type(one)(0.0), type(one)(2.0))
-        depth_ok = wp.cw_mul(ph.open_mask8(d, min_depth, type(one)(1.0e30)), has_ray)
+        has_ray = lanes.open_mask8(rw, type(one)(0.0), type(one)(2.0))
+        depth_ok = wp.cw_mul(lanes.open_mask8(d, min_depth, type(one)(1.0e30)), has_ray)
         u, v, ok, du0, du1, du2, dv0, dv1, dv2 = project_rays8(
-            model, R, t, K, dist, rx, ry, ph.select8(depth_ok, d, ph.splat8(one)), min_depth
+            model, R, t, K, dist, rx, ry, lanes.select8(depth_ok, d, lanes.splat8(one)), min_depth
         )
         return u, v, wp.cw_mul(ok, depth_ok), du0, du1, du2, dv0, dv1, dv2
 

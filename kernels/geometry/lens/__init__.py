@@ -86,8 +86,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..core.kinds import vec8d, vec8f
-from . import camera
+from ...core.kinds import vec8d, vec8f
+from .. import camera
 
 PINHOLE = wp.constant(0)
 RADTAN = wp.constant(1)
