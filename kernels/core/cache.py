@@ -72,15 +72,19 @@ def specialise(family: str, **constants: tuple | None) -> Callable[[Callable], C
         POLICIES[family] = dict(constants)
         _PARAMETERS[family] = params
         policy = tuple(constants.get(p) for p in params)
+        seen: dict[tuple, Any] = {}  # the arguments as passed -> their variant (aliases of _MADE's entries)
 
         @functools.wraps(make)
         def get(*args, **kwargs):
             if kwargs:
                 args = (*args, *(kwargs[p] for p in params[len(args):]))
-            if len(args) != len(params):
-                raise TypeError(f"{make.__qualname__}: expected arguments {params}, got {len(args)}")
-            values = tuple(v if allowed is None or v in allowed else None for v, allowed in zip(args, policy))
-            return _made((family, values), lambda: make(*values))
+            value = seen.get(args)  # the hit path (once per call of a torch op): one dict read, no lock
+            if value is None:
+                if len(args) != len(params):
+                    raise TypeError(f"{make.__qualname__}: expected arguments {params}, got {len(args)}")
+                values = tuple(v if allowed is None or v in allowed else None for v, allowed in zip(args, policy))
+                value = seen[args] = _made((family, values), lambda: make(*values))
+            return value
 
         get.make = make
         get.family = family

@@ -63,7 +63,7 @@ def project_grad(K: Any, p: Any, adj_ret: Any):
 
 
 def _project_clamped(T):
-    """float type ``T`` overload of project_clamped (Warp custom adjoints need concrete types)."""
+    """project_clamped's float type ``T`` overload (Warp custom adjoints need concrete types)."""
     vec2 = wp.types.vector(2, T)
     vec3 = wp.types.vector(3, T)
     mat33 = wp.types.matrix((3, 3), T)
@@ -144,9 +144,8 @@ def project_moved_ray_grad(a0: Any, ax: Any, t: Any, K: Any, x: Any, depth: Any,
     return gr, gr * x, gq, g_K, wp.dot(gr, ax), g0 * r0 + g1 * r1 + g2 * r2
 
 
-def _make_project_moved_ray(T, project_moved_ray=None):
-    """float type ``T`` overload of project_moved_ray (Warp custom adjoints need concrete types);
-    the parameter named like the function is the overload made before (see sampler.py)."""
+def _project_moved_ray(T):
+    """project_moved_ray's float type ``T`` overload (Warp custom adjoints need concrete types)."""
     vec3 = wp.types.vector(3, T)
     mat33 = wp.types.matrix((3, 3), T)
 
@@ -181,4 +180,4 @@ def _make_project_moved_ray(T, project_moved_ray=None):
     return project_moved_ray
 
 
-project_moved_ray = _make_project_moved_ray(wp.float64, _make_project_moved_ray(wp.float32))
+project_moved_ray = float_overloads(_project_moved_ray)

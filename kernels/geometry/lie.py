@@ -15,13 +15,15 @@ that is not taken still poisons Warp's adjoint (``0 * inf``). So each function b
 ``theta^2`` only; below ``SMALL_ANGLE_SQ`` the truncation error is under 1e-15 relative.
 The threshold is chosen for float64: in float32 the closed forms just above it lose ~1e-5 of
 the gradients' relative accuracy (``(1 - A) / theta^2`` and ``D`` cancel), so the kernels of
-:mod:`.lie_kernels` evaluate these functions in float64 for float32 arrays too; do the same
+:mod:`.kernels` evaluate these functions in float64 for float32 arrays too; do the same
 (convert with ``wp.vec3d`` / ``wp.mat33d``, round the result) when calling them from float32 code.
 """
 
 from typing import Any
 
 import warp as wp
+
+from ..core.cache import float_overloads
 
 # theta^2 below which Taylor series replace the closed forms (theta < 1e-2 rad). The first
 # omitted term is O(theta^6) ~ 1e-12 / 5040 relative; above it, the closed forms' derivatives
@@ -109,9 +111,8 @@ def _max_abs(M: Any):
     return wp.max(wp.max(r0, r1), r2)
 
 
-def _make_nearest_rotation(T, nearest_rotation=None):
-    """float type ``T`` overload of nearest_rotation (Warp custom adjoints need concrete types);
-    the parameter named like the function is the overload made before (see camera.py)."""
+def _nearest_rotation(T):
+    """nearest_rotation's float type ``T`` overload (Warp custom adjoints need concrete types)."""
     vec3 = wp.types.vector(3, T)
     mat33 = wp.types.matrix((3, 3), T)
 
@@ -157,11 +158,11 @@ def _make_nearest_rotation(T, nearest_rotation=None):
     return nearest_rotation
 
 
-nearest_rotation = _make_nearest_rotation(wp.float64, _make_nearest_rotation(wp.float32))
+nearest_rotation = float_overloads(_nearest_rotation)
 
 
-def _make_is_rotation(T, is_rotation=None):
-    """float type ``T`` overload of is_rotation, with an empty adjoint (a test has no gradient,
+def _is_rotation(T):
+    """is_rotation's float type ``T`` overload, with an empty adjoint (a test has no gradient,
     and Warp would otherwise differentiate it too, at a cost, and get 0 * inf = NaN where the
     squares overflow)."""
     mat33 = wp.types.matrix((3, 3), T)
@@ -189,7 +190,7 @@ def _make_is_rotation(T, is_rotation=None):
     return is_rotation
 
 
-is_rotation = _make_is_rotation(wp.float64, _make_is_rotation(wp.float32))
+is_rotation = float_overloads(_is_rotation)
 
 
 @wp.func

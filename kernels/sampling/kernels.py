@@ -1,4 +1,5 @@
-"""Bilinear sampler and the fused 3D spatial transformer (unproject -> move -> project -> sample).
+"""The sampling kernels: the bilinear sampler and the fused 3D spatial transformer (unproject ->
+move -> project -> sample), pinhole and through a lens model.
 
 The fused kernel is the point of this package: one pass over the depth map, no (B, H, W, 3)
 point or (B, H, W, 2) grid intermediates, and its adjoint (Warp's) scatters image gradients and
@@ -15,16 +16,23 @@ registers before one write; :func:`.launch.launch` splits launches over threads 
 :func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
 thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
 scalar); it gives the same values and shares the sampler's adjoint.
+
+Through a lens model (radial-tangential, fisheye): :func:`pixel_rays_lens`, the pixel rays of a
+camera (:mod:`.geometry.lens.rays`), and :func:`warp_frame_depth_lens`, the twin of
+:data:`warp_frame_depth` that moves those rays and projects through the lens
+(:mod:`.lens_block`). Both are made on first use through the cache: defining the lens models'
+custom adjoints makes Warp build them (seconds), which the pinhole kernels must not wait for.
 """
 
-import threading
 from typing import Any
 
 import warp as wp
 
+from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
-from . import sampler
+from ..geometry.lens import rays as lens_rays
+from . import lens_block, sampler
 
 # A projection counts as inside the image when it lies in [-tol, W - 1 + tol] x [-tol, H - 1 + tol]
 # (pixel units): all four bilinear taps are then real pixels, up to rounding (so the identity pose
@@ -34,7 +42,6 @@ INSIDE_TOLERANCE = 1.0e-3
 # Fewest pixels worth a separate chunk of a threaded launch (~0.2 ms of work: a chunk costs
 # ~20 us of launch and hand-over).
 _GRAIN_PIXELS = 8192
-
 
 @wp.kernel(module="unique")
 def _bilinear_sample(
@@ -59,8 +66,13 @@ def _bilinear_sample(
     sampler.sample_channels(image, out, b * C * H * W, b * C * hw + j, C, H * W, hw, H, W, xs, ys, inside)
 
 
-_LANES_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
-_LANES_LOCK = threading.Lock()
+bilinear_sample = FloatKernel(_bilinear_sample, image="scalar", grid="vec2", out="scalar").set_parallel(
+    segment=lambda a: a["hw"],  # batch items
+    scopes={"image": "segment", "grid": "element"},
+    grain=_GRAIN_PIXELS,
+)
+
+
 # the array kinds of every bilinear_sample_lanes kernel
 LANES_ARRAY_KINDS = {"image": "scalar", "grid": "vec16", "out": "vec8"}
 
@@ -71,12 +83,13 @@ def fits_lanes(n_out: int, H: int, W: int) -> bool:
     return n_out % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
 
 
-def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKernel:
+@specialise("sampling.bilinear_sample_lanes", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
+def bilinear_sample_lanes(C: int | None, align_corners: int, padding: int) -> FloatKernel:
     """The forward of :data:`bilinear_sample` with 8 output locations per thread.
 
     Compiled for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else read at run
-    time), ``align_corners`` and ``padding``: constants fold the branches away, which the
-    vectorised code needs to be fast (made on first use, one kernel per combination). Same
+    time: ``C`` None), ``align_corners`` and ``padding``: constants fold the branches away, which
+    the vectorised code needs to be fast (made on first use, one kernel per combination). Same
     arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16") and ``out`` written as
     8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For :func:`fits_lanes`
     sizes. It computes bitwise the values of
@@ -84,15 +97,9 @@ def bilinear_sample_lanes(C: int, align_corners: int, padding: int) -> FloatKern
     use that kernel's.
     """
     # compile-time constants (named apart from the kernel's arguments)
-    key = (C if 0 < C <= sampler.UNROLLED_CHANNELS else 0, int(align_corners), int(padding))
-    with _LANES_LOCK:  # one kernel per key, also when threads ask at once
-        if key not in _LANES_KERNELS:
-            _LANES_KERNELS[key] = _make_bilinear_sample_lanes(*key)
-        return _LANES_KERNELS[key]
-
-
-def _make_bilinear_sample_lanes(static_c: int, static_align: int, static_padding: int) -> FloatKernel:
-    """The kernel of :func:`bilinear_sample_lanes` for one combination (static_c 0: C at run time)."""
+    static_c = C or 0
+    static_align = int(align_corners)
+    static_padding = int(padding)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     def _bilinear_sample_lanes(
@@ -177,11 +184,6 @@ def _warp_frame_depth(
         sampler.sample_channels(image, out, src, dst + px, C, hw, hw, H, W, xs, ys, ok and reachable)
 
 
-bilinear_sample = FloatKernel(_bilinear_sample, image="scalar", grid="vec2", out="scalar").set_parallel(
-    segment=lambda a: a["hw"],  # batch items
-    scopes={"image": "segment", "grid": "element"},
-    grain=_GRAIN_PIXELS,
-)
 warp_frame_depth = FloatKernel(
     _warp_frame_depth, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
 ).set_parallel(
@@ -189,3 +191,99 @@ warp_frame_depth = FloatKernel(
     scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
     grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
 )
+
+
+# ----------------------------------------------------------------------------- through a lens model
+
+
+@specialise("sampling.pixel_rays_lens")
+def pixel_rays_lens() -> FloatKernel:
+    """The kernel of the pixel rays of cameras through their lens models (``rays.pixel_ray`` per
+    pixel, element i = flat (b, y, x)), made on first use."""
+
+    @wp.kernel(module="unique")
+    def _pixel_rays(
+        offset: int,
+        K: wp.array(dtype=Any),
+        dist: wp.array(dtype=Any),
+        H: int,
+        W: int,
+        model: int,
+        rays: wp.array(dtype=Any),
+    ):
+        # element i = flat (b, y, x): the ray of pixel (x, y) of camera b (see lens_rays)
+        i = wp.tid() + offset
+        b = i // (H * W)
+        p = i - b * (H * W)
+        y = p // W
+        x = p - y * W
+        Kb = K[b]
+        rays[i] = lens_rays.pixel_ray(model, Kb, dist[b], type(Kb[0, 0])(x), type(Kb[0, 0])(y))
+
+    return FloatKernel(_pixel_rays, K="mat33", dist="vec8", rays="vec3").set_parallel(
+        segment=lambda a: a["H"] * a["W"],  # pixels of one camera
+        scopes={"K": "segment", "dist": "segment"},
+        grain=_GRAIN_PIXELS // 8,  # Newton's method: ~10x the work of a pixel of the warp
+    )
+
+
+@specialise("sampling.warp_frame_depth_lens")
+def warp_frame_depth_lens() -> FloatKernel:
+    """:data:`warp_frame_depth` through a lens model (+ ``dist``, the ``rays`` of
+    :func:`pixel_rays_lens` and ``ray_stride``), made on first use."""
+    block = lens_block.warp_block()
+
+    @wp.kernel(module="unique")
+    def _warp_frame_depth_lens(
+        offset: int,
+        image: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        pose: wp.array(dtype=Any),
+        K: wp.array(dtype=Any),
+        dist: wp.array(dtype=Any),
+        rays: wp.array(dtype=Any),
+        C: int,
+        H: int,
+        W: int,
+        min_depth: float,
+        padding: int,
+        model: int,
+        ray_stride: int,
+        out: wp.array(dtype=Any),
+        valid: wp.array(dtype=wp.bool),
+    ):
+        # _warp_frame_depth through a lens model (see lens_block): the depth map's pixels are read
+        # as precomputed rays (rays[b * ray_stride + y W + x]: ray_stride H * W for rays per batch
+        # item, 0 for one camera shared by the batch), moved and projected with the distortion.
+        # One thread per image row (launch B * H), as the pinhole kernel.
+        r = wp.tid() + offset  # flat (b, y)
+        b = r // H
+        py = r - b * H
+        Kb = K[b]
+        Tb = pose[b]
+        db = dist[b]
+        zmin = type(Kb[0, 0])(min_depth)
+        tol = type(zmin)(INSIDE_TOLERANCE)
+        R = lie.pose_rotation(Tb)
+        t = lie.pose_translation(Tb)
+        row = r * W
+        src = b * C * H * W
+        dst = src + py * W
+        ray0 = b * ray_stride + py * W
+        for x0 in range(0, W, wp.static(lens_block.BLOCK)):
+            block(
+                image, depth, rays, out, valid, K, dist, row + x0, ray0 + x0,
+                wp.min(W - x0, wp.static(lens_block.BLOCK)), b, src, dst + x0, C, H, W, padding, model, R, t, Kb,
+                db, zmin, tol,
+            )
+
+    return FloatKernel(
+        _warp_frame_depth_lens, image="scalar", depth="scalar", pose="mat34", K="mat33", dist="vec8", rays="vec3",
+        out="scalar",
+    ).set_parallel(
+        segment=lambda a: a["H"],  # rows of one batch item
+        # rays shared by the batch (ray_stride 0) gather the gradients of every item: "any"
+        scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment", "dist": "segment",
+                "rays": "any"},
+        grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
+    )

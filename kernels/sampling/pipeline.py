@@ -70,7 +70,7 @@ def _expect_dist(fn: str, dist, B: int, ft) -> None:
 
 def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
     """The undistorted rays (B, H, W) of vec3 ``(xn, yn, w)`` of every pixel of B cameras (see
-    :mod:`.lens_rays`; ``w`` 0 where the pixel has no ray). Recordable on a ``wp.Tape`` (gradients
+    :mod:`.geometry.lens.rays`; ``w`` 0 where the pixel has no ray). Recordable on a ``wp.Tape`` (gradients
     to K and dist through the implicit function theorem)."""
     fn = "pixel_rays"
     m = _lens_model(fn, model)
@@ -81,9 +81,7 @@ def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
     B = K.shape[0]
     vec3 = wp.types.vector(3, ft)
     rays = wp.zeros((B, H, W), dtype=vec3, device=K.device, requires_grad=K.requires_grad or dist.requires_grad)
-    from . import lens_kernels as sampling_lens_kernels  # (on first use: the lens models' adjoints are slow to define)
-
-    wp_launch(sampling_lens_kernels.pixel_rays[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
+    wp_launch(sampling_kernels.pixel_rays_lens()[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
               outputs=[rays.flatten()], device=K.device)
     return rays
 
@@ -131,10 +129,8 @@ def warp_frame_depth(
     if m == 0:
         kernel, inputs = sampling_kernels.warp_frame_depth[ft], [0, *common, *params]
     else:
-        from . import lens_kernels as sampling_lens_kernels  # (on first use, as in pixel_rays)
-
         rays = pixel_rays(K, dist, H, W, m)
-        kernel = sampling_lens_kernels.warp_frame_depth_lens[ft]
+        kernel = sampling_kernels.warp_frame_depth_lens()[ft]
         inputs = [0, *common, dist, rays.flatten(), *params, m, H * W]
     wp_launch(
         kernel,
