@@ -37,7 +37,8 @@ _NAMES = {
 _MOVED = {
     "_compat": "core.compat", "kinds": "core.kinds", "launch": "core.launch", "threads": "core.threads",
     "lie": "geometry.lie", "camera": "geometry.camera", "lens": "geometry.lens", "lens_rays": "geometry.lens.rays",
-    "lie_kernels": "geometry.lie_kernels", "camera_kernels": "geometry.camera_kernels",
+    "lie_kernels": "geometry.kernels", "camera_kernels": "geometry.kernels",
+    "geometry.lie_kernels": "geometry.kernels", "geometry.camera_kernels": "geometry.kernels",
     "lens_kernels": "geometry.lens_kernels",
     "sampler": "sampling.sampler", "sampling_kernels": "sampling.kernels",
     "sampling_lens_kernels": "sampling.lens_kernels",

@@ -16,8 +16,8 @@ Tukey          c^2/6 (1 - (1 - (x/c)^2)^3) if |x| <= c,     x (1 - (x/c)^2)^2 if
 adjoint *is* psi to rounding: Tukey's ``1 - (1 - z)^3`` is expanded as ``z (3 - 3 z + z^2)`` (no
 cancellation for small x), and Cauchy uses :func:`log1p`, accurate for tiny arguments, whose
 gradient ``1 / (1 + z)`` is given explicitly with ``@wp.func_grad``. All functions are generic
-over float32/float64 except the two concrete :func:`log1p` overloads (custom gradients cannot
-be generic in Warp 1.19).
+over float32/float64 except :func:`log1p`, whose float32 and float64 overloads are made by
+:func:`.core.cache.float_overloads` (custom gradients cannot be generic in Warp 1.19).
 
 Huge residuals. ``(x/c)^2`` overflows once |x/c| > ~1.8e19 (float32), so where |x/c| > 1 Cauchy and
 Geman-McClure are evaluated in ``w = c/x`` (``log(1 + u^2) = 2 log|u| + log(1 + w^2)``, ``u^2 / (1
@@ -31,6 +31,8 @@ gradient.
 from typing import Any
 
 import warp as wp
+
+from .core.cache import float_overloads
 
 HUBER = wp.constant(0)
 CAUCHY = wp.constant(1)
@@ -46,32 +48,25 @@ KINDS = {"huber": 0, "cauchy": 1, "geman_mcclure": 2, "tukey": 3}
 # would cancel, so the gradient 1 / (1 + z) is supplied explicitly.
 
 
-@wp.func
-def log1p(z: wp.float32):
-    u = wp.float32(1.0) + z
-    r = z
-    if u != wp.float32(1.0):
-        r = wp.log(u) * (z / (u - wp.float32(1.0)))  # z / (u - 1) first: log(u) z overflows for z ~ 1e37
-    return r
+def _log1p(T):
+    """float type ``T`` overload of log1p (custom adjoints need concrete types)."""
+
+    @wp.func
+    def log1p(z: T):
+        u = T(1.0) + z
+        r = z
+        if u != T(1.0):
+            r = wp.log(u) * (z / (u - T(1.0)))  # z / (u - 1) first: log(u) z overflows for z ~ 1e37
+        return r
+
+    @wp.func_grad(log1p)
+    def adj_log1p(z: T, adj_ret: T):
+        wp.adjoint[z] += adj_ret / (T(1.0) + z)
+
+    return log1p
 
 
-@wp.func_grad(log1p)
-def adj_log1p(z: wp.float32, adj_ret: wp.float32):
-    wp.adjoint[z] += adj_ret / (wp.float32(1.0) + z)
-
-
-@wp.func
-def log1p(z: wp.float64):  # noqa: F811 (the float64 overload)
-    u = wp.float64(1.0) + z
-    r = z
-    if u != wp.float64(1.0):
-        r = wp.log(u) * (z / (u - wp.float64(1.0)))
-    return r
-
-
-@wp.func_grad(log1p)
-def adj_log1p(z: wp.float64, adj_ret: wp.float64):  # noqa: F811 (the float64 overload)
-    wp.adjoint[z] += adj_ret / (wp.float64(1.0) + z)
+log1p = float_overloads(_log1p)
 
 
 # ----------------------------------------------------------------------------- rho

@@ -1,12 +1,17 @@
-"""The fused photometric objective of direct alignment:
+"""The fused photometric objective of direct alignment, one module per kernel family:
 
-- :mod:`.residual`: per-pixel residuals, penalties and their gradients (``@wp.func``), 8-lane helpers;
-- :mod:`.error`: the error and its gradients in one pass; :mod:`.normal_equations`: the
-  Gauss-Newton normal equations (and the reference kernels the tests compare with), through a
-  lens model in :mod:`.lens_kernels`;
+- :mod:`.residual`: per-pixel residuals, penalties and their gradients (``@wp.func``), 8-lane penalties;
+- :mod:`.error_rows`: the error row by row, differentiated by Warp (the reference; pinhole and
+  through a lens); :mod:`.error`: the error and its gradients in one pass, 8 pixels at a time,
+  reduced and scaled by :mod:`.error_reduce`;
+- :mod:`.normal_equations`: the Gauss-Newton normal equations one pixel at a time (pinhole and
+  through a lens), :mod:`.normal_equations_lanes`: 8 pixels at a time, both reduced by
+  :mod:`.normal_equations_reduce`;
 - :mod:`.lm`: the Levenberg-Marquardt step on the 6x6 systems;
 - :mod:`.pipeline`: host functions on ``wp.array`` s (``photometric_error``,
   ``photometric_normal_equations``).
+
+Variants (a penalty, a channel count, a lens) are made on first use through :mod:`..core.cache`.
 """
 
 import importlib

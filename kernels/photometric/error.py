@@ -1,52 +1,46 @@
-"""The fast kernels of ``photometric_error``: its value and, in the same pass, its exact gradient.
+"""The fast kernel of ``photometric_error``: its value and, in the same pass, its exact gradient.
 
 The error of batch item b is E_b = S_b / (C n_b), S_b = sum of rho(r_c) over its valid pixels and
-channels, n_b = its valid pixels (see :mod:`.photometric_kernels` for the residuals and the valid
-rule). E_b is one scalar per batch item, so the forward pass can compute dS_b / d(every input)
-while it has every per-pixel quantity in registers, and the backward pass only scales those
-gradients by grad_output_b / (C n_b). No replay of the forward, no adjoint, no atomics:
+channels, n_b = its valid pixels (see :mod:`.error_rows` for the residuals and the valid rule).
+E_b is one scalar per batch item, so the forward pass can compute dS_b / d(every input) while it
+has every per-pixel quantity in registers, and the backward pass only scales those gradients by
+grad_output_b / (C n_b) (:mod:`.error_reduce`). No replay of the forward, no adjoint, no atomics.
 
-- :data:`error_lanes` (``grad`` 0 or 1, a run-time argument): one thread per reference row,
-  8 pixels of the row at a time as length-8 vectors (SIMD lanes, as the normal equations'
-  kernel). With ``grad`` 1 it also writes, per reference pixel, dS/d depth and dS/d ref_c (= -rho'(r_c)) to
-  null-or-full buffers (every pixel is written, no zero-fill needed), and per row the 14 sums
-  that the pose and intrinsics gradients are made of (:data:`ROW_SLOTS`).
-  The gradient is analytic: rho'(r_c) times the bilinear interpolant's derivative at the sample
-  point (floor() contributes nothing, as in grid_sample), times the projection's Jacobian
-  (:func:`project8_grad`), times the moved point's: q = (a0 + x ax) d + t with the row's rotated
-  rays (a0, ax) = :func:`.camera.row_rays`, so dS/dd = <dS/dq, a0 + x ax>, dS/da0 = sum d dS/dq,
-  dS/dax = sum x d dS/dq, dS/dt = sum dS/dq.
-- :data:`error_reduce`: per batch item, the rows' slots summed in row order (float64): S_b, n_b,
-  E_b, and dS/d pose (3x4) and dS/d K (3x3), the rays' part taken through (R, K) row by row.
-- :data:`scale_segments`: the backward pass, out[i] = src[i] grad_output_b / (C n_b) (a scalar and
-  a length-8 vector view of ``src`` and ``out`` each).
+:func:`error_lanes` (``grad`` 0 or 1, a run-time argument): one thread per reference row, 8 pixels
+of the row at a time as length-8 vectors (SIMD lanes, as the normal equations' kernel). With
+``grad`` 1 it also writes, per reference pixel, dS/d depth and dS/d ref_c (= -rho'(r_c)) to
+null-or-full buffers (every pixel is written, no zero-fill needed), and per row the 14 sums that
+the pose and intrinsics gradients are made of (:data:`.error_reduce.ROW_SLOTS`). The gradient is
+analytic: rho'(r_c) times the bilinear interpolant's derivative at the sample point (floor()
+contributes nothing, as in grid_sample), times the projection's Jacobian (:func:`project8_grad`),
+times the moved point's: q = (a0 + x ax) d + t with the row's rotated rays (a0, ax) =
+:func:`..geometry.camera.row_rays`, so dS/dd = <dS/dq, a0 + x ax>, dS/da0 = sum d dS/dq,
+dS/dax = sum x d dS/dq, dS/dt = sum dS/dq.
 
 The live image's gradient (a scatter into the live image) is not computed here: callers that
-need it run :data:`.photometric_kernels.photometric_rows`' Warp adjoint, which also serves as the
+need it run :data:`.error_rows.photometric_rows`' Warp adjoint, which also serves as the
 reference the tests compare these gradients with.
 
-Every row writes only its own slots and its own pixels, and the reductions run in a fixed order,
-so results are bitwise identical for any split over threads. The projection (pinhole) is one
-function, :func:`project8`, with its gradient :func:`project8_grad` next to it.
+Every row writes only its own slots and its own pixels, so results are bitwise identical for any
+split over threads. The projection (pinhole) is one function, :func:`project8`, with its gradient
+:func:`project8_grad` next to it.
 """
 
-import threading
 from typing import Any
 
 import warp as wp
 
 from ..core import lanes
+from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..sampling import sampler
 from ..sampling.kernels import INSIDE_TOLERANCE
 from . import residual as ph
 
-# float64 slots per row: S (sum of rho), n (valid pixels), dS/da0 (3), dS/dax (3), dS/dt (3),
-# dS/d(fx, s, cx, fy, cy) through the projection (5)
-ROW_SLOTS = wp.constant(16)
-# Fewest pixels worth a separate chunk of a threaded launch.
-GRAIN_PIXELS = 16384
+# (error_reduce, scale_segments, scale_segments_dim: re-exports for gvnn_warp/ops/photometric.py and tests; the
+# lead removes them)
+from .error_reduce import ROW_SLOTS, error_reduce, scale_segments, scale_segments_dim  # noqa: F401
 
 
 @wp.func
@@ -115,7 +109,7 @@ def psi8(r: Any, kind: int, c: Any):
 @wp.func
 def store8(a: wp.array(dtype=Any), i: int, first: int, end: int, v: Any):
     """a[i + k] = v[k] for the lanes first <= k < end (a step's own pixels, see
-    :func:`.photometric.step_start`). (Indices written as max(i, 0) + k let the compiler see they are
+    :func:`..core.lanes.step_start`). (Indices written as max(i, 0) + k let the compiler see they are
     not negative, so it drops Warp's negative-index wrap.)"""
     j = wp.max(i, 0)
     if first == 0 and end == 8:
@@ -138,7 +132,7 @@ def channel8(
     i00: Any, i10: Any, i01: Any, i11: Any, m00: Any, m10: Any, m01: Any, m11: Any, wx1: Any, wy1: Any, ok: Any,
     kind: int, c: Any,
 ):
-    """One channel of an 8-lane step that reads from pixel ``xs`` (:func:`.photometric.step_load8`):
+    """One channel of an 8-lane step that reads from pixel ``xs`` (:func:`..core.lanes.step_load8`):
     the residuals r = live(taps of ``live_plane``) - ref[ref_i + xs ...] where ``ok`` (and finite),
     and returns (rho(r), rho'(r), rho'(r) d live/du, rho'(r) d live/dv), 0 in masked lanes."""
     one = type(c)(1.0)
@@ -166,14 +160,24 @@ def channel8(
 ACC_SLOTS = wp.constant(18)
 
 
-def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: int = 0):
+# channel counts and penalties compiled in (others run the generic kernel; each combination is a
+# module of its own, compiled on first use)
+STATIC_CHANNELS = (1, 3)
+STATIC_KINDS = (ph.KINDS["l1"],)  # the default
+
+
+@specialise("photometric.error_lanes", kind=STATIC_KINDS, channels=STATIC_CHANNELS)
+def error_lanes_kernel(kind, channels, narrow: bool) -> FloatKernel:
     """The row kernel of photometric_error, 8 pixels at a time, with (``grad`` 1) or without the
-    gradient; the penalty ``static_kind`` (>= 0) and channel count ``static_c`` (> 0) compiled in, or
-    read at run time; ``static_narrow`` 1 for rows narrower than 8 pixels (whose steps cannot read
-    8 straight values, see :func:`.photometric.step_start`). ``grad`` is a run-time flag, not a
-    compiled-in one: a value-only variant compiled without the gradient's code came out as scalar
-    code (LLVM's SLP vectoriser gave up on it) and ran 2-2.4x slower than this kernel with the
-    gradient skipped."""
+    gradient; the penalty ``kind`` and channel count ``channels`` compiled in if in
+    :data:`STATIC_KINDS` and :data:`STATIC_CHANNELS` (constants fold branches away, which the
+    vectorised code needs to be fast), else (None) read at run time; ``narrow`` for rows narrower
+    than 8 pixels (whose steps cannot read 8 straight values, see :func:`..core.lanes.step_start`).
+    ``grad`` is a run-time flag, not a compiled-in one: a value-only variant compiled without the
+    gradient's code came out as scalar code (LLVM's SLP vectoriser gave up on it), slower than
+    this kernel with the gradient skipped. Made on first use, one Warp module each."""
+    # (the kernel's own `kind` is its run-time argument: the compiled-in values get other names)
+    static_kind, static_c, static_narrow = kind, channels, int(narrow)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
     def _error_lanes(
@@ -202,7 +206,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
         # wanted). Masks are 0/1 lanes. A masked lane's depth and sample position are replaced
         # first, so the values built from them are finite and products with masks are exact; the
         # residual, which reads the reference image (NaN or inf possible), is dropped by a select.
-        # The row's last, partial step reads the row's last 8 pixels (photometric.step_start) and
+        # The row's last, partial step reads the row's last 8 pixels (lanes.step_start) and
         # masks those before its own.
         r = wp.tid() + offset
         b = r // H
@@ -219,7 +223,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
         fW = type(one)(W)
         fH = type(one)(H)
         kindc = kind
-        if wp.static(static_kind >= 0):  # compiled in: the penalty's branches fold away
+        if wp.static(static_kind is not None):  # compiled in: the penalty's branches fold away
             kindc = wp.static(static_kind)
         a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(one)(py))
         t = lie.pose_translation(Tb)
@@ -259,7 +263,7 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
             acc[a + 1] = acc[a + 1] + ok
             gu = lanes.splat8(zero)
             gv = lanes.splat8(zero)
-            if wp.static(static_c > 0):  # channels unrolled: gu, gv stay in registers
+            if wp.static(static_c is not None):  # channels unrolled: gu, gv stay in registers
                 for ch in range(wp.static(static_c)):
                     e, g, cu, cv = channel8(live_planes[wp.max(b * C + ch, 0)], ref_image, ref0 + ch * hw, xs, last,
                                             wp.static(static_narrow),
@@ -324,191 +328,12 @@ def _make_error_lanes(static_kind: int = -1, static_c: int = 0, static_narrow: i
         # forward only (no adjoint): every row writes its own slots and its own pixels' gradients
         scopes={"ref_image": "any", "ref_depth": "any", "live_image": "any", "pose": "any", "K": "any"},
         forward=True,
-        grain=lambda a: max(1, GRAIN_PIXELS // max(1, a["W"])),
+        grain=lambda a: max(1, ph.GRAIN_PIXELS // max(1, a["W"])),
     )
 
 
-# channel counts and penalties compiled in (others run the generic kernel; each combination is a
-# module of its own, compiled on first use)
-STATIC_CHANNELS = (1, 3)
-STATIC_KINDS = (ph.KINDS["l1"],)  # the default
-_ERROR_KERNELS: dict[tuple[int, int, int], FloatKernel] = {}
-_ERROR_LOCK = threading.Lock()
-
-
 def error_lanes(kind: int, C: int, W: int) -> FloatKernel:
-    """The row kernel (value only or value and gradient, by its ``grad`` argument), compiled for
-    the penalty ``kind`` if in :data:`STATIC_KINDS` and the channel count ``C`` if in
-    :data:`STATIC_CHANNELS` (constants fold branches away, which the vectorised code needs to be
-    fast), else reading them at run time, and for rows of ``W`` pixels: at least 8 (the usual
-    kernel) or fewer; made on first use."""
-    key = (int(kind) if kind in STATIC_KINDS else -1, C if C in STATIC_CHANNELS else 0, int(W < 8))
-    with _ERROR_LOCK:  # one kernel per key, also when threads ask at once
-        if key not in _ERROR_KERNELS:
-            _ERROR_KERNELS[key] = _make_error_lanes(*key)
-        return _ERROR_KERNELS[key]
-
-
-@wp.kernel(module="unique", enable_backward=False)
-def _error_reduce(
-    offset: int,
-    rows: wp.array(dtype=wp.float64),
-    pose: wp.array(dtype=Any),
-    K: wp.array(dtype=Any),
-    H: int,
-    C: int,
-    grad: int,
-    error: wp.array(dtype=Any),
-    count: wp.array(dtype=Any),
-    g_pose: wp.array(dtype=Any),
-    g_K: wp.array(dtype=Any),
-):
-    # Element b: its H rows' slots summed in row order (float64); error = S / (C n) (0 where
-    # n = 0), count = n; with ``grad``, g_pose = dS/d pose (3x4) and g_K = dS/d K (3x3): the
-    # translation's and the projection's parts are row sums, the rays' (a0, ax) = (R K^-1 [0, y, 1],
-    # R K^-1 e_x) part goes through R and K row by row.
-    b = wp.tid() + offset
-    o = b * H * ROW_SLOTS
-    s = wp.float64(0.0)
-    n = wp.float64(0.0)
-    for h in range(H):
-        s = s + rows[o + h * ROW_SLOTS]
-        n = n + rows[o + h * ROW_SLOTS + 1]
-    error[b] = error.dtype(wp.where(n > wp.float64(0.0), s / (wp.float64(C) * wp.where(n > wp.float64(0.0), n,
-                                                                                         wp.float64(1.0))),
-                                    wp.float64(0.0)))
-    count[b] = count.dtype(n)
-    if grad != 0:
-        Kb = K[b]
-        Tb = pose[b]
-        fx = wp.float64(Kb[0, 0])
-        sk = wp.float64(Kb[0, 1])
-        cx = wp.float64(Kb[0, 2])
-        fy = wp.float64(Kb[1, 1])
-        cy = wp.float64(Kb[1, 2])
-        R = wp.matrix_from_rows(
-            wp.vector(wp.float64(Tb[0, 0]), wp.float64(Tb[0, 1]), wp.float64(Tb[0, 2])),
-            wp.vector(wp.float64(Tb[1, 0]), wp.float64(Tb[1, 1]), wp.float64(Tb[1, 2])),
-            wp.vector(wp.float64(Tb[2, 0]), wp.float64(Tb[2, 1]), wp.float64(Tb[2, 2])),
-        )
-        gR = wp.mat33d()
-        gt = wp.vec3d()
-        # K: projection part (fx, s, cx, fy, cy), then the rays'
-        kfx = wp.float64(0.0)
-        ks = wp.float64(0.0)
-        kcx = wp.float64(0.0)
-        kfy = wp.float64(0.0)
-        kcy = wp.float64(0.0)
-        ga_x = wp.vec3d()  # sum of dS/dax over rows
-        for h in range(H):
-            p = o + h * ROW_SLOTS
-            ga0 = wp.vec3d(rows[p + 2], rows[p + 3], rows[p + 4])
-            gax = wp.vec3d(rows[p + 5], rows[p + 6], rows[p + 7])
-            gt = gt + wp.vec3d(rows[p + 8], rows[p + 9], rows[p + 10])
-            kfx = kfx + rows[p + 11]
-            ks = ks + rows[p + 12]
-            kcx = kcx + rows[p + 13]
-            kfy = kfy + rows[p + 14]
-            kcy = kcy + rows[p + 15]
-            # a0 = R ray0, ray0 = K^-1 [0, y, 1] = ((-cx - s ry) / fx, ry, 1), ry = (y - cy) / fy
-            ry = (wp.float64(h) - cy) / fy
-            rx = (-cx - sk * ry) / fx
-            gR = gR + wp.outer(ga0, wp.vec3d(rx, ry, wp.float64(1.0)))
-            g0 = wp.transpose(R) * ga0  # dS/d ray0
-            g_ry = g0[1] - g0[0] * sk / fx
-            kfx = kfx - g0[0] * rx / fx
-            kcx = kcx - g0[0] / fx
-            ks = ks - g0[0] * ry / fx
-            kfy = kfy - g_ry * ry / fy
-            kcy = kcy - g_ry / fy
-            ga_x = ga_x + gax
-        # ax = R (1 / fx, 0, 0)
-        gR = gR + wp.outer(ga_x, wp.vec3d(wp.float64(1.0) / fx, wp.float64(0.0), wp.float64(0.0)))
-        kfx = kfx - (wp.transpose(R) * ga_x)[0] / (fx * fx)
-        q = b * 12
-        for i in range(3):
-            for j in range(3):
-                g_pose[q + i * 4 + j] = g_pose.dtype(gR[i, j])
-            g_pose[q + i * 4 + 3] = g_pose.dtype(gt[i])
-        k = b * 9
-        for i in range(9):
-            g_K[k + i] = g_K.dtype(0.0)
-        g_K[k + 0] = g_K.dtype(kfx)
-        g_K[k + 1] = g_K.dtype(ks)
-        g_K[k + 2] = g_K.dtype(kcx)
-        g_K[k + 4] = g_K.dtype(kfy)
-        g_K[k + 5] = g_K.dtype(kcy)
-
-
-error_reduce = FloatKernel(
-    _error_reduce, pose="mat34", K="mat33", error="scalar", count="scalar", g_pose="scalar", g_K="scalar"
-).set_parallel(scopes={"rows": "any", "pose": "any", "K": "any"}, forward=True, grain=1 << 30)
-
-
-@wp.func
-def segment_factor(grad_error: wp.array(dtype=Any), count: wp.array(dtype=Any), b: int, C: int):
-    """grad_error[b] / (C count[b]), 0 where count[b] = 0: d error_b / d S_b times the incoming
-    gradient."""
-    nb = count[b]
-    zero = type(nb)(0.0)
-    return wp.where(nb > zero, grad_error[b] / (type(nb)(C) * wp.where(nb > zero, nb, type(nb)(1.0))), zero)
-
-
-# values per element of scale_segments, and its fewest elements per chunk of a threaded launch
-# (one piece below ~1 M values): splitting this copy did not pay for the chunks' fixed costs at
-# 0.6 M values (B=8 240x320 depth gradients: 0.33-0.52 ms in one piece, 0.39-0.58 in two, 0.67-0.94
-# cut into 8 chunks on 2 threads) and broke even at 2.5 M
-SCALE_SPAN = wp.constant(2048)
-SCALE_GRAIN = 512
-
-
-@wp.kernel(module="unique", enable_backward=False)
-def _scale_segments(
-    offset: int,
-    src: wp.array(dtype=Any),
-    src8: wp.array(dtype=Any),
-    grad_error: wp.array(dtype=Any),
-    count: wp.array(dtype=Any),
-    seg: int,
-    n: int,
-    C: int,
-    out: wp.array(dtype=Any),
-    out8: wp.array(dtype=Any),
-):
-    # Element k: out[i] = src[i] segment_factor(b) for i in [k SCALE_SPAN, (k + 1) SCALE_SPAN) ∩ [0, n),
-    # b = i // seg (segment = batch item), one run per segment: one factor, the values before the
-    # run's first multiple of 8 one by one, then 8 at a time through ``src8``/``out8`` (length-8
-    # vector views of the same buffers, n // 8 long: one vector load, multiply and store each;
-    # B=8 240x320 depth gradients: 214 -> 105 us against 8 scalar copies per step), then the
-    # run's last few one by one. The vector index i // 8 is taken of wp.max(i, 0), which the
-    # compiler knows is not negative (no negative-index wrap, a shift). Every bound is written so
-    # that no int32 sum exceeds n (< 2^31): i + SCALE_SPAN, i + 8 or i + 7 would wrap for n within a
-    # span of 2^31.
-    i = (wp.tid() + offset) * SCALE_SPAN
-    end = wp.min(i, n - SCALE_SPAN) + SCALE_SPAN
-    while i < end:
-        b = i // seg
-        stop = b * seg + wp.min(seg, end - b * seg)
-        f = segment_factor(grad_error, count, b, C)
-        head = i + wp.min(stop - i, (8 - i % 8) % 8)
-        while i < head:
-            out[i] = src[i] * f
-            i += 1
-        while stop - i >= 8:
-            j = wp.max(i, 0) // 8
-            out8[j] = src8[j] * f
-            i += 8
-        while i < stop:
-            out[i] = src[i] * f
-            i += 1
-
-
-scale_segments = FloatKernel(
-    _scale_segments, src="scalar", src8="vec8", grad_error="scalar", count="scalar", out="scalar", out8="vec8"
-).set_parallel(scopes={"src": "any", "src8": "any", "grad_error": "any", "count": "any"}, forward=True,
-               grain=SCALE_GRAIN)
-
-
-def scale_segments_dim(n: int) -> int:
-    """The launch size of :data:`scale_segments` over ``n`` values."""
-    return (n + SCALE_SPAN - 1) // SCALE_SPAN
+    """The row kernel for a call with the penalty ``kind``, ``C`` channels and rows of ``W`` pixels
+    (:func:`error_lanes_kernel` compiled for them); value only or value and gradient, by its
+    ``grad`` argument."""
+    return error_lanes_kernel(kind, C, W < 8)

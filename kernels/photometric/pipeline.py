@@ -1,6 +1,6 @@
 """Host functions of the fused photometric objective on ``wp.array``s (no torch).
 
-Shapes (as :func:`.pipeline.warp_frame_depth`): images (B, C, H, W), depths (B, 1, H, W),
+Shapes (as :func:`..sampling.pipeline.warp_frame_depth`): images (B, C, H, W), depths (B, 1, H, W),
 pose (B,) of 3x4 matrices [R | t] mapping reference-camera points into the live camera,
 K (B,) of 3x3 intrinsics; one float type (float32 or float64) throughout. Conventions
 (pixel centres, K, minimum depth, valid rule): ``docs/conventions.md``.
@@ -29,8 +29,11 @@ from ..sampling.pipeline import (
     _type_name,
     pixel_rays,
 )
-from . import normal_equations as pk
-from .residual import KINDS
+from .error_rows import photometric_mean, photometric_rows, photometric_rows_lens
+from .normal_equations import normal_equations_rows_lens
+from .normal_equations_lanes import normal_equations_lanes
+from .normal_equations_reduce import N_SUMS, ROW_STRIDE, normal_equations_reduce
+from .residual import GRAIN_PIXELS, KINDS
 
 #: penalties of :func:`photometric_normal_equations` (IRLS weights psi(r)/r; "l1" has none at 0)
 NORMAL_EQUATIONS_KINDS = ("l2", "huber", "cauchy", "geman_mcclure", "tukey")
@@ -118,8 +121,8 @@ def _normal_equations_out(fn, out, B: int, H: int, ft) -> NormalEquations:
             wp.zeros((B, 6, 6), dtype=ft, device="cpu"), wp.zeros((B, 6), dtype=ft, device="cpu"),
             wp.zeros(B, dtype=ft, device="cpu"), wp.zeros(B, dtype=ft, device="cpu"),
         )
-    if out._rows is None or out._rows.shape[0] != B * H * pk.ROW_STRIDE:
-        out._rows = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64, device="cpu")
+    if out._rows is None or out._rows.shape[0] != B * H * ROW_STRIDE:
+        out._rows = wp.zeros(B * H * ROW_STRIDE, dtype=wp.float64, device="cpu")
     return out
 
 
@@ -235,8 +238,8 @@ def photometric_normal_equations(
                 str(live_depth.device))
     out = _normal_equations_out(fn, out, B, H, ft)
     acc_type = _launch.element_type("vec8", ft)
-    if out._acc is None or out._acc.shape[0] != B * H * pk.ROW_STRIDE or out._acc.dtype != acc_type:
-        out._acc = wp.empty(B * H * pk.ROW_STRIDE, dtype=acc_type, device="cpu")
+    if out._acc is None or out._acc.shape[0] != B * H * ROW_STRIDE or out._acc.dtype != acc_type:
+        out._acc = wp.empty(B * H * ROW_STRIDE, dtype=acc_type, device="cpu")
     n_pix = B * C * H * W
     no_depth = wp.zeros(0, dtype=ft, device="cpu")
     inputs = [
@@ -246,12 +249,12 @@ def photometric_normal_equations(
         float(occlusion), out._rows, out._acc,
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
-    variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
-    rows_kernel = pk.normal_equations_lanes_for(variant, C, NORMAL_EQUATIONS_KINDS_CODES[robust], W)[ft]
+    depth_term = live_depth is not None and depth_weight > 0
+    occlusion_test = live_depth is not None and occlusion > 0
+    rows_kernel = normal_equations_lanes(depth_term, occlusion_test, C, NORMAL_EQUATIONS_KINDS_CODES[robust], W)[ft]
     out._cmds = [
-        _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=pk._GRAIN_PIXELS),
-        _launch.RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [out._rows, H, *outputs],
-                               grain=pk._GRAIN_PIXELS),
+        _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=GRAIN_PIXELS),
+        _launch.RecordedLaunch(normal_equations_reduce[ft], B * N_SUMS, [out._rows, H, *outputs], grain=GRAIN_PIXELS),
     ]
     if key is None:
         key = _launch_key(ref_image, ref_depth, live_image, pose, K, live_depth,
@@ -330,14 +333,12 @@ def photometric_error(
     frames = [0, ref_image.flatten(), ref_depth.flatten(), live_image.flatten(), pose, K]
     penalty = [C, H, W, KINDS[robust], float(scale), float(min_depth)]
     if m == 0:
-        kernel, inputs = pk.photometric_rows[ft], [*frames, *penalty]
+        kernel, inputs = photometric_rows[ft], [*frames, *penalty]
     else:
         rays = pixel_rays(K, dist, H, W, m)
-        from . import lens_kernels as plk  # (on first use: the lens models are slow to define)
-
-        kernel, inputs = plk.photometric_rows_lens[ft], [*frames, dist, rays.flatten(), *penalty, m, H * W]
+        kernel, inputs = photometric_rows_lens()[ft], [*frames, dist, rays.flatten(), *penalty, m, H * W]
     _launch.wp_launch(kernel, dim=B * H, inputs=inputs, outputs=[row_sum, row_count], device="cpu")
-    _launch.wp_launch(pk.photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C],
+    _launch.wp_launch(photometric_mean[ft], dim=B, inputs=[0, row_sum, row_count, H, C],
                       outputs=[error, count], device="cpu")
     return error, count
 
@@ -382,14 +383,11 @@ def _normal_equations_lens(ref_image, ref_depth, live_image, pose, K, robust, sc
         float(min_depth), float(depth_weight), float(occlusion), m, H * W, out._rows,
     ]
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
-    variant = int(live_depth is not None and depth_weight > 0) + 2 * int(live_depth is not None and occlusion > 0)
-    from . import lens_kernels as plk  # (on first use: the lens models are slow to define)
-
+    rows_kernel = normal_equations_rows_lens(live_depth is not None and depth_weight > 0,
+                                             live_depth is not None and occlusion > 0)[ft]
     out._cmds = [
-        _launch.RecordedLaunch(plk.normal_equations_rows_lens[variant][ft], B * H, inputs, work=W,
-                               grain=pk._GRAIN_PIXELS),
-        _launch.RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [out._rows, H, *outputs],
-                               grain=pk._GRAIN_PIXELS),
+        _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=GRAIN_PIXELS),
+        _launch.RecordedLaunch(normal_equations_reduce[ft], B * N_SUMS, [out._rows, H, *outputs], grain=GRAIN_PIXELS),
     ]
     out._key = (None, inputs, rays)  # the views and rays stay alive with the recorded launches
     out._args = args

@@ -1,7 +1,7 @@
 """Building blocks of the fused photometric objective as ``@wp.func`` (no launches here).
 
 The objective compares a reference image with a live image sampled where the reference pixels
-land after a rigid motion (see :mod:`.photometric_kernels`); this module holds its per-residual
+land after a rigid motion (see :mod:`.error_rows`); this module holds its per-residual
 pieces: the penalties ("l1", "l2" and the M-estimators of :mod:`.robust`), their derivative and
 IRLS weight, and the bilinear interpolant with its exact derivative at the sample point.
 
@@ -16,11 +16,14 @@ import warp as wp
 
 from .. import robust
 from ..core import lanes
+from ..core.cache import float_overloads
 
 L2 = wp.constant(4)
 L1 = wp.constant(5)
 #: penalty name -> the integer code the kernels take
 KINDS = {"l1": 5, "l2": 4, **robust.KINDS}
+#: fewest pixels worth a separate chunk of a threaded launch of the row kernels (a chunk costs ~15-20 us)
+GRAIN_PIXELS = 16384
 
 
 @wp.func
@@ -222,9 +225,8 @@ def pixel_penalty_grad(
     return gu, gv
 
 
-def _make_pixel_penalty(T, pixel_penalty=None):
-    """float type ``T`` overload of pixel_penalty (Warp custom adjoints need concrete types); the
-    parameter named like the function is the overload made before (see sampler.py)."""
+def _pixel_penalty(T):
+    """float type ``T`` overload of pixel_penalty (Warp custom adjoints need concrete types)."""
 
     @wp.func
     def pixel_penalty(
@@ -308,7 +310,7 @@ def _make_pixel_penalty(T, pixel_penalty=None):
     return pixel_penalty
 
 
-pixel_penalty = _make_pixel_penalty(wp.float64, _make_pixel_penalty(wp.float32))
+pixel_penalty = float_overloads(_pixel_penalty)
 
 
 # ----------------------------------------------------------------------------- 8 pixels at a time
