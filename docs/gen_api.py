@@ -11,11 +11,15 @@ import sys
 from pathlib import Path
 
 SECTIONS = [
-    ("Global transformations and the 3D spatial transformer", "gvnn_warp.functional.geometry"),
+    ("Global transformations: rotations, rigid motions, similarities", "gvnn_warp.functional.lie"),
+    ("The pinhole camera: the 3D grid generator, projection", "gvnn_warp.functional.camera"),
+    ("Sampling: the bilinear sampler and the 3D spatial transformer", "gvnn_warp.functional.sampling"),
     ("Camera models: pinhole, radial-tangential, fisheye", "gvnn_warp.cameras"),
     ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.functional.perpixel"),
     ("The fused photometric objective (direct RGB-D alignment)", "gvnn_warp.functional.photometric"),
-    ("Layers (nn.Module)", "gvnn_warp.nn.layers"),
+    ("Layers of the global transformations (nn.Module)", "gvnn_warp.nn.lie"),
+    ("Layers of the pinhole camera (nn.Module)", "gvnn_warp.nn.camera"),
+    ("Sampling layers (nn.Module)", "gvnn_warp.nn.sampling"),
     ("Per-pixel layers (nn.Module)", "gvnn_warp.nn.perpixel"),
     ("The photometric loss layer (nn.Module)", "gvnn_warp.nn.photometric"),
     ("Threads and diagnostics", "gvnn_warp", ["get_num_threads", "info", "set_num_threads"]),
@@ -26,6 +30,10 @@ SECTIONS = [
     ),
     ("Direct RGB-D odometry (from gvnn_warp.odometry; numpy or torch, no torch needed)", "gvnn_warp.odometry"),
 ]
+# the sections up to this one document names that gvnn_warp itself exports
+_TOP_LEVEL = next(i for i, (_, modname, *_) in enumerate(SECTIONS) if modname == "gvnn_warp") + 1
+_COUNT = ("zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen fifteen "
+          "sixteen").split()
 
 
 def render() -> str:
@@ -35,7 +43,7 @@ def render() -> str:
         "Generated from the docstrings by `docs/gen_api.py`. Conventions (pixel centres, (x, y) order,",
         "`[omega, t]` order, quaternion order, units, valid masks, minimum depth):",
         "[conventions.md](conventions.md). Each section names the module it documents; the functions",
-        "and layers of the first eight (all but the cameras' base class `Camera`) are also importable",
+        f"and layers of the first {_COUNT[_TOP_LEVEL]} (all but the cameras' base class `Camera`) are also importable",
         "from `gvnn_warp` itself.",
         "",
     ]

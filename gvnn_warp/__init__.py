@@ -43,7 +43,11 @@ _SUBPACKAGES = (*_FRONT, "cli", "datasets", "kernels", "odometry", "ops", "synth
 
 # the module paths of earlier releases, kept importable (a tuple: the old module's names now live in several)
 moved({f"{__name__}.{old}": new if isinstance(new, tuple) else f"{__name__}.{new}" for old, new in {
-    "layers": "nn.layers",
+    "layers": tuple(f"{__name__}.nn.{m}" for m in ("lie", "camera", "sampling")),
+    "nn.layers": tuple(f"{__name__}.nn.{m}" for m in ("lie", "camera", "sampling")),
+    "functional.geometry": (*(f"{__name__}.functional.{m}" for m in ("lie", "camera", "sampling")),
+                            f"{__name__}.cameras.fused"),
+    "cameras.models": tuple(f"{__name__}.cameras.{m}" for m in ("base", "pinhole", "radtan", "fisheye", "undistort")),
     "perpixel_layers": "nn.perpixel",
     "perpixel": "functional.perpixel",
     "photometric": (f"{__name__}.functional.photometric", f"{__name__}.nn.photometric"),

@@ -1,4 +1,5 @@
-"""Sample arguments for every registered ``gvnn_warp::*`` op (flattened, as the ops take them).
+"""Sample arguments for every registered ``gvnn_warp::*`` op (flattened, as the ops take them),
+and :data:`OPS`, the registry, with every registration module of ``gvnn_warp.ops`` loaded.
 
 One entry per op: ``tests/test_ops_registry.py`` fails, with a list, for an op that has none.
 Used by the opcheck tests (tiny sizes) and by ``tests/test_scopes.py`` (sizes large enough to cut
@@ -12,7 +13,8 @@ from gvnn_warp.kernels.robust import KINDS as ROBUST_CODES
 from refs import intrinsics
 
 import gvnn_warp as G
-from gvnn_warp.ops import lens as lens_ops
+from gvnn_warp.ops import geometry, perpixel, photometric, sampling  # noqa: F401  (their registrations fill OPS)
+from gvnn_warp.ops.registry import OPS  # noqa: F401  (every registered op, for the tests)
 
 
 def op_samples(B=2, C=2, H=5, W=6, seed=0):
@@ -42,9 +44,9 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
     radtan = torch.from_numpy(lens.pack_dist(lens.RADTAN, [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]))
     fisheye = torch.from_numpy(lens.pack_dist(lens.FISHEYE, [0.08, -0.02, 0.004, -0.001]))
     radtan, fisheye = (d.expand(B, 8).contiguous() for d in (radtan, fisheye))
-    rays = lens_ops.pixel_rays(K[:1].contiguous(), radtan[:1].contiguous(), H, W, lens.RADTAN)  # shared by the batch
+    rays = sampling.pixel_rays(K[:1].contiguous(), radtan[:1].contiguous(), H, W, lens.RADTAN)  # shared by the batch
     return {
-        # gvnn_warp._ops
+        # gvnn_warp.ops.geometry
         "so3_exp": (r(n, 3),),
         "so3_log": (G.so3_exp(r(n, 3)),),
         "quaternion_to_matrix": (r(n, 4),),
@@ -62,12 +64,13 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "unproject_points": (cam_px, r(B * P) + 1, K, dist, P, lens.RADTAN),
         "distort_points": (cam_px, K, fdist, P, lens.FISHEYE),
         "undistort_points": (cam_px, K, dist, P, lens.RADTAN),
+        # gvnn_warp.ops.sampling
         "bilinear_sample": (img, r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
         "bilinear_sample_lanes": (img, r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
         "warp_frame_depth": (img, r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
         "pixel_rays": (K, fisheye, H, W, lens.FISHEYE),
         "warp_frame_depth_lens": (img, r(B, 1, H, W) + 1, pose, K, radtan, rays, C, H, W, 1e-3, 0, lens.RADTAN, 0),
-        # gvnn_warp._perpixel_ops
+        # gvnn_warp.ops.perpixel
         "flow_warp": (img, u(B, 2, H, W, scale=2), C, H, W, 0),
         "disparity_warp": (img, u(B, 1, H, W, scale=2), C, H, W, 1),
         "affine_flow_warp": (img, u(B, 6, H, W), C, H, W, 0),
@@ -82,10 +85,18 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "robust_rho": (u(n, scale=3), ROBUST_CODES["cauchy"], 0.5),
         "robust_psi": (u(n, scale=3), ROBUST_CODES["tukey"], 2.0),
         "smoothness": (u(B, 3, H, W), H, W, ROBUST_CODES["huber"], 0.3, 0.01, 0.02),
-        # gvnn_warp._photometric_ops (reference and live images, depth, pose, K; penalty cauchy)
+        # gvnn_warp.ops.photometric (reference and live images, depth, pose, K; penalty cauchy)
         "photometric_rows": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, C, H, W,
                              PHOTOMETRIC_CODES["cauchy"], 0.5, 1e-3),
         "photometric_rows_lens": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, radtan, rays, C, H, W,
                                   PHOTOMETRIC_CODES["huber"], 0.5, 1e-3, lens.RADTAN, 0),
         "photometric_mean": (r(B * H), torch.randint(0, W + 1, (B * H,), generator=g).to(f64), H, C),
+        # (every gradient computed in the forward pass: needs = 31)
+        "photometric_error": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, PHOTOMETRIC_CODES["cauchy"], 0.5,
+                              1e-3, 31),
+        "photometric_normal_equations": (img, r(B, 1, H, W) + 1, r(B, C, H, W), r(B, 1, H, W) + 1, pose, K,
+                                         PHOTOMETRIC_CODES["tukey"], 0.4, 1e-3, 2.0),
+        "photometric_normal_equations_lens": (img, r(B, 1, H, W) + 1, r(B, C, H, W), r(B, 1, H, W) + 1, pose, K,
+                                              radtan, rays, PHOTOMETRIC_CODES["huber"], 0.4, 1e-3, 2.0, lens.RADTAN,
+                                              0),
     }

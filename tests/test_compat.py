@@ -15,11 +15,13 @@ import warp as wp
 from gvnn_warp.kernels.core import compat as wcompat
 from gvnn_warp.kernels.core import launch as L
 from gvnn_warp.kernels.core import threads
-from gvnn_warp.kernels.geometry import lie_kernels
+from gvnn_warp.kernels.geometry import kernels as geometry_kernels
 
 import gvnn_warp as G
-from gvnn_warp.ops import bridge as _bridge  # noqa: F401  (_ops registers the ops)
+from gvnn_warp.ops import bridge as _bridge
 from gvnn_warp.ops import compat as _compat
+from gvnn_warp.ops import geometry as _geometry_ops  # noqa: F401  (its registrations fill OPS)
+from gvnn_warp.ops.registry import OPS
 
 
 @wp.kernel
@@ -46,7 +48,7 @@ def test_warp_array_descriptor():
     # a kernel launched on descriptors reads and writes the tensors' memory
     omega = torch.tensor([[0.0, 0.0, torch.pi / 2]], dtype=torch.float64)
     R = torch.zeros(1, 3, 3, dtype=torch.float64)
-    k = lie_kernels.so3_exp[wp.float64]
+    k = geometry_kernels.so3_exp[wp.float64]
     wp.launch(k, dim=1, inputs=[0, wcompat.array_descriptor(omega.data_ptr(), 1, 24)],
               outputs=[wcompat.array_descriptor(R.data_ptr(), 1, 72)], device="cpu")
     torch.testing.assert_close(R[0], torch.tensor([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]], dtype=torch.float64))
@@ -147,7 +149,7 @@ def test_gil_enabled(monkeypatch):
 
 
 def test_torch_custom_op_implementations():
-    impls = _compat.custom_op_implementations(_bridge.OPS["so3_exp"].op)
+    impls = _compat.custom_op_implementations(OPS["so3_exp"].op)
     assert impls, "torch.library.custom_op no longer keeps its implementations in op._backend_fns"
     assert any(getattr(f, "__dynamo_disable", None) is not None for f in impls)
 
@@ -170,16 +172,17 @@ def test_pinhole_work_does_not_define_the_lens_models():
         import sys, numpy as np, torch, gvnn_warp as G
         from gvnn_warp.odometry import DirectAligner
         from gvnn_warp.kernels import lens
+        from gvnn_warp.kernels.core import cache
         img = torch.rand(1, 1, 16, 16, requires_grad=True)
         depth = torch.full((1, 1, 16, 16), 2.0, requires_grad=True)
         K = torch.tensor([[20.0, 0, 7.5], [0, 20.0, 7.5], [0, 0, 1]])
         G.warp_frame_depth(img, depth, torch.eye(4)[None], K)[0].sum().backward()
         G.photometric_error(img, depth, img, torch.eye(4)[None], K)[0].backward()
         DirectAligner(K.numpy()).align(img[0].detach().numpy(), depth[0].detach().numpy(), img[0].detach().numpy())
-        lensed = ('gvnn_warp.kernels.geometry.lens_rays' in sys.modules, 'gvnn_warp.ops.lens' in sys.modules,
+        lensed = (any('lens' in e for e in cache.entries()), 'gvnn_warp.ops.lens' in sys.modules,
                   'project' in vars(lens))
         G.warp_frame_depth(img, depth, torch.eye(4)[None], G.RadTanCamera(K, torch.tensor([0.1, 0, 0, 0, 0])))
-        print(lensed, 'project' in vars(lens))
+        print(lensed, 'geometry.lens_fronts()' in cache.entries())
     """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     assert out.stdout.strip().splitlines()[-1] == "(False, False, False) True", out.stdout
@@ -242,7 +245,7 @@ def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     from gvnn_warp.kernels import pyramid
     from gvnn_warp.kernels.core.kinds import LANES_MODULE_OPTIONS
     from gvnn_warp.kernels.photometric import error as pek
-    from gvnn_warp.kernels.photometric import normal_equations as pk
+    from gvnn_warp.kernels.photometric import normal_equations_lanes as nel
     from gvnn_warp.kernels.sampling import kernels as sk
 
     # the Warp default this works around: a cap on the SLP vectoriser's depth (if an upgrade drops
@@ -256,6 +259,7 @@ def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     flags = LANES_MODULE_OPTIONS["cpu_compiler_flags"]
     assert "slp-recursion-max-depth" not in flags and "-march=native" in flags.split()
     # every 8-lane kernel family compiles with them
-    for fk in (pek.error_lanes(0, 3, 320), pk.normal_equations_lanes_for(0, 1, 2, 320), pk.normal_equations_lanes[3],
+    for fk in (pek.error_lanes(0, 3, 320), nel.normal_equations_lanes(False, False, 1, 2, 320),
+               nel.normal_equations_lanes_kernel(True, True, None, None, None),
                sk.bilinear_sample_lanes(3, 0, 0), pyramid.level0_lanes_kernel(3), pyramid.downsample_lanes_kernel(1)):
         assert fk.kernel.module.options["cpu_compiler_flags"] == flags, fk

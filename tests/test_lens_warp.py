@@ -12,8 +12,8 @@ from gvnn_warp.kernels.geometry import lens
 from gvnn_warp.kernels.sampling import pipeline as P
 
 import gvnn_warp as G
-from gvnn_warp.cameras.models import FisheyeCamera, PinholeCamera, RadTanCamera
-from gvnn_warp.functional import geometry as Fn
+from gvnn_warp.cameras import FisheyeCamera, PinholeCamera, RadTanCamera
+from gvnn_warp.cameras import fused as Fn
 
 f64 = torch.float64
 FR1 = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]  # TUM freiburg1's published radtan coefficients
@@ -165,7 +165,7 @@ def test_wide_angle_fisheye_matches_torch_reference_and_gradcheck():
 
 @pytest.mark.parametrize("model", ["radtan", "fisheye", "wide fisheye"])
 def test_float32_warp_is_the_float64_one_to_float32_precision(model):
-    """float32 evaluates the lens in float32 (kernels.lens_rays, 8 lanes): values and gradients (for
+    """float32 evaluates the lens in float32 (kernels.geometry.lens.lanes, 8 lanes): values and gradients (for
     image, depth, pose, K and the coefficients) within float32 rounding of the float64 op's, valid
     masks equal on at least 99% of the pixels (they may differ where a pixel lands within rounding
     of the image border)."""

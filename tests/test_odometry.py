@@ -244,7 +244,7 @@ def test_lm_step_on_row_sums_equals_reduction_then_lm_step():
     next call, accepted and rejected trials, an item that stopped and one without enough pixels."""
     from gvnn_warp.kernels.core.launch import mat34d, mat34f
     from gvnn_warp.kernels.photometric import lm
-    from gvnn_warp.kernels.photometric import normal_equations as pk
+    from gvnn_warp.kernels.photometric import normal_equations_reduce as pk
 
     B, H, S = 4, 7, int(pk.ROW_STRIDE)
     rng = np.random.default_rng(0)

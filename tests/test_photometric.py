@@ -652,7 +652,7 @@ def test_normal_equations_torch_calls_reuse_their_recorded_launches(monkeypatch)
     # from several threads at once must not share scratch buffers
     import threading
 
-    from gvnn_warp.cameras.models import FisheyeCamera, RadTanCamera
+    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
     from gvnn_warp.functional.photometric import photometric_normal_equations
     from gvnn_warp.ops import photometric as ops
 
@@ -779,26 +779,29 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel(width):
     # the 8-lane row kernel (used) against the plain one-pixel-at-a-time kernel, row by row,
     # with a width that is not a multiple of 8 (the last step reads the row's last 8 pixels and
     # masks those of the step before) and one narrower than 8 (clamped lanes)
-    from gvnn_warp.kernels.photometric import normal_equations as pk
+    from gvnn_warp.kernels.photometric import normal_equations_lanes as nel
+    from gvnn_warp.kernels.photometric import normal_equations_reduce as ner
+    from gvnn_warp.kernels.photometric.normal_equations import normal_equations_rows
 
     ref, depth, live, pose, K, live_depth = scene(B=2, C=3, H=7, W=width, seed=15)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
     counts = []
-    for variant in range(4):  # depth term (1) + 2 * occlusion test
+    for depth_term, occlusion in ((False, False), (True, False), (False, True), (True, True)):
         rows = []
-        # the generic lane kernel and the one compiled for the penalty (huber, code 0)
-        for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes[variant],
-                       pk.normal_equations_lanes_for(variant, C, 0, W)):
-            out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
+        scalar = normal_equations_rows(depth_term, occlusion)
+        # the generic lane kernel (penalty, channels and row width read at run time) and the one
+        # compiled for the call (huber, code 0)
+        for kernel in (scalar, nel.normal_equations_lanes_kernel(depth_term, occlusion, None, None, None),
+                       nel.normal_equations_lanes(depth_term, occlusion, C, 0, W)):
+            out = wp.zeros(B * H * ner.ROW_STRIDE, dtype=wp.float64)
             # the lane kernels' running sums (memory slots per row; filled with garbage first: the
             # kernel must clear its own)
-            acc = [] if kernel is pk.normal_equations_rows[variant] else \
-                [wp.full(B * H * pk.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
+            acc = [] if kernel is scalar else [wp.full(B * H * ner.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
             wp.launch(kernel[wp.float64], dim=B * H,
                       inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
                               arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out, *acc])
-            rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
+            rows.append(out.numpy().reshape(B * H, -1)[:, : ner.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
         np.testing.assert_array_equal(rows[2], rows[1])  # specialised: bitwise the generic kernel's sums
         assert rows[0][:, 28].sum() > 0
@@ -808,16 +811,16 @@ def test_normal_equations_lanes_kernel_equals_scalar_kernel(width):
     ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=6, W=width + 6, seed=17)
     arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
     B, C, H, W = ref.shape
-    for variant in range(4):
+    for depth_term, occlusion in ((False, False), (True, False), (False, True), (True, True)):
         rows = []
-        for kernel in (pk.normal_equations_rows[variant], pk.normal_equations_lanes_for(variant, 1, 0, W)):  # huber
-            out = wp.zeros(B * H * pk.ROW_STRIDE, dtype=wp.float64)
-            acc = [] if kernel is pk.normal_equations_rows[variant] else \
-                [wp.full(B * H * pk.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
+        scalar = normal_equations_rows(depth_term, occlusion)
+        for kernel in (scalar, nel.normal_equations_lanes(depth_term, occlusion, 1, 0, W)):  # huber
+            out = wp.zeros(B * H * ner.ROW_STRIDE, dtype=wp.float64)
+            acc = [] if kernel is scalar else [wp.full(B * H * ner.ROW_STRIDE, 7.0, dtype=launch.vec8d)]
             wp.launch(kernel[wp.float64], dim=B * H,
                       inputs=[0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), ld.flatten(),
                               arrays[3], arrays[4], C, H, W, 0, 0.1, MIN_DEPTH, 2.0, 0.05, out, *acc])
-            rows.append(out.numpy().reshape(B * H, -1)[:, : pk.N_SUMS])
+            rows.append(out.numpy().reshape(B * H, -1)[:, : ner.N_SUMS])
         np.testing.assert_allclose(rows[1], rows[0], rtol=1e-12, atol=1e-12 * np.abs(rows[0]).max())
         assert rows[0][:, 28].sum() > 0
 
@@ -850,7 +853,7 @@ def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
     # the backward's scaling: segments shorter and longer than a launch element's span, runs that
     # cross spans, short tails, a launch cut into one-element chunks; out[i] = src[i] g[b] / (C count[b]),
     # b = i // seg
-    from gvnn_warp.kernels.photometric import error as pek
+    from gvnn_warp.kernels.photometric import error_reduce as pek
 
     if threads > 1:
         monkeypatch.setattr(launch, "_planner", lambda n, *a: [(i, 1, 0) for i in range(n)])
@@ -872,7 +875,8 @@ def test_scale_segments_runs_across_spans(seg, n, threads, monkeypatch):
 
 _SCALE_NEAR_2_31 = r"""
 import sys, torch, warp as wp
-from gvnn_warp.kernels import photometric_error_kernels as pek, _compat
+from gvnn_warp.kernels import _compat
+from gvnn_warp.kernels.photometric import error_reduce as pek
 for arg in sys.argv[1:]:
     n, seg = map(int, arg.split(","))
     S = ((n - 1) // pek.SCALE_SPAN) * pek.SCALE_SPAN  # the last launch element's first value

@@ -93,7 +93,7 @@ def test_lanes_kernel_equals_scalar_kernel(C, H, W, align_corners, padding, dtyp
     """The 8-lane forward kernel gives bitwise the values of the one-location-per-thread kernel
     (whose adjoint it shares): inside, outside, on the edges, for non-finite positions and for
     NaN/inf pixels next to the samples."""
-    from gvnn_warp.ops import geometry as _ops
+    from gvnn_warp.ops import sampling as _ops
 
     g = torch.Generator().manual_seed(3)
     B, hw = 2, 64
@@ -121,7 +121,7 @@ def test_lanes_kernel_equals_scalar_kernel(C, H, W, align_corners, padding, dtyp
 
 
 def test_bilinear_sample_takes_the_lanes_kernel_where_it_applies(monkeypatch):
-    from gvnn_warp.ops import geometry as _ops
+    from gvnn_warp.ops import sampling as _ops
 
     calls = []
     lanes = _ops.bilinear_sample_lanes

@@ -11,7 +11,7 @@ import torch
 import warp as wp
 from gvnn_warp.kernels.core import launch as L
 from gvnn_warp.kernels.core import threads
-from gvnn_warp.kernels.geometry import lie_kernels
+from gvnn_warp.kernels.geometry import kernels as geometry_kernels
 from gvnn_warp.kernels.sampling import kernels as sampling_kernels
 from refs import gradients_of, weighted_backward
 
@@ -226,7 +226,7 @@ def test_thread_count_precedence(monkeypatch):
 
 
 def test_adjoint_scopes():
-    so3 = L.declaration(lie_kernels.so3_exp[wp.float32])
+    so3 = L.declaration(geometry_kernels.so3_exp[wp.float32])
     assert so3.scopes == {"omega": "element"} and so3.forward
     wfd = L.declaration(sampling_kernels.warp_frame_depth[wp.float64])
     assert wfd.scopes["image"] == "segment" and wfd.scopes["depth"] == "element" and wfd.segment({"H": 7}) == 7

@@ -1,10 +1,21 @@
 """Camera models for the torch front: pinhole, radial-tangential (OpenCV) and fisheye
-(cv2.fisheye), differentiable in all their parameters, and the functions that move pixels and
-images between a distorted camera and its ideal pinhole (:mod:`.models`). Every op that takes
-``K`` also takes a camera object in its place.
+(cv2.fisheye), differentiable in all their parameters, one model per module (:mod:`.pinhole`,
+:mod:`.radtan`, :mod:`.fisheye`, over :mod:`.base`), and the functions that move pixels and images
+between a distorted camera and its ideal pinhole (:mod:`.undistort`). Every op that takes ``K``
+also takes a camera object in its place (:func:`.base.camera_args`; the fused ops:
+:class:`.fused.FusedCamera`).
+
+A camera object holds references to the tensors it is given (``K`` and ``dist``), so gradients
+reach them. The models, their domain (where a point counts as valid) and the unprojection's
+tolerance are in ``docs/conventions.md`` ("Camera models"); the pure-Warp functions are in
+``gvnn_warp.kernels.geometry.lens``.
 """
 
-from . import models
-from .models import *  # noqa: F403
+from . import base, fisheye, fused, pinhole, radtan, undistort
+from .base import *  # noqa: F403
+from .fisheye import *  # noqa: F403
+from .pinhole import *  # noqa: F403
+from .radtan import *  # noqa: F403
+from .undistort import *  # noqa: F403
 
-__all__ = list(models.__all__)
+__all__ = [*base.__all__, *pinhole.__all__, *radtan.__all__, *fisheye.__all__, *undistort.__all__, *fused.__all__]

@@ -1,12 +1,11 @@
-"""Camera models: pinhole, radial-tangential (OpenCV) and fisheye (cv2.fisheye), differentiable in
-all their parameters, and the functions that move pixels and images between a distorted camera
-and its ideal pinhole.
+"""The base class of the camera models, the one entry for every op that takes intrinsics
+(:func:`camera_args`), and the projections through any model (:meth:`Camera.project`,
+:func:`unproject_points`).
 
 A camera object holds references to the tensors it is given (``K`` and ``dist``), so gradients
-reach them. Every op of gvnn_warp that takes ``K`` also takes a camera object in its place. The
-models, their domain (where a point counts as valid) and the unprojection's tolerance are in
-``docs/conventions.md`` ("Camera models"); the pure-Warp functions are in
-``gvnn_warp.kernels.lens``.
+reach them. The models, their domain (where a point counts as valid) and the unprojection's
+tolerance are in ``docs/conventions.md`` ("Camera models"); the pure-Warp functions are in
+``gvnn_warp.kernels.geometry.lens``.
 """
 
 from __future__ import annotations
@@ -19,27 +18,9 @@ from torch import Tensor
 from ..kernels.geometry import lens
 from ..kernels.geometry.camera import MIN_DEPTH
 from ..ops import geometry as _ops
-from ..ops.checks import ArgCheck
+from ..ops.checks import ArgCheck, flat
 
-
-def lens_ops():
-    """:mod:`gvnn_warp._lens_ops`, the ops through lens models, imported (and so registered) on
-    first use: its kernels cost ~1.5-3 s to define, which pinhole users should not pay."""
-    from ..ops import lens as _lens_ops
-
-    return _lens_ops
-
-
-__all__ = [
-    "Camera",
-    "FisheyeCamera",
-    "PinholeCamera",
-    "RadTanCamera",
-    "distort_points",
-    "undistort_image",
-    "undistort_points",
-    "unproject_points",
-]
+__all__ = ["Camera", "unproject_points"]
 
 
 class Camera:
@@ -72,7 +53,7 @@ class Camera:
         return f"{type(self).__name__}(dtype={self.K.dtype}" + (f", batch={b})" if b is not None else ")")
 
     def _dist8(self, B: int) -> Tensor:
-        """The (B, 8) distortion vectors the kernels take (see ``gvnn_warp.kernels.lens``);
+        """The (B, 8) distortion vectors the kernels take (see ``gvnn_warp.kernels.geometry.lens``);
         differentiable in ``dist``. The domain bounds (dist[:, 5]) are recomputed only when
         ``dist`` changes."""
         if self.model == lens.PINHOLE:
@@ -103,46 +84,18 @@ class Camera:
             undistorted projection with Z clamped to min_depth, non-finite coordinates as 0)
             with zero gradient.
         """
-        return _project(ArgCheck(f"{type(self).__name__}.project"), points, self, min_depth)
+        chk = ArgCheck(f"{type(self).__name__}.project")
+        chk.tensor("points", points, "B ... 3")
+        model, Kb, dist = camera_args(chk, self, "camera")
+        min_depth = chk.positive("min_depth", min_depth)
+        P = math.prod(points.shape[1:-1])
+        pixels, valid = _ops.project_points_camera(flat(points, 1), Kb, dist, P, min_depth, model)
+        return pixels.reshape(*points.shape[:-1], 2), valid.reshape(points.shape[:-1])
 
     def unproject(self, pixels: Tensor, depth: Tensor) -> Tensor:
         """Back-project pixels of this camera's image at the given depths (see
         :func:`unproject_points`, which this calls)."""
-        return _unproject(ArgCheck(f"{type(self).__name__}.unproject"), pixels, depth, self)[0]
-
-
-class PinholeCamera(Camera):
-    """The ideal pinhole: ``PinholeCamera(K)``, K (3, 3) or (B, 3, 3). Every op gives exactly
-    (bitwise) what it gives for the tensor ``K`` itself."""
-
-    model = lens.PINHOLE
-    n_coeffs = 0
-
-    def __init__(self, K: Tensor):
-        super().__init__(K, None)
-
-
-class RadTanCamera(Camera):
-    """OpenCV's radial-tangential model: ``RadTanCamera(K, dist)``, K (3, 3) or (B, 3, 3), dist
-    (5,) or (B, 5) = (k1, k2, p1, p2, k3) as ``cv2.projectPoints`` takes them."""
-
-    model = lens.RADTAN
-    n_coeffs = 5
-
-    def __init__(self, K: Tensor, dist: Tensor):
-        super().__init__(K, dist)
-
-
-class FisheyeCamera(Camera):
-    """The equidistant (Kannala-Brandt) fisheye of ``cv2.fisheye``: ``FisheyeCamera(K, dist)``,
-    K (3, 3) or (B, 3, 3) (cv2.fisheye's skew alpha is K[0, 1] / K[0, 0]), dist (4,) or (B, 4) =
-    (k1, k2, k3, k4)."""
-
-    model = lens.FISHEYE
-    n_coeffs = 4
-
-    def __init__(self, K: Tensor, dist: Tensor):
-        super().__init__(K, dist)
+        return _unproject(ArgCheck(f"{type(self).__name__}.unproject"), pixels, depth, self)
 
 
 def camera_args(chk: ArgCheck, K, name: str = "K") -> tuple[int, Tensor, Tensor]:
@@ -174,22 +127,7 @@ def camera_args(chk: ArgCheck, K, name: str = "K") -> tuple[int, Tensor, Tensor]
     return model, Kb, dist
 
 
-def _flat(t: Tensor, inner: int) -> Tensor:
-    return t.reshape(-1, *t.shape[t.dim() - inner :]).contiguous()
-
-
-def _project(chk: ArgCheck, points: Tensor, camera, min_depth: float) -> tuple[Tensor, Tensor]:
-    """project through any model (pixels, valid); the shared body of Camera.project and
-    project_points(points, camera)."""
-    chk.tensor("points", points, "B ... 3")
-    model, Kb, dist = camera_args(chk, camera, "camera")
-    min_depth = chk.positive("min_depth", min_depth)
-    P = math.prod(points.shape[1:-1])
-    pixels, valid = lens_ops().project_points_camera(_flat(points, 1), Kb, dist, P, min_depth, model)
-    return pixels.reshape(*points.shape[:-1], 2), valid.reshape(points.shape[:-1])
-
-
-def _unproject(chk: ArgCheck, pixels: Tensor, depth: Tensor, camera) -> tuple[Tensor, Tensor]:
+def _unproject(chk: ArgCheck, pixels: Tensor, depth: Tensor, camera) -> Tensor:
     chk.tensor("pixels", pixels, "B ... 2")
     chk.tensor("depth", depth, "B ...")
     if tuple(depth.shape) != tuple(pixels.shape[:-1]):
@@ -199,8 +137,8 @@ def _unproject(chk: ArgCheck, pixels: Tensor, depth: Tensor, camera) -> tuple[Te
         )
     model, Kb, dist = camera_args(chk, camera, "camera")
     P = math.prod(pixels.shape[1:-1])
-    points, valid = lens_ops().unproject_points(_flat(pixels, 1), depth.reshape(-1).contiguous(), Kb, dist, P, model)
-    return points.reshape(*pixels.shape[:-1], 3), valid.reshape(pixels.shape[:-1])
+    points, _ = _ops.unproject_points(flat(pixels, 1), depth.reshape(-1).contiguous(), Kb, dist, P, model)
+    return points.reshape(*pixels.shape[:-1], 3)
 
 
 def unproject_points(pixels: Tensor, depth: Tensor, camera: Camera | Tensor) -> Tensor:
@@ -218,95 +156,4 @@ def unproject_points(pixels: Tensor, depth: Tensor, camera: Camera | Tensor) -> 
         model's domain (no undistorted point within it, or the solve does not converge) gives
         depth * K^-1 [x, y, 1] with zero gradient; :func:`undistort_points` reports which.
     """
-    return _unproject(ArgCheck("unproject_points"), pixels, depth, camera)[0]
-
-
-def _camera_object_args(chk: ArgCheck, camera) -> tuple[int, Tensor, Tensor]:
-    """:func:`camera_args` for functions whose ``camera`` must be a camera object (a bare K has no
-    distortion to apply or undo)."""
-    if not isinstance(camera, Camera):
-        chk._fail(
-            TypeError,
-            "argument 'camera' must be a camera from gvnn_warp.cameras (PinholeCamera, RadTanCamera, "
-            f"FisheyeCamera), got {type(camera).__name__}",
-        )
-    return camera_args(chk, camera, "camera")
-
-
-def _pixels_op(fn: str, op, pixels: Tensor, camera) -> tuple[Tensor, Tensor]:
-    chk = ArgCheck(fn)
-    chk.tensor("pixels", pixels, "B ... 2")
-    model, Kb, dist = _camera_object_args(chk, camera)
-    P = math.prod(pixels.shape[1:-1])
-    out, valid = op(_flat(pixels, 1), Kb, dist, P, model)
-    return out.reshape(pixels.shape), valid.reshape(pixels.shape[:-1])
-
-
-def distort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
-    """Pixels of the ideal pinhole image (intrinsics ``camera.K``, no distortion) -> where the
-    same rays land in the camera's distorted image: K distort(K^-1 [x, y, 1]).
-
-    Args:
-        pixels: (B, ..., 2) ideal-image pixel positions (x, y).
-        camera: a camera from this module.
-
-    Returns:
-        pixels (B, ..., 2) in the distorted image, and valid (B, ...) bool: the ray lies inside
-        the model's domain. Where not valid the input pixel is returned (a non-finite one as a
-        finite stand-in) with zero gradient. Gradients flow to pixels, K and every coefficient.
-    """
-    return _pixels_op("distort_points", lens_ops().distort_points, pixels, camera)
-
-
-def undistort_points(pixels: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
-    """Pixels of the camera's distorted image -> the ideal pinhole image's (intrinsics
-    ``camera.K``): K undistort(K^-1 [x, y, 1]), the inverse of :func:`distort_points`. Matches
-    ``cv2.undistortPoints(pixels, K, dist, P=K)`` (``cv2.fisheye.undistortPoints`` for the fisheye).
-
-    Args:
-        pixels: (B, ..., 2) distorted-image pixel positions (x, y).
-        camera: a camera from this module.
-
-    Returns:
-        pixels (B, ..., 2) in the ideal image, and valid (B, ...) bool: Newton's method converged
-        (residual below 1e-10 in normalized units) to a point inside the model's domain. Where
-        not valid the input pixel is returned (a non-finite one as a finite stand-in) with zero
-        gradient.
-        Gradients are the implicit-function ones through the solution (not through the
-        iterations), for pixels, K and every coefficient.
-    """
-    return _pixels_op("undistort_points", lens_ops().undistort_points, pixels, camera)
-
-
-def undistort_image(image: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
-    """Resample a distorted image into the ideal pinhole image of the same size and intrinsics
-    ``camera.K``: out[y, x] = image sampled bilinearly at :func:`distort_points` ((x, y)).
-
-    Args:
-        image: (B, C, H, W) image taken by ``camera``.
-        camera: a camera from this module.
-
-    Returns:
-        image (B, C, H, W) and valid (B, 1, H, W) bool: the ray is inside the model's domain and
-        lands within the distorted image's pixel-centre rectangle [0, W-1] x [0, H-1] (all four
-        bilinear taps are pixels). Elsewhere the zero-padded sample (0 where the ray is outside
-        the domain). Gradients flow to the image, K and every coefficient.
-    """
-    chk = ArgCheck("undistort_image")
-    chk.tensor("image", image, "B C H W")
-    model, Kb, dist = _camera_object_args(chk, camera)
-    B, C, H, W = image.shape
-    if H < 2 or W < 2:
-        chk._fail(ValueError, f"argument 'image' must be at least 2 x 2 pixels, got {tuple(image.shape)}")
-    ys, xs = torch.meshgrid(
-        torch.arange(H, dtype=image.dtype), torch.arange(W, dtype=image.dtype), indexing="ij"
-    )
-    ideal = torch.stack([xs, ys], dim=-1).reshape(1, H * W, 2).expand(B, H * W, 2).reshape(-1, 2).contiguous()
-    src, ok = lens_ops().distort_points(ideal, Kb, dist, H * W, model)
-    # align_corners=True normalisation: x = (gx + 1) / 2 (W - 1); a ray outside the domain reads 0
-    scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=image.dtype)
-    grid = torch.where(ok.unsqueeze(-1), src * scale - 1.0, src.new_full((), 2.0)).contiguous()
-    out = _ops.bilinear_sample(image.contiguous(), grid, C, H, W, H * W, 1, 0).reshape(B, C, H, W)
-    tol = 1e-3
-    inside = (src[:, 0] >= -tol) & (src[:, 0] <= W - 1 + tol) & (src[:, 1] >= -tol) & (src[:, 1] <= H - 1 + tol)
-    return out, (ok & inside).reshape(B, 1, H, W)
+    return _unproject(ArgCheck("unproject_points"), pixels, depth, camera)

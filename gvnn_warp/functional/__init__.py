@@ -6,15 +6,18 @@ arguments with a clear error naming the function and the argument, and never mod
 Conventions (pixel centres, (x, y) order, ``[omega, t]`` order, units, valid masks):
 ``docs/conventions.md``.
 
-- :mod:`.geometry`: global transformations (so3, SE3, Sim3, quaternions, Euler angles), the 3D
-  grid generator, projection, the bilinear sampler and the 3D spatial transformer;
+- :mod:`.lie`: global transformations (so3, SE3, Sim3, quaternions, Euler angles);
+- :mod:`.camera`: the 3D grid generator, points moved by poses, projection;
+- :mod:`.sampling`: the bilinear sampler and the 3D spatial transformer;
 - :mod:`.perpixel`: per-pixel transformations, M-estimators, smoothness;
 - :mod:`.photometric`: the fused photometric objective of direct alignment.
 """
 
-from . import geometry, perpixel, photometric
-from .geometry import *  # noqa: F403
+from . import camera, lie, perpixel, photometric, sampling
+from .camera import *  # noqa: F403
+from .lie import *  # noqa: F403
 from .perpixel import *  # noqa: F403
 from .photometric import *  # noqa: F403
+from .sampling import *  # noqa: F403
 
-__all__ = [*geometry.__all__, *perpixel.__all__, *photometric.__all__]
+__all__ = [*lie.__all__, *camera.__all__, *sampling.__all__, *perpixel.__all__, *photometric.__all__]

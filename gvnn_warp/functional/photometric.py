@@ -6,7 +6,7 @@ reference depth, the pose and K; the gradient is computed in the same pass);
 :func:`photometric_normal_equations` gives the Gauss-Newton system of the same residuals for a
 pose update. Conventions (pixel centres, K,
 minimum depth, the ``valid`` rule of ``warp_frame_depth``): ``docs/conventions.md``. The same
-functions on ``wp.array`` s, without torch: ``gvnn_warp.kernels.photometric_pipeline``.
+functions on ``wp.array`` s, without torch: ``gvnn_warp.kernels.photometric.pipeline``.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..cameras.models import Camera, lens_ops
+from ..cameras.base import Camera
+from ..cameras.fused import FusedCamera
 from ..kernels.geometry.camera import MIN_DEPTH
 from ..kernels.photometric.pipeline import ERROR_KINDS, NORMAL_EQUATIONS_KINDS
 from ..kernels.photometric.residual import KINDS as _CODES
 from ..kernels.sampling.sampler import MAX_LANES_PLANE as _MAX_LANES_PLANE
 from ..ops import photometric as _ops
 from ..ops.checks import ArgCheck
-from .geometry import _Lens, _pose34, _rays
 
 __all__ = [
     "ERROR_KINDS",
@@ -35,8 +35,8 @@ def _check_frames(chk: ArgCheck, ref_image, ref_depth, live_image, pose, K):
     chk.tensor("ref_image", ref_image, "B C H W")
     chk.tensor("ref_depth", ref_depth, "B 1 H W")
     chk.tensor("live_image", live_image, "B C H W")
-    pose34 = _pose34(chk, "pose", pose, "B 3|4 4")
-    return pose34.contiguous(), _Lens(chk, K)
+    pose34 = chk.pose("pose", pose, "B 3|4 4")
+    return pose34.contiguous(), FusedCamera(chk, K)
 
 
 def photometric_error(
@@ -97,8 +97,8 @@ def photometric_error(
     min_depth = chk.positive("min_depth", min_depth)
     _, C, H, W = ref_image.shape
     if cam.model != 0:  # a distorted lens (see warp_frame_depth): its row kernel and Warp adjoint
-        rays, stride = _rays(cam, H, W)
-        row_sum, row_count = lens_ops().photometric_rows_lens(
+        rays, stride = cam.rays(H, W)
+        row_sum, row_count = _ops.photometric_rows_lens(
             ref_image.contiguous(), ref_depth.contiguous(), live_image.contiguous(), pose34, cam.K, cam.dist, rays,
             C, H, W, _CODES[robust], scale, min_depth, cam.model, stride,
         )
@@ -182,7 +182,7 @@ def photometric_normal_equations(
     if cam.model == 0:
         return _ops.photometric_normal_equations(*frames, _CODES[robust], scale, min_depth, float(depth_weight))
     H, W = ref_image.shape[2:]
-    rays, stride = _rays(cam.detached(), H, W)
+    rays, stride = cam.detached().rays(H, W)
     return _ops.photometric_normal_equations_lens(
         *frames, cam.dist.detach(), rays, _CODES[robust], scale, min_depth, float(depth_weight), cam.model, stride
     )

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from ..cameras.models import Camera
+from ..cameras.base import Camera
 from ..functional.photometric import ERROR_KINDS, photometric_error
 from ..kernels.geometry.camera import MIN_DEPTH
 from ..ops.checks import ArgCheck

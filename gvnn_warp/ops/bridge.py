@@ -2,12 +2,15 @@
 
 :func:`warp_op` turns a :class:`gvnn_warp.kernels.launch.FloatKernel` into a
 ``torch.library.custom_op`` (so ``torch.compile(fullgraph=True)`` can trace it) whose backward is
-a second custom op that runs the *same kernel's Warp adjoint*. Tensors are wrapped zero-copy with
-``wp.from_torch`` on detached, contiguous views; nothing here computes the op itself.
+a second custom op that runs the *same kernel's Warp adjoint*, and registers it in
+:data:`.registry.OPS` with the public function and layer it serves (beside
+:func:`.registry.custom_op`, for ops written by hand). Tensors are wrapped zero-copy with
+:func:`descriptor` (or :func:`to_warp`) on detached, contiguous views; nothing here computes the
+op itself.
 
-Callers (``functional.py``) validate and flatten arguments first: every tensor handed to an op
-is contiguous, on the CPU, float32 or float64 (all the same), with shape ``(n, *element_shape)``
-for its kind.
+Callers (``gvnn_warp.functional``) validate and flatten arguments first: every tensor handed to an
+op is contiguous, on the CPU, float32 or float64 (all the same), with shape
+``(n, *element_shape)`` for its kind.
 
 Launches go through :func:`gvnn_warp.kernels.launch.launch`, which splits them over threads; the
 thread count follows ``torch.get_num_threads()`` unless set with
@@ -20,7 +23,6 @@ import functools
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import torch
 import warp as wp
@@ -28,6 +30,7 @@ import warp as wp
 from ..kernels.core.compat import array_descriptor
 from ..kernels.core.launch import FloatKernel, element_shape, element_type, launch, set_default_num_threads, use_openmp
 from . import compat as _compat
+from .registry import OPS, OpSpec, Output, Param, register, skip_lazy_dynamo_import
 
 wp.init()
 set_default_num_threads(torch.get_num_threads)
@@ -50,7 +53,10 @@ def _use_torch_openmp() -> None:
 
 _use_torch_openmp()
 
-_FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}
+FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}  # torch dtype -> Warp float type
+
+
+# ----------------------------------------------------------------------------- tensors as Warp arrays
 
 
 def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
@@ -64,7 +70,7 @@ def to_warp(t: torch.Tensor, kind: str, float_type) -> wp.array:
 
 
 @functools.cache
-def _null(kind: str, float_type):
+def null_array(kind: str, float_type):
     """A null array (no data, no elements) of ``kind``: the adjoint of an input whose gradient is
     not wanted, or of a non-differentiable output. Warp's adjoints skip writes to it; its stride
     is the element size, as a contiguous array's, so it keeps the kernel on Warp's faster
@@ -72,7 +78,7 @@ def _null(kind: str, float_type):
     return array_descriptor(0, 0, wp.types.type_size_in_bytes(element_type(kind, float_type)))
 
 
-def _descriptor(t: torch.Tensor, kind: str, float_type):
+def descriptor(t: torch.Tensor, kind: str, float_type):
     """Like :func:`to_warp` but returns a bare 1-D array descriptor (~1 us instead of ~9 us), which
     :func:`~gvnn_warp.kernels.launch.launch` accepts. It holds no reference to ``t``: keep ``t``
     alive while the descriptor is used."""
@@ -85,64 +91,42 @@ def _descriptor(t: torch.Tensor, kind: str, float_type):
     return array_descriptor(t.data_ptr(), n, inner * t.element_size())
 
 
-def _skip_lazy_dynamo_import(op) -> None:
-    """Spare the first call of ``op`` the import of ``torch._dynamo`` (~2 s; see
-    :func:`._compat.defer_dynamo_disable`)."""
-    for impl in _compat.custom_op_implementations(op):
-        _compat.defer_dynamo_disable(impl)
-
-
-@dataclass(frozen=True)
-class Param:
-    """A non-tensor kernel argument: its name and schema type (``int``, ``float`` or ``bool``)."""
-
-    name: str
-    type: str
-
-
-@dataclass(frozen=True)
-class Output:
-    """A kernel output: its name, kind, and shape as a function of the op's arguments."""
-
-    name: str
-    kind: str
-    shape: Callable[..., Sequence[int]]
-    differentiable: bool = True
-
-
-@dataclass(frozen=True)
-class OpSpec:
-    """What :func:`warp_op` registered: the op, its kernels and arguments (see ``OPS``)."""
-
-    name: str
-    op: Callable
-    fk: FloatKernel | None
-    inputs: tuple[str, ...]
-    params: tuple[Param, ...]
-    outputs: tuple[Output, ...]
-    backward_kernel: FloatKernel | None  # whose adjoint the backward launches
-    select: Callable[..., FloatKernel] | None = None
-
-
-OPS: dict[str, OpSpec] = {}  # every op registered by warp_op, by name (tests walk it)
+_descriptor, _null = descriptor, null_array  # (re-export for benchmarks/kernels.py; the lead removes it)
 
 
 def warp_op(
     name: str,
-    fk: FloatKernel | None,
+    fk: FloatKernel | Callable[[], FloatKernel] | None,
     inputs: Sequence[str],
     params: Sequence[Param],
     outputs: Sequence[Output],
     n_threads: Callable[..., int],
+    *,
+    function: str,
+    layer: str,
     backward_from: Callable | None = None,
     select: Callable[..., FloatKernel] | None = None,
     array_kinds: dict[str, str] | None = None,
-) -> Callable:
+    lazy: bool = False,
+    untested: dict[str, str] | None = None,
+) -> Callable | OpSpec:
     """Register ``gvnn_warp::<name>`` (forward) and ``gvnn_warp::<name>_backward``.
 
     ``inputs`` are the kernel's tensor arguments in order (their kinds come from ``fk``),
     ``params`` its scalar arguments (after the tensors), ``outputs`` its output arrays (last).
-    ``n_threads(*tensors, *params)`` is the launch size. Returns the forward op.
+    ``n_threads(*tensors, *params)`` is the launch size. ``function`` is the public function of
+    gvnn_warp the op serves, ``layer`` its ``nn.Module`` layer or ``"no layer: <why>"``
+    (``tests/test_ops_registry.py`` checks both exist and are documented); ``untested`` maps a
+    test of every op (``"scopes"``, ``"gradients"``) that does not apply to this one to why.
+    Returns the forward op.
+
+    ``fk`` may be a maker, ``fk() -> FloatKernel``, called on the first launch (a kernel that
+    takes seconds to define); ``array_kinds`` then names the inputs' kinds. ``lazy``: the torch op
+    too is defined on first use, as the module's attribute ``name`` (the module sets
+    ``__getattr__ = lazy_ops(__name__)``, see :func:`.registry.lazy_ops`; :mod:`.lens` defines
+    them all): 5-15 ms per op, which a user who never calls it should not pay.
+    ``torch.ops.gvnn_warp.<name>`` exists from then on, and the call returns the
+    :class:`~.registry.OpSpec` (not to be bound to that name).
 
     ``backward_from``: an op made by this function with the same arguments and outputs whose
     kernel computes the same values; its backward (its kernel's Warp adjoint) is used, and none
@@ -154,9 +138,28 @@ def warp_op(
     """
     # what an op that borrows another's backward must share with it (array kinds may differ: views)
     signature = (tuple(inputs), tuple(params), tuple((o.name, o.differentiable) for o in outputs))
-    if backward_from is not None and getattr(backward_from, "_gvnn_signature", None) != signature:
+    source = OPS.get(getattr(backward_from, "_gvnn_name", None)) if backward_from is not None else None
+    if backward_from is not None and (source is None or _signature(source) != signature):
         raise ValueError(f"warp_op {name!r}: backward_from must be a warp_op with the same inputs, params, outputs")
-    in_kinds = [(fk.array_kinds if fk is not None else array_kinds)[n] for n in inputs]
+    kinds = dict(array_kinds) if array_kinds is not None else {n: fk.array_kinds[n] for n in inputs}
+    spec = OpSpec(
+        name, tuple(inputs), tuple(params), tuple(outputs), function, layer,
+        differentiable=any(o.differentiable for o in outputs), kernel=fk, array_kinds=kinds, select=select,
+        backward_from=source.name if source is not None else None, lazy=lazy, untested=dict(untested or {}),
+        define=functools.partial(_define_warp_op, n_threads=n_threads),
+    )
+    return register(spec)
+
+
+def _signature(spec: OpSpec) -> tuple:
+    return spec.inputs, spec.params, tuple((o.name, o.differentiable) for o in spec.outputs)
+
+
+def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
+    """The torch ops of a :func:`warp_op` registration (forward, and backward unless borrowed)."""
+    name, inputs, params, outputs, select = spec.name, spec.inputs, spec.params, spec.outputs, spec.select
+    fk = spec.kernel if isinstance(spec.kernel, FloatKernel) else None  # else made on the first launch: spec.fk
+    in_kinds = [spec.array_kinds[n] for n in inputs]
     n_in = len(inputs)
     sig_in = ", ".join([f"Tensor {n}" for n in inputs] + [f"{p.type} {p.name}" for p in params])
     ret = "Tensor" if len(outputs) == 1 else "(" + ", ".join("Tensor" for _ in outputs) + ")"
@@ -174,9 +177,9 @@ def warp_op(
         return [torch.empty(s, dtype=out_dtype(o, ref), device=ref.device) for s, o in zip(shapes, outputs)]
 
     def wrap(args, outs):
-        ft = _FLOAT_TYPES[args[0].dtype]
-        arrays = [_descriptor(t, k, ft) for t, k in zip(args[:n_in], in_kinds)]
-        out_arrays = [_descriptor(t, o.kind, ft) for t, o in zip(outs, outputs)]
+        ft = FLOAT_TYPES[args[0].dtype]
+        arrays = [descriptor(t, k, ft) for t, k in zip(args[:n_in], in_kinds)]
+        out_arrays = [descriptor(t, o.kind, ft) for t, o in zip(outs, outputs)]
         return ft, arrays, out_arrays
 
     def forward(*args):
@@ -191,7 +194,7 @@ def warp_op(
         n = n_threads(*args)
         if n > 0:
             ft, arrays, out_arrays = wrap(args, outs)
-            kernel = select(*args[n_in:]) if select is not None else fk
+            kernel = select(*args[n_in:]) if select is not None else (fk or spec.fk)
             launch(kernel[ft], n, [*arrays, *args[n_in:]], out_arrays)
         return outs[0] if len(outs) == 1 else tuple(outs)
 
@@ -203,16 +206,11 @@ def warp_op(
         f"gvnn_warp::{name}", forward, mutates_args=(), schema=f"({sig_in}) -> {ret}"
     )
     fwd.register_fake(forward_fake)
-    _skip_lazy_dynamo_import(fwd)
-
-    fwd._gvnn_signature = signature
-    OPS[name] = OpSpec(
-        name, fwd, fk, tuple(inputs), tuple(params), tuple(outputs),
-        backward_kernel=OPS[backward_from._gvnn_name].fk if backward_from is not None else fk, select=select,
-    )
+    skip_lazy_dynamo_import(fwd)
     fwd._gvnn_name = name
-    if backward_from is not None:
-        fwd.register_autograd(backward_from._gvnn_autograd, setup_context=backward_from._gvnn_setup_context)
+    if spec.backward_from is not None:
+        backward, setup_context = OPS[spec.backward_from].op._gvnn_autograd
+        fwd.register_autograd(backward, setup_context=setup_context)
         return fwd
 
     # backward(*tensors, *params, needs, *grads of differentiable outputs) -> grads of the tensors;
@@ -234,17 +232,17 @@ def warp_op(
         ft, arrays, out_arrays = wrap(fargs, scratch)
         # a gradient nobody asked for gets a null array: Warp's adjoints skip writes to it, and the
         # hand-written ones check (see gvnn_warp.kernels.sampler.sample_channels_grad)
-        adj_in = [_descriptor(g, k, ft) if w else _null(k, ft) for g, k, w in zip(in_grads, in_kinds, wanted)]
+        adj_in = [descriptor(g, k, ft) if w else null_array(k, ft) for g, k, w in zip(in_grads, in_kinds, wanted)]
         g_iter = iter(grads)
         # incoming gradients made contiguous, broadcast ones too (e.g. from out.sum().backward()):
         # reading a stride-0 array in place would take the kernel off Warp's contiguous-array path,
         # which costs more than the copy (measured: bilinear_sample fwd+bwd ~5% slower)
         readable = [next(g_iter).contiguous() if o.differentiable else None for o in outputs]
         adj_out = [
-            _descriptor(g, o.kind, ft) if g is not None else _null(o.kind, ft) for g, o in zip(readable, outputs)
+            descriptor(g, o.kind, ft) if g is not None else null_array(o.kind, ft) for g, o in zip(readable, outputs)
         ]
         launch(
-            fk[ft],
+            (fk or spec.fk)[ft],
             n,
             [*arrays, *fargs[n_in:]],
             out_arrays,
@@ -277,7 +275,7 @@ def warp_op(
     # without this, create_graph=True would seem to work and the second backward would fail with a
     # torch-internal "no autograd formula" error
     bwd.register_autograd(no_second_order, setup_context=lambda ctx, inputs, output: None)
-    _skip_lazy_dynamo_import(bwd)
+    skip_lazy_dynamo_import(bwd)
 
     def setup_context(ctx, inputs, output):
         ctx.save_for_backward(*inputs[:n_in])
@@ -294,6 +292,5 @@ def warp_op(
         return (*(g if ctx.needs_input_grad[k] else None for k, g in enumerate(in_grads)), *([None] * len(params)))
 
     fwd.register_autograd(autograd_backward, setup_context=setup_context)
-    fwd._gvnn_autograd = autograd_backward
-    fwd._gvnn_setup_context = setup_context
+    fwd._gvnn_autograd = (autograd_backward, setup_context)
     return fwd

@@ -1,4 +1,5 @@
-"""The one argument-checking helper used by every public function.
+"""The one argument-checking helper used by every public function (and :func:`flat`, which
+gives a checked argument the shape the ops take).
 
 ``ArgCheck("warp_frame_depth")`` binds symbolic dimensions across the arguments of one call, so
 ``chk.tensor("depth", depth, "B 1 H W")`` after ``chk.tensor("image", image, "B C H W")`` also
@@ -91,6 +92,12 @@ class ArgCheck:
             else:
                 self.dims[tok] = (size, name)
 
+    def pose(self, name: str, T, spec: str) -> torch.Tensor:
+        """Check a pose of shape ``spec`` (e.g. ``"B 3|4 4"``: (B, 3, 4) or (B, 4, 4)); returns its
+        top 3x4 block (a 4x4's last row is ignored)."""
+        self.tensor(name, T, spec)
+        return T[..., :3, :]
+
     def option(self, name: str, value, allowed: Sequence):
         """Check ``value`` is one of ``allowed``; returns it."""
         if value not in allowed:
@@ -116,3 +123,8 @@ class ArgCheck:
 
     def dim(self, name: str) -> int:
         return self.dims[name][0]
+
+
+def flat(t: torch.Tensor, inner: int) -> torch.Tensor:
+    """(..., *inner dims) -> contiguous (n, *inner dims): a checked argument as the ops take it."""
+    return t.reshape(-1, *t.shape[t.dim() - inner :]).contiguous()

@@ -1,13 +1,15 @@
 """Registration of the per-pixel and M-estimator Warp kernels as ``gvnn_warp::*`` custom ops.
 
-Same style as :mod:`._ops`: the ops take already-validated, contiguous tensors; the documented
-entry points are in :mod:`gvnn_warp.perpixel`.
+Same style as :mod:`.geometry`: the ops take already-validated, contiguous tensors; the documented
+entry points are in :mod:`gvnn_warp.functional.perpixel`. Each registration names the public
+function and layer it serves.
 """
 
 from __future__ import annotations
 
 from ..kernels.perpixel import kernels as k
-from .bridge import Output, Param, warp_op
+from .bridge import warp_op
+from .registry import Output, Param
 
 
 def _pixels(t, *_):
@@ -36,6 +38,8 @@ flow_warp = warp_op(
     _SAMPLE_PARAMS,
     [Output("out", "scalar", lambda img, *_: tuple(img.shape))],
     _pixels,
+    function="flow_warp",
+    layer="FlowWarp",
 )
 # image (B, C, H, W), disparity (B, 1, H, W) -> (B, C, H, W)
 disparity_warp = warp_op(
@@ -45,6 +49,8 @@ disparity_warp = warp_op(
     _SAMPLE_PARAMS,
     [Output("out", "scalar", lambda img, *_: tuple(img.shape))],
     _pixels,
+    function="disparity_warp",
+    layer="DisparityWarp",
 )
 # image (B, C, H, W), params (B, 6, H, W) -> (B, C, H, W)
 affine_flow_warp = warp_op(
@@ -54,12 +60,18 @@ affine_flow_warp = warp_op(
     _SAMPLE_PARAMS,
     [Output("out", "scalar", lambda img, *_: tuple(img.shape))],
     _pixels,
+    function="affine_flow_warp",
+    layer="AffineFlowWarp",
 )
 # params (B, 6 | 3 | 9, H, W) -> flow (B, 2, H, W)
 affine_flow = warp_op(
-    "affine_flow", k.affine_flow, ["params"], _FIELD_PARAMS, [Output("flow", "scalar", _field(2))], _pixels
+    "affine_flow", k.affine_flow, ["params"], _FIELD_PARAMS, [Output("flow", "scalar", _field(2))], _pixels,
+    function="affine_flow", layer="AffineFlow",
 )
-se2_flow = warp_op("se2_flow", k.se2_flow, ["params"], _FIELD_PARAMS, [Output("flow", "scalar", _field(2))], _pixels)
+se2_flow = warp_op(
+    "se2_flow", k.se2_flow, ["params"], _FIELD_PARAMS, [Output("flow", "scalar", _field(2))], _pixels,
+    function="se2_flow", layer="SE2Flow",
+)
 homography_flow = warp_op(
     "homography_flow",
     k.homography_flow,
@@ -67,6 +79,8 @@ homography_flow = warp_op(
     _FIELD_PARAMS,
     [Output("flow", "scalar", _field(2))],
     _pixels,
+    function="homography_flow",
+    layer="HomographyFlow",
 )
 # params (B, 3, H, W) -> disparity (B, 1, H, W)
 plane_disparity = warp_op(
@@ -76,10 +90,12 @@ plane_disparity = warp_op(
     _FIELD_PARAMS,
     [Output("disparity", "scalar", _field(1))],
     _pixels,
+    function="slanted_plane_disparity",
+    layer="SlantedPlaneDisparity",
 )
 
 
-def _points_op(name, fk):
+def _points_op(name, fk, layer):
     # points (B, H, W, 3), params (B, K, H, W) -> (B, H, W, 3)
     return warp_op(
         name,
@@ -88,12 +104,14 @@ def _points_op(name, fk):
         [Param("hw", "int")],
         [Output("out", "vec3", lambda pts, *_: tuple(pts.shape))],
         lambda pts, *_: pts.numel() // 3,
+        function=name,
+        layer=layer,
     )
 
 
-pointwise_se3 = _points_op("pointwise_se3", k.pointwise_se3)
-pointwise_sim3 = _points_op("pointwise_sim3", k.pointwise_sim3)
-pointwise_transform10 = _points_op("pointwise_transform10", k.pointwise_transform10)
+pointwise_se3 = _points_op("pointwise_se3", k.pointwise_se3, "PointwiseSE3")
+pointwise_sim3 = _points_op("pointwise_sim3", k.pointwise_sim3, "PointwiseSim3")
+pointwise_transform10 = _points_op("pointwise_transform10", k.pointwise_transform10, "PointwiseTransform10")
 
 # theta (B, 2, 3) -> grid (B, H, W, 2)
 affine_grid = warp_op(
@@ -103,6 +121,8 @@ affine_grid = warp_op(
     [Param("H", "int"), Param("W", "int"), Param("align_corners", "int")],
     [Output("grid", "vec2", lambda th, H, W, a: (th.shape[0], H, W, 2))],
     lambda th, H, W, a: th.shape[0] * H * W,
+    function="affine_grid",
+    layer="AffineGridGenerator",
 )
 
 # x (n,) -> (n,)
@@ -114,6 +134,8 @@ robust_rho = warp_op(
     _ROBUST_PARAMS,
     [Output("out", "scalar", lambda x, *_: tuple(x.shape))],
     _numel,
+    function="robust_rho",
+    layer="RobustLoss",
 )
 robust_psi = warp_op(
     "robust_psi",
@@ -122,6 +144,8 @@ robust_psi = warp_op(
     _ROBUST_PARAMS,
     [Output("out", "scalar", lambda x, *_: tuple(x.shape))],
     _numel,
+    function="robust_psi",
+    layer="no layer: the M-estimator's derivative (IRLS weights); RobustLoss covers rho",
 )
 # field (B, K, H, W) -> per-element weighted penalties (B, K, H, W); their sum is the loss
 smoothness = warp_op(
@@ -137,23 +161,6 @@ smoothness = warp_op(
     ],
     [Output("out", "scalar", lambda f, *_: tuple(f.shape))],
     _numel,
+    function="smoothness_loss",
+    layer="SmoothnessLoss",
 )
-
-# op -> (its public function in gvnn_warp, its nn.Module layer in gvnn_warp or why there is none);
-# tests/test_ops_registry.py checks every registered op is here, exported and documented
-PUBLIC = {
-    "flow_warp": ("flow_warp", "FlowWarp"),
-    "disparity_warp": ("disparity_warp", "DisparityWarp"),
-    "affine_flow_warp": ("affine_flow_warp", "AffineFlowWarp"),
-    "affine_flow": ("affine_flow", "AffineFlow"),
-    "se2_flow": ("se2_flow", "SE2Flow"),
-    "homography_flow": ("homography_flow", "HomographyFlow"),
-    "plane_disparity": ("slanted_plane_disparity", "SlantedPlaneDisparity"),
-    "pointwise_se3": ("pointwise_se3", "PointwiseSE3"),
-    "pointwise_sim3": ("pointwise_sim3", "PointwiseSim3"),
-    "pointwise_transform10": ("pointwise_transform10", "PointwiseTransform10"),
-    "affine_grid": ("affine_grid", "AffineGridGenerator"),
-    "robust_rho": ("robust_rho", "RobustLoss"),
-    "robust_psi": ("robust_psi", "no layer: the M-estimator's derivative (IRLS weights); RobustLoss covers rho"),
-    "smoothness": ("smoothness_loss", "SmoothnessLoss"),
-}

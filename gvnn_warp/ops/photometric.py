@@ -1,11 +1,16 @@
-"""Registration of the fused photometric objective's Warp kernels as ``gvnn_warp::*`` custom ops.
+"""The fused photometric objective's ops, registered as ``gvnn_warp::*`` custom ops (see
+:mod:`.bridge`): the row kernels and their mean (pinhole and through a lens model), and the
+hand-written ops of the fast path (:func:`photometric_error`, with the gradients computed in its
+forward pass) and of the Gauss-Newton normal equations (recorded launches, replayed per call).
 
-Same style as :mod:`._ops`: the ops take already-validated, contiguous tensors; the documented
-entry points are in :mod:`gvnn_warp.photometric`.
+The ops take already-validated, contiguous tensors; the documented entry points are in
+:mod:`gvnn_warp.functional.photometric`. Each registration names the public function and layer
+it serves.
 """
 
 from __future__ import annotations
 
+import functools
 import threading
 
 import torch
@@ -13,9 +18,12 @@ import torch
 from ..kernels.core.launch import RecordedLaunch, get_num_threads, launch
 from ..kernels.photometric import error as pek
 from ..kernels.photometric import normal_equations as pk
-from .bridge import _FLOAT_TYPES, Output, Param, _descriptor, _null, _skip_lazy_dynamo_import, warp_op
+from .bridge import FLOAT_TYPES, descriptor, null_array, warp_op
+from .registry import Output, Param, custom_op, define_op, lazy_ops
 
-wp_float64 = _FLOAT_TYPES[torch.float64]
+wp_float64 = FLOAT_TYPES[torch.float64]
+_LOSS = {"function": "photometric_error", "layer": "PhotometricLoss"}
+_NOT_DIFFERENTIABLE = "no layer: not differentiable (a Gauss-Newton system for a pose update)"
 
 # images (B, C, H, W), depth (B, 1, H, W), pose (B, 3, 4), K (B, 3, 3) -> per-row partial sums:
 # row_sum (B*H,) (differentiable), row_count (B*H,)
@@ -30,6 +38,35 @@ photometric_rows = warp_op(
         Output("row_count", "scalar", lambda img, d, *_: (d.shape[0] * d.shape[2],), differentiable=False),
     ],
     lambda img, d, *_: d.shape[0] * d.shape[2],
+    **_LOSS,
+)
+
+
+def _lens_kernels():
+    # (imported on first launch: defining the lens kernels takes seconds, which pinhole users never pay;
+    # the lead points the makers that use it at kernels.photometric's photometric_rows_lens and
+    # normal_equations_rows_lens)
+    from ..kernels.photometric import lens_kernels
+
+    return lens_kernels
+
+
+# photometric_rows through a distorted lens: + dist (B, 8), rays (Bc*H*W, 3) (ray_stride H*W, or 0: shared);
+# its kernel made on the first launch, its torch op defined on first use (see gvnn_warp.ops.lens)
+warp_op(
+    "photometric_rows_lens",
+    lambda: _lens_kernels().photometric_rows_lens,
+    ["ref_image", "ref_depth", "live_image", "pose", "K", "dist", "rays"],
+    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("kind", "int"), Param("scale", "float"),
+     Param("min_depth", "float"), Param("model", "int"), Param("ray_stride", "int")],
+    [
+        Output("row_sum", "scalar", lambda img, d, *_: (d.shape[0] * d.shape[2],)),
+        Output("row_count", "scalar", lambda img, d, *_: (d.shape[0] * d.shape[2],), differentiable=False),
+    ],
+    lambda img, d, *_: d.shape[0] * d.shape[2],
+    array_kinds={"ref_image": "scalar", "ref_depth": "scalar", "live_image": "scalar", "pose": "mat34", "K": "mat33",
+                 "dist": "vec8", "rays": "vec3"},
+    lazy=True, **_LOSS,
 )
 
 # row_sum (B*H,), row_count (B*H,) -> error (B,) (differentiable), count (B,)
@@ -43,14 +80,8 @@ photometric_mean = warp_op(
         Output("count", "scalar", lambda s, n, H, C: (s.shape[0] // H,), differentiable=False),
     ],
     lambda s, n, H, C: s.shape[0] // H,
+    **_LOSS,
 )
-
-# op -> (its public function in gvnn_warp, its layer); tests/test_ops_registry.py checks them
-PUBLIC = {
-    "photometric_rows": ("photometric_error", "PhotometricLoss"),
-    "photometric_rows_lens": ("photometric_error", "PhotometricLoss"),
-    "photometric_mean": ("photometric_error", "PhotometricLoss"),
-}
 
 
 def _ne_shapes(ref_image):
@@ -86,24 +117,24 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
     ``scalars``, then the float64 row sums (B*H*ROW_STRIDE,) and, with ``acc``, 8-lane scratch of
     the same length) and the reduction into ``outs`` (JtWJ, JtWr, cost, count)."""
     B, C, H, W = ref_image.shape
-    ft = _FLOAT_TYPES[ref_image.dtype]
+    ft = FLOAT_TYPES[ref_image.dtype]
     # (the kernel is the float type's overload; C, H and W are among the scalars)
     key = (rows_kernel, B, *(t.numel() for t, _ in arrays), *scalars, get_num_threads())
     # the inputs' addresses (None: not contiguous, a copy each call)
     pointers = [t.data_ptr() if t.is_contiguous() else None for t, _ in arrays]
-    out_d = [_descriptor(o, "scalar", ft) for o in outs]
+    out_d = [descriptor(o, "scalar", ft) for o in outs]
     entries = _RECORDED.entries
     entry = entries.pop(key, None)
     if entry is None:
         rows = torch.empty(B * H * pk.ROW_STRIDE, dtype=torch.float64)
         scratch = [rows]
-        rows_d = _descriptor(rows, "scalar", wp_float64)
+        rows_d = descriptor(rows, "scalar", wp_float64)
         extra = [rows_d]
         if acc:  # the row kernel's 8-lane running sums
             scratch.append(torch.empty(B * H * pk.ROW_STRIDE * 8, dtype=ref_image.dtype))
-            extra.append(_descriptor(scratch[-1], "vec8", ft))
+            extra.append(descriptor(scratch[-1], "vec8", ft))
         # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
-        inputs = [_descriptor(t, kind, ft) for t, kind in arrays]
+        inputs = [descriptor(t, kind, ft) for t, kind in arrays]
         entry = (scratch, RecordedLaunch(rows_kernel, B * H, [*inputs, *scalars, *extra], work=W,
                                          grain=pk._GRAIN_PIXELS),
                  RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d],
@@ -115,7 +146,7 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
         _, rows_launch, reduce_launch, last = entry
         for i, (t, kind) in enumerate(arrays):  # (in a Gauss-Newton loop, only the pose changes)
             if pointers[i] is None or pointers[i] != last[i]:
-                rows_launch.set_arg(i, _descriptor(t, kind, ft))
+                rows_launch.set_arg(i, descriptor(t, kind, ft))
                 last[i] = pointers[i]
         for i, d in enumerate(out_d):
             reduce_launch.set_arg(2 + i, d)
@@ -129,8 +160,7 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
         entries[key] = entry
 
 
-@torch.library.custom_op("gvnn_warp::photometric_normal_equations", mutates_args=())
-def photometric_normal_equations(
+def _normal_equations(
     ref_image: torch.Tensor,
     ref_depth: torch.Tensor,
     live_image: torch.Tensor,
@@ -152,21 +182,31 @@ def photometric_normal_equations(
         return tuple(outs)
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [(pose, "mat34"), (K, "mat33")]
-    _run_normal_equations(pk.normal_equations_lanes_for(int(depth_term), C, kind, W)[_FLOAT_TYPES[ref_image.dtype]],
+    _run_normal_equations(pk.normal_equations_lanes_for(int(depth_term), C, kind, W)[FLOAT_TYPES[ref_image.dtype]],
                           ref_image, arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
     return tuple(outs)
 
 
-@photometric_normal_equations.register_fake
-def _(ref_image, ref_depth, live_image, live_depth, pose, K, kind, scale, min_depth, depth_weight):
+def _normal_equations_fake(ref_image, *_):
     return tuple(torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image))
 
 
-_skip_lazy_dynamo_import(photometric_normal_equations)
+_RECORDED_SPLIT = ("launches through RecordedLaunch, which replays its own recorded split (tests/test_photometric.py "
+                   "checks its results for any thread count)")
+photometric_normal_equations = custom_op(
+    "photometric_normal_equations", _normal_equations, _normal_equations_fake,
+    function="photometric_normal_equations", layer=_NOT_DIFFERENTIABLE, untested={"scopes": _RECORDED_SPLIT},
+)
 
 
-@torch.library.custom_op("gvnn_warp::photometric_normal_equations_lens", mutates_args=())
-def photometric_normal_equations_lens(
+@functools.cache
+def _normal_equations_rows_lens(depth_term: int):
+    """The row kernel of the normal equations through a lens, with or without the depth term (the
+    lead points it at kernels.photometric's maker normal_equations_rows_lens(depth, occlusion))."""
+    return _lens_kernels().normal_equations_rows_lens[depth_term]
+
+
+def _normal_equations_lens(
     ref_image: torch.Tensor,
     ref_depth: torch.Tensor,
     live_image: torch.Tensor,
@@ -190,24 +230,20 @@ def photometric_normal_equations_lens(
         for o in outs:
             o.zero_()
         return tuple(outs)
-    from ..kernels.photometric import lens_kernels as plk  # (on first use: see gvnn_warp._lens_ops)
-
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [
         (pose, "mat34"), (K, "mat33"), (dist, "vec8"), (rays, "vec3")]
-    _run_normal_equations(plk.normal_equations_rows_lens[int(depth_term)][_FLOAT_TYPES[ref_image.dtype]], ref_image,
+    _run_normal_equations(_normal_equations_rows_lens(int(depth_term))[FLOAT_TYPES[ref_image.dtype]], ref_image,
                           arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride], outs,
                           acc=False)
     return tuple(outs)
 
 
-@photometric_normal_equations_lens.register_fake
-def _(ref_image, ref_depth, live_image, live_depth, pose, K, dist, rays, kind, scale, min_depth, depth_weight, model,
-      ray_stride):
-    return tuple(torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image))
-
-
-_skip_lazy_dynamo_import(photometric_normal_equations_lens)
+# its kernel made on the first call, its torch op defined on first use (see gvnn_warp.ops.lens)
+custom_op(
+    "photometric_normal_equations_lens", _normal_equations_lens, _normal_equations_fake, lazy=True,
+    function="photometric_normal_equations", layer=_NOT_DIFFERENTIABLE, untested={"scopes": _RECORDED_SPLIT},
+)
 
 
 # ----------------------------------------------------------------------------- photometric_error, fast path
@@ -234,8 +270,7 @@ def _error_shapes(ref_image, needs):
     ]
 
 
-@torch.library.custom_op("gvnn_warp::photometric_error", mutates_args=())
-def photometric_error(
+def _error(
     ref_image: torch.Tensor,
     ref_depth: torch.Tensor,
     live_image: torch.Tensor,
@@ -251,44 +286,39 @@ def photometric_error(
     (B, C, H, W), dS/d ref_depth (B, 1, H, W), dS/d pose (B, 3, 4) and dS/d K (B, 3, 3) (the last two
     whenever any of the four is wanted)."""
     B, C, H, W = ref_image.shape
-    ft = _FLOAT_TYPES[ref_image.dtype]
+    ft = FLOAT_TYPES[ref_image.dtype]
     # every entry of the gradient buffers is written by the kernels: no zero-fill
     outs = [torch.empty(s, dtype=ref_image.dtype) for s in _error_shapes(ref_image, needs)]
     if B == 0:
         return tuple(outs)
     grad = int(needs & _NEED_FUSED != 0)
     rows = torch.empty(B * H * pek.ROW_SLOTS, dtype=torch.float64)
-    rows_d = _descriptor(rows, "scalar", wp_float64)
+    rows_d = descriptor(rows, "scalar", wp_float64)
     if H * W > 0:
-        arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
-            _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
+        arrays = [descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
+            descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft)]
         acc = torch.empty(B * H * pek.ACC_SLOTS * 8, dtype=ref_image.dtype)  # the rows' running sums
         launch(pek.error_lanes(kind, C, W)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth, grad],
-               [rows_d, _descriptor(acc, "vec8", ft), _descriptor(outs[2], "scalar", ft),
-                _descriptor(outs[3], "scalar", ft)])
+               [rows_d, descriptor(acc, "vec8", ft), descriptor(outs[2], "scalar", ft),
+                descriptor(outs[3], "scalar", ft)])
     else:
         rows.zero_()
-    launch(pek.error_reduce[ft], B, [rows_d, _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft), H, C, grad],
-           [_descriptor(o, "scalar", ft) for o in (outs[0], outs[1], outs[4], outs[5])])
+    launch(pek.error_reduce[ft], B, [rows_d, descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft), H, C, grad],
+           [descriptor(o, "scalar", ft) for o in (outs[0], outs[1], outs[4], outs[5])])
     return tuple(outs)
 
 
-@photometric_error.register_fake
-def _(ref_image, ref_depth, live_image, pose, K, kind, scale, min_depth, needs):
+def _error_fake(ref_image, ref_depth, live_image, pose, K, kind, scale, min_depth, needs):
     return tuple(torch.empty(s, dtype=ref_image.dtype) for s in _error_shapes(ref_image, needs))
-
-
-_skip_lazy_dynamo_import(photometric_error)
 
 
 def _views8(t: torch.Tensor, ft) -> list:
     """A contiguous tensor's scalar and length-8 vector descriptors (what :data:`.scale_segments`
     reads and writes through); keep ``t`` alive while they are used."""
-    return [_descriptor(t, "scalar", ft), _descriptor(t, "vec8", ft)]
+    return [descriptor(t, "scalar", ft), descriptor(t, "vec8", ft)]
 
 
-@torch.library.custom_op("gvnn_warp::photometric_error_backward", mutates_args=())
-def photometric_error_backward(
+def _error_backward_impl(
     grad_error: torch.Tensor,
     count: torch.Tensor,
     g_ref: torch.Tensor,
@@ -309,10 +339,10 @@ def photometric_error_backward(
     empty): the forward's dS/d x scaled by grad_error_b / (C count_b); the live image's by the
     Warp adjoint of photometric_rows."""
     B, C, H, W = ref_image.shape
-    ft = _FLOAT_TYPES[ref_image.dtype]
+    ft = FLOAT_TYPES[ref_image.dtype]
     grad_error = grad_error.contiguous()
-    ge = _descriptor(grad_error, "scalar", ft)
-    n_d = _descriptor(count, "scalar", ft)
+    ge = descriptor(grad_error, "scalar", ft)
+    n_d = descriptor(count, "scalar", ft)
     out = []
     for k, (src, like) in enumerate(zip((g_ref, g_depth, None, g_pose, g_K), (ref_image, ref_depth, live_image, pose,
                                                                              K))):
@@ -335,23 +365,20 @@ def photometric_error_backward(
         launch(pek.scale_segments[ft], pek.scale_segments_dim(B * H),
                [*_views8(ones, ft), ge, n_d, H, B * H, C], _views8(adj_rows, ft))
         scratch = [torch.empty(B * H, dtype=ref_image.dtype) for _ in range(2)]
-        arrays = [_descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
-            _descriptor(pose, "mat34", ft), _descriptor(K, "mat33", ft)]
+        arrays = [descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
+            descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft)]
         params = [C, H, W, kind, scale, min_depth]
-        null_s, null_34, null_33 = _null("scalar", ft), _null("mat34", ft), _null("mat33", ft)
-        launch(pk.photometric_rows[ft], B * H, [*arrays, *params], [_descriptor(s, "scalar", ft) for s in scratch],
-               adjoint=True, adj_inputs=[null_s, null_s, _descriptor(out[2], "scalar", ft), null_34, null_33, *params],
-               adj_outputs=[_descriptor(adj_rows, "scalar", ft), null_s])
+        null_s, null_34, null_33 = null_array("scalar", ft), null_array("mat34", ft), null_array("mat33", ft)
+        launch(pk.photometric_rows[ft], B * H, [*arrays, *params], [descriptor(s, "scalar", ft) for s in scratch],
+               adjoint=True, adj_inputs=[null_s, null_s, descriptor(out[2], "scalar", ft), null_34, null_33, *params],
+               adj_outputs=[descriptor(adj_rows, "scalar", ft), null_s])
     return out
 
 
-@photometric_error_backward.register_fake
-def _(grad_error, count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live_image, pose, K, kind, scale,
-      min_depth, needs):
+def _error_backward_fake(grad_error, count, g_ref, g_depth, g_pose, g_K, ref_image, ref_depth, live_image, pose, K,
+                         kind, scale, min_depth, needs):
     return [t.new_empty(t.shape if needs >> k & 1 else (0,)) for k, t in
             enumerate((ref_image, ref_depth, live_image, pose, K))]
-
-
 
 
 def _no_second_order(ctx, *grads):
@@ -361,8 +388,9 @@ def _no_second_order(ctx, *grads):
     )
 
 
-photometric_error_backward.register_autograd(_no_second_order, setup_context=lambda ctx, inputs, output: None)
-_skip_lazy_dynamo_import(photometric_error_backward)
+# the backward op of photometric_error (part of its registration, not an op of its own in OPS)
+photometric_error_backward = define_op("photometric_error_backward", _error_backward_impl, _error_backward_fake,
+                                       autograd=(_no_second_order, lambda ctx, inputs, output: None))
 
 
 def _error_setup_context(ctx, inputs, output):
@@ -391,4 +419,8 @@ def _error_backward(ctx, grad_error, *unused):
     return (*(g if ctx.needs_input_grad[k] else None for k, g in enumerate(grads)), None, None, None, None)
 
 
-photometric_error.register_autograd(_error_backward, setup_context=_error_setup_context)
+photometric_error = custom_op(
+    "photometric_error", _error, _error_fake, autograd=(_error_backward, _error_setup_context), **_LOSS,
+)
+
+__getattr__ = lazy_ops(__name__)  # (the ops registered with lazy=True)
