@@ -1,7 +1,9 @@
 """Readers and writers of RGB-D sequence formats (numpy and Pillow only; never imports torch or Warp).
 
 - :mod:`gvnn_warp.datasets.tum`: TUM RGB-D / ICL-NUIM folders (``rgb.txt``, ``depth.txt``,
-  ``groundtruth.txt``) and TUM trajectory files.
+  ``groundtruth.txt``) and TUM trajectory files; its parts: :mod:`.trajectory` (trajectory files,
+  quaternions, timestamp association and interpolation), :mod:`.intrinsics` (presets,
+  ``intrinsics.txt``), :mod:`.images` (colour and depth PNGs), :mod:`.errors` (:class:`DatasetError`).
 """
 
 from .tum import (

@@ -62,22 +62,17 @@ Import needs no torch; torch is imported only when a tensor comes in.
 
 from __future__ import annotations
 
-import functools
 import math
-import numbers
 import weakref
-from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
 from ..kernels import pyramid as _pyramid
-from ..kernels.core import compat as _compat
-from ..kernels.core import launch as _launch
-from ..kernels.geometry import lens as _lens
 from ..kernels.geometry.camera import MIN_DEPTH
-from ..kernels.photometric import lm as _lm
-from ..kernels.photometric import normal_equations as _pk
+from .frame import Frame, PyramidBuffers, recycle
+from .inputs import as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
+from .solver import LMState
 
 __all__ = ["DirectAligner", "Frame"]
 
@@ -85,181 +80,7 @@ _LUMA = (0.299, 0.587, 0.114)
 _ROBUST = ("huber", "cauchy", "geman_mcclure", "tukey", "l2")
 _MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
 _AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
-_MIN_VALID_PIXELS = 24  # below this a level's system is not trusted, whatever the fraction
-_LAMBDA_MAX = 1e8
-_RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)
 _OCCLUSION_LEVELS = 2  # the occlusion test runs at the finest this many levels (see DirectAligner's 'occlusion')
-_POOL_SIZE = 4  # pyramids of dropped frames kept per frame size for reuse
-_GRAIN = 32768  # pyramid launches split over threads in pieces of at least this many pixels
-_SYSTEM_CACHE = 64  # normal-equation outputs (with recorded launches) kept per batch size and frame size
-
-
-def _fail(fn: str, exc: type[Exception], msg: str):
-    raise exc(f"gvnn_warp.odometry.{fn}: {msg}")
-
-
-def _real(v) -> float:
-    """``v`` as a float if it is a real number (Python, numpy, or a one-element numpy array or torch
-    tensor), else NaN (which every range check refuses)."""
-    if (isinstance(v, np.ndarray) and v.size == 1) or (hasattr(v, "numel") and callable(v.numel) and v.numel() == 1):
-        v = v.item()
-    return float(v) if isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) else math.nan
-
-
-def _lens_camera(fn: str, K, model, dist):
-    """(K (3, 3) float64, model name, packed dist (8,) float64 or None for the pinhole) from K and
-    the ``model`` / ``dist`` arguments, or from a camera of ``gvnn_warp.cameras``."""
-    if hasattr(K, "model") and hasattr(K, "K") and hasattr(K, "dist") and not isinstance(K, np.ndarray):
-        if model is not None or dist is not None:
-            _fail(fn, ValueError, "arguments 'model' and 'dist' must not be given with a camera object")
-        cam = K
-        if cam.K.dim() != 2 or (cam.dist is not None and cam.dist.dim() != 1):
-            _fail(fn, ValueError, "argument 'K' must be an unbatched camera (K (3, 3), dist (n,))")
-        model = {v: k for k, v in _lens.MODEL_IDS.items()}[int(cam.model)]
-        K, dist = cam.K, cam.dist
-    K = _as_numpy(fn, "K", K, (2,)).astype(np.float64)
-    if model is None:
-        model = "pinhole" if dist is None else "radtan"
-    if model not in _lens.MODEL_IDS:
-        _fail(fn, ValueError, f"argument 'model' must be one of {list(_lens.MODEL_IDS)}, got {model!r}")
-    mid = _lens.MODEL_IDS[model]
-    if mid == _lens.PINHOLE:
-        if dist is not None:
-            _fail(fn, ValueError, "argument 'dist' must be None for the pinhole model")
-        return K, model, None
-    n = _lens.N_COEFFS[mid]
-    if isinstance(dist, (list, tuple)):
-        dist = np.asarray(dist, dtype=np.float64)
-    coeffs = None if dist is None else _as_numpy(fn, "dist", dist, (1,)).astype(np.float64)
-    if coeffs is None or coeffs.shape != (n,) or not np.all(np.isfinite(coeffs)):
-        got = None if coeffs is None else coeffs.tolist()
-        _fail(fn, ValueError, f"argument 'dist' must be {n} finite coefficients for the {model} model, got {got}")
-    return K, model, _lens.pack_dist(mid, coeffs)
-
-
-def _is_torch(x) -> bool:
-    return type(x).__module__.split(".")[0] == "torch"
-
-
-def _as_numpy(fn: str, name: str, x, ndims: tuple[int, ...]) -> np.ndarray:
-    """numpy float32/float64 view of a numpy array or CPU torch tensor with one of ``ndims``."""
-    if _is_torch(x):
-        import torch
-
-        if not isinstance(x, torch.Tensor):
-            _fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
-        if x.device.type != "cpu":
-            _fail(fn, ValueError, f"argument '{name}' must be on the CPU, got device {x.device}")
-        if x.dtype not in (torch.float32, torch.float64):
-            _fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
-        x = x.detach().numpy()
-    elif not isinstance(x, np.ndarray):
-        _fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
-    elif x.dtype not in (np.float32, np.float64):
-        _fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
-    if x.ndim not in ndims:
-        want = " or ".join(f"{d}-D" for d in ndims)
-        _fail(fn, ValueError, f"argument '{name}' must be {want}, got shape {tuple(x.shape)}")
-    return x
-
-
-@dataclass(eq=False)
-class Frame:
-    """One RGB-D frame (or a batch of B frames) prepared for alignment by :meth:`DirectAligner.prepare`.
-
-    Attributes:
-        images: per level (fine to coarse) a ``wp.array`` (B, C', H_l, W_l) float32 (C' = 1 unless
-            the aligner keeps colour).
-        depths: per level a ``wp.array`` (B, 1, H_l, W_l) float32 (0 = no depth), or None for a
-            frame given without depth (usable only as the live frame of a pair).
-        batched: whether the input had a batch dimension.
-        torch: whether the input was a torch tensor (results come back as torch tensors).
-    """
-
-    images: list
-    depths: list | None
-    batched: bool
-    torch: bool
-    _mean_depth: np.ndarray | None = field(default=None, repr=False)
-
-    @property
-    def batch(self) -> int:
-        return int(self.images[0].shape[0])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(H, W) of the finest level."""
-        return int(self.images[0].shape[2]), int(self.images[0].shape[3])
-
-    def mean_depth(self) -> np.ndarray:
-        """(B,) mean valid depth of the coarsest level (1 where there is none)."""
-        if self._mean_depth is None:
-            d = self.depths[-1].numpy().reshape(self.batch, -1)
-            n = (d > 0).sum(1)
-            self._mean_depth = np.where(n > 0, d.sum(1, dtype=np.float64) / np.maximum(n, 1), 1.0)
-        return self._mean_depth
-
-
-def _recycle(pool: list, pyramid: _Pyramid) -> None:
-    if len(pool) < _POOL_SIZE:
-        pool.append(pyramid)
-
-
-def _out_view(a: wp.array, lanes: bool) -> wp.array:
-    """A flat view of an output buffer: float32 scalars, or vec8 (8 consecutive pixels) for the
-    8-lane kernels (an empty one for a missing or empty buffer)."""
-    if lanes and a.size > 0:
-        return wp.array(ptr=a.ptr, dtype=_launch.vec8f, shape=(a.size // 8,), device="cpu")
-    if lanes:
-        return wp.empty(0, dtype=_launch.vec8f, device="cpu")
-    return a.flatten()
-
-
-class _Pyramid:
-    """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
-    once (a recorded launch replays in a few microseconds); reused through the aligner's pool."""
-
-    def __init__(self, aligner: DirectAligner, B: int, C: int, H: int, W: int, with_depth: bool):
-        Co = C if aligner.color else 1
-        self.key = (B, C, H, W, with_depth)
-        self.shapes = _pyramid.pyramid_shapes(H, W, aligner._levels_for(H, W))
-        self.images = [wp.empty((B, Co, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes]
-        self.depths = [wp.empty((B, 1, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes] if with_depth \
-            else None
-        empty = wp.empty(0, dtype=wp.float32, device="cpu")
-        depths = self.depths or [empty] * len(self.shapes)
-        f32 = wp.float32
-        self.weights = aligner._channel_weights(C)
-        # the 8-lane kernels where the rows are whole vectors (one output channel for the base level)
-        lanes0 = self.lanes0 = Co == 1 and W % 8 == 0
-        self.level0 = _launch.RecordedLaunch(
-            _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
-            [empty, self.weights.flatten(), empty, *([_out_view(empty, True)] if lanes0 else []), H, W,
-             int(with_depth), aligner.depth_tolerance],
-            [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
-        )
-        self.down = []
-        for k in range(1, len(self.shapes)):
-            (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]
-            lanes = wo % 8 == 0
-            self.down.append(_launch.RecordedLaunch(
-                (_pyramid.downsample_lanes_kernel(Co) if lanes else _pyramid.downsample_kernel(Co))[f32], B * ho,
-                [self.images[k - 1].flatten(), depths[k - 1].flatten() if with_depth else empty,
-                 h, w, ho, wo, aligner.depth_tolerance, int(with_depth)],
-                [_out_view(self.images[k], lanes), _out_view(depths[k], lanes)], work=wo,
-                grain=_GRAIN,
-            ))
-
-    def fill(self, image: np.ndarray, depth: np.ndarray | None) -> None:
-        self.level0.set_arg(0, wp.array(image.reshape(-1), dtype=wp.float32, device="cpu", copy=False))
-        if depth is not None:
-            d = wp.array(depth.reshape(-1), dtype=wp.float32, device="cpu", copy=False)
-            self.level0.set_arg(2, d)
-            if self.lanes0:  # the 8-lane kernel also reads the depth as vec8
-                self.level0.set_arg(3, _out_view(d, True))
-        self.level0()
-        for run in self.down:
-            run()
 
 
 class DirectAligner:
@@ -356,12 +177,12 @@ class DirectAligner:
         dist=None,
     ):
         fn = "DirectAligner"
-        K, self.model, self.dist = _lens_camera(fn, K, model, dist)
+        K, self.model, self.dist = lens_camera(fn, K, model, dist)
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-            _fail(fn, ValueError, f"argument 'K' must be finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
+            fail(fn, ValueError, f"argument 'K' must be finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
         self.K = K
         if levels is not None and (not isinstance(levels, (int, np.integer)) or isinstance(levels, bool) or levels < 1):
-            _fail(fn, ValueError, f"argument 'levels' must be None or an int >= 1, got {levels!r}")
+            fail(fn, ValueError, f"argument 'levels' must be None or an int >= 1, got {levels!r}")
         self.levels = None if levels is None else int(levels)
         if isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool):
             iterations = (int(iterations),)
@@ -370,42 +191,42 @@ class DirectAligner:
                 raise TypeError
             iterations = tuple(int(i) for i in iterations)
         except (TypeError, ValueError):
-            _fail(fn, TypeError, f"argument 'iterations' must be an int or a sequence of ints, got {iterations!r}")
+            fail(fn, TypeError, f"argument 'iterations' must be an int or a sequence of ints, got {iterations!r}")
         if not iterations or min(iterations) < 0:
-            _fail(fn, ValueError, f"argument 'iterations' must be >= 0, got {iterations!r}")
+            fail(fn, ValueError, f"argument 'iterations' must be >= 0, got {iterations!r}")
         self.iterations = iterations  # level l uses iterations[min(l, len - 1)]
         if robust not in _ROBUST:
-            _fail(fn, ValueError, f"argument 'robust' must be one of {list(_ROBUST)}, got {robust!r}")
+            fail(fn, ValueError, f"argument 'robust' must be one of {list(_ROBUST)}, got {robust!r}")
         self.robust = robust
         for name, v, lo in (("scale", scale, 0.0), ("min_depth", min_depth, 0.0), ("tolerance", tolerance, 0.0),
                             ("lm_up", lm_up, 1.0)):
-            if not lo < _real(v) < math.inf:
-                _fail(fn, ValueError, f"argument '{name}' must be a finite number > {lo}, got {v!r}")
+            if not lo < real_number(v) < math.inf:
+                fail(fn, ValueError, f"argument '{name}' must be a finite number > {lo}, got {v!r}")
         for name, v in (("depth_weight", depth_weight), ("occlusion", occlusion), ("lm_lambda", lm_lambda),
                         ("depth_tolerance", depth_tolerance), ("take_step", take_step),
                         ("min_decrease", min_decrease)):
-            if not 0.0 <= _real(v) < math.inf:
-                _fail(fn, ValueError, f"argument '{name}' must be a finite number >= 0, got {v!r}")
-        if not 0.0 < _real(lm_down) <= 1.0:
-            _fail(fn, ValueError, f"argument 'lm_down' must be in (0, 1], got {lm_down!r}")
-        if not 0.0 <= _real(min_valid_fraction) <= 1.0:
-            _fail(fn, ValueError, f"argument 'min_valid_fraction' must be in [0, 1], got {min_valid_fraction!r}")
-        self.scale = _real(scale)
-        self.depth_weight = _real(depth_weight)
-        self.occlusion = _real(occlusion)
-        self.min_depth = _real(min_depth)
+            if not 0.0 <= real_number(v) < math.inf:
+                fail(fn, ValueError, f"argument '{name}' must be a finite number >= 0, got {v!r}")
+        if not 0.0 < real_number(lm_down) <= 1.0:
+            fail(fn, ValueError, f"argument 'lm_down' must be in (0, 1], got {lm_down!r}")
+        if not 0.0 <= real_number(min_valid_fraction) <= 1.0:
+            fail(fn, ValueError, f"argument 'min_valid_fraction' must be in [0, 1], got {min_valid_fraction!r}")
+        self.scale = real_number(scale)
+        self.depth_weight = real_number(depth_weight)
+        self.occlusion = real_number(occlusion)
+        self.min_depth = real_number(min_depth)
         self.color = bool(color)
-        self.tolerance = _real(tolerance)
-        self.min_decrease = _real(min_decrease)
-        self.take_step = _real(take_step)
-        self.lm_lambda = _real(lm_lambda)
-        self.lm_up = _real(lm_up)
-        self.lm_down = _real(lm_down)
-        self.min_valid_fraction = _real(min_valid_fraction)
-        self.depth_tolerance = _real(depth_tolerance)
+        self.tolerance = real_number(tolerance)
+        self.min_decrease = real_number(min_decrease)
+        self.take_step = real_number(take_step)
+        self.lm_lambda = real_number(lm_lambda)
+        self.lm_up = real_number(lm_up)
+        self.lm_down = real_number(lm_down)
+        self.min_valid_fraction = real_number(min_valid_fraction)
+        self.depth_tolerance = real_number(depth_tolerance)
         self._weights: dict[int, wp.array] = {}
-        self._states: dict[tuple, _State] = {}  # per (B, level shapes)
-        self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free _Pyramid buffers
+        self._states: dict[tuple, LMState] = {}  # per (B, level shapes)
+        self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free PyramidBuffers
 
     # ------------------------------------------------------------------------------ pyramids
 
@@ -438,41 +259,43 @@ class DirectAligner:
         return self._prepare("prepare", "image", "depth", image, depth)
 
     def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth, use_depth: bool = True) -> Frame:
-        torch_in = _is_torch(image)
-        img = _as_numpy(fn, image_name, image, (3, 4))
+        torch_in = is_torch(image)
+        img = as_numpy(fn, image_name, image, (3, 4))
         batched = img.ndim == 4
         if not batched:
             img = img[None]
         B, C, H, W = img.shape
         if B < 1 or C < 1 or H < 1 or W < 1:
-            _fail(fn, ValueError, f"argument '{image_name}' must have no empty dimension, got shape {img.shape}")
+            fail(fn, ValueError, f"argument '{image_name}' must have no empty dimension, got shape {img.shape}")
         if B * C * H * W >= 2**31:
-            _fail(fn, ValueError, f"argument '{image_name}' is too large for int32 indexing: shape {img.shape}")
+            fail(fn, ValueError, f"argument '{image_name}' is too large for int32 indexing: shape {img.shape}")
         hint = ""  # for shapes refused below that look like (H, W, C), as image libraries load images
         if W in (1, 3, 4) and C > 4:
             hint = (f", which looks channel-last {'(B, H, W, C)' if batched else '(H, W, C)'}: images are "
                     f"{'(B, C, H, W)' if batched else '(C, H, W)'} (numpy: transpose, torch: permute)")
         if H < _MIN_SIDE or W < _MIN_SIDE:
-            _fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
+            fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
                   f"got shape {tuple(np.shape(image))}{hint}")
         if depth is not None:
-            d = _as_numpy(fn, depth_name, depth, (4,) if batched else (3,))
+            d = as_numpy(fn, depth_name, depth, (4,) if batched else (3,))
             if not batched:
                 d = d[None]
             if d.shape != (B, 1, H, W):
                 want = (B, 1, H, W) if batched else (1, H, W)
                 also = f"; argument '{image_name}' has shape {tuple(np.shape(image))}{hint}" if hint else ""
-                _fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}{also}")
+                fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}{also}")
         if not use_depth:
             depth = None  # checked, but not needed
         key = (B, C, H, W, depth is not None)
         pool = self._frame_pool.setdefault(key, [])
-        pyr = pool.pop() if pool else _Pyramid(self, B, C, H, W, depth is not None)
+        pyr = pool.pop() if pool else PyramidBuffers(B, C, H, W, depth is not None, levels=self._levels_for(H, W),
+                                                     weights=self._channel_weights(C), color=self.color,
+                                                     depth_tolerance=self.depth_tolerance)
         pyr.fill(np.ascontiguousarray(img, dtype=np.float32),
                  None if depth is None else np.ascontiguousarray(d, dtype=np.float32))
         frame = Frame(images=pyr.images, depths=pyr.depths, batched=batched, torch=torch_in)
         # the buffers go back to the pool when the frame is gone (a tracker drops one per frame)
-        weakref.finalize(frame, _recycle, pool, pyr)
+        weakref.finalize(frame, recycle, pool, pyr)
         return frame
 
     # ------------------------------------------------------------------------------ alignment
@@ -494,16 +317,16 @@ class DirectAligner:
         """
         fn = "align"
         if ref_depth is None:
-            _fail(fn, ValueError, "argument 'ref_depth' must be given (the reference frame needs depth)")
+            fail(fn, ValueError, "argument 'ref_depth' must be given (the reference frame needs depth)")
         if live_depth is None and self.depth_weight > 0:
-            _fail(fn, ValueError, "argument 'live_depth' must be given when depth_weight > 0")
+            fail(fn, ValueError, "argument 'live_depth' must be given when depth_weight > 0")
         ref = self._prepare(fn, "ref_image", "ref_depth", ref_image, ref_depth)
         live = self._prepare(fn, "live_image", "live_depth", live_image, live_depth,
                              self.depth_weight > 0 or self.occlusion > 0)
         if live.batched != ref.batched or live.images[0].shape != ref.images[0].shape:
             got = tuple(np.shape(live_image))
             want = tuple(ref.images[0].shape[:1] if ref.batched else ()) + (np.shape(ref_image)[-3],) + ref.shape
-            _fail(fn, ValueError, f"argument 'live_image' must have the shape of 'ref_image' {want}, got {got}")
+            fail(fn, ValueError, f"argument 'live_image' must have the shape of 'ref_image' {want}, got {got}")
         return self._align(fn, ref, live, init)
 
     def align_frames(self, ref: Frame, live: Frame, init=None):
@@ -512,58 +335,32 @@ class DirectAligner:
         fn = "align_frames"
         for name, f in (("ref", ref), ("live", live)):
             if not isinstance(f, Frame):
-                _fail(fn, TypeError, f"argument '{name}' must be a Frame from DirectAligner.prepare, got "
+                fail(fn, TypeError, f"argument '{name}' must be a Frame from DirectAligner.prepare, got "
                       f"{type(f).__name__}")
         if ref.depths is None:
-            _fail(fn, ValueError, "argument 'ref' must be prepared with a depth")
+            fail(fn, ValueError, "argument 'ref' must be prepared with a depth")
         if self.depth_weight > 0 and live.depths is None:
-            _fail(fn, ValueError, "argument 'live' must be prepared with a depth when depth_weight > 0")
+            fail(fn, ValueError, "argument 'live' must be prepared with a depth when depth_weight > 0")
         if live.batched != ref.batched or tuple(live.images[0].shape) != tuple(ref.images[0].shape):
-            _fail(fn, ValueError, f"arguments 'ref' and 'live' must have the same shape, got "
+            fail(fn, ValueError, f"arguments 'ref' and 'live' must have the same shape, got "
                   f"{tuple(ref.images[0].shape)} and {tuple(live.images[0].shape)}")
         n_levels = self._levels_for(*ref.shape)
         grey_mismatch = not self.color and ref.images[0].shape[1] != 1
         if len(ref.images) != n_levels or len(live.images) != n_levels or grey_mismatch:
-            _fail(fn, ValueError, "arguments 'ref' and 'live' must be prepared by an aligner with these levels and "
+            fail(fn, ValueError, "arguments 'ref' and 'live' must be prepared by an aligner with these levels and "
                   "colour settings")
         return self._align(fn, ref, live, init)
 
-    def _init_pose(self, fn: str, init, B: int, batched: bool) -> np.ndarray:
-        if init is None:
-            return np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
-        T = _as_numpy(fn, "init", init, (3,) if batched else (2,)).astype(np.float64)
-        if not batched:
-            T = T[None]
-        if T.shape[0] != B or T.shape[1:] not in ((4, 4), (3, 4)):
-            want = f"({B}, 4, 4)" if batched else "(4, 4)"
-            _fail(fn, ValueError, f"argument 'init' must have shape {want} (or 3x4 rows), got {tuple(np.shape(init))}")
-        if not np.all(np.isfinite(T)):
-            _fail(fn, ValueError, "argument 'init' must be finite")
-        R = T[:, :3, :3]
-        off = np.abs(np.einsum("bji,bjk->bik", R, R) - np.eye(3)).max(axis=(1, 2))
-        bad = np.flatnonzero((off > _RIGID_TOLERANCE) | (np.linalg.det(R) < 0))
-        if T.shape[1] == 4:
-            bad = np.union1d(bad, np.flatnonzero(np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > _RIGID_TOLERANCE))
-        if bad.size:
-            b = int(bad[0])
-            _fail(fn, ValueError, f"argument 'init' must be rigid transforms [R | t] (R a rotation: R^T R = I within "
-                                  f"{_RIGID_TOLERANCE:g}, det +1; a 4x4's last row 0 0 0 1), but "
-                                  f"{'item ' + str(b) if batched else 'it'} is not: "
-                                  f"{np.array2string(T[b], precision=4, separator=', ').replace(chr(10), '')}")
-        out = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
-        out[:, :3, :] = T[:, :3, :]
-        return out
-
-    def _state(self, B: int, shapes) -> _State:
+    def _state(self, B: int, shapes) -> LMState:
         key = (B, tuple(shapes))
         st = self._states.get(key)
         if st is None:
-            st = self._states[key] = _State(self, B, shapes)
+            st = self._states[key] = LMState(self, B, shapes, _OCCLUSION_LEVELS)
         return st
 
     def _align(self, fn: str, ref: Frame, live: Frame, init):
         B = ref.batch
-        T0 = self._init_pose(fn, init, B, ref.batched)
+        T0 = initial_pose(fn, init, B, ref.batched)
         shapes = [(int(a.shape[2]), int(a.shape[3])) for a in ref.images]
         st = self._state(B, shapes)
         st.T_np[:] = T0[:, :3, :]
@@ -598,112 +395,7 @@ class DirectAligner:
         info = {"converged": converged if ref.batched else bool(converged[0]), "levels": level_info}
         out = T if ref.batched else T[0]
         if ref.torch:
-            import torch
+            import torch  # (only for torch input: the odometry never needs torch otherwise)
 
             out = torch.from_numpy(out)
         return out, info
-
-
-class _State:
-    """Per (batch size, level shapes): the Levenberg-Marquardt state of :mod:`.kernels.lm` (with
-    numpy views), the intrinsics of every level, and per (level, reference pyramid, live pyramid)
-    the normal equations' outputs with the launches that fill them and the LM step launches,
-    recorded once: in frame-to-frame tracking pyramids are pooled, so the same few combinations
-    recur, and a trial costs a few recorded launches."""
-
-    def __init__(self, aligner: DirectAligner, B: int, shapes):
-        self.aligner = aligner
-        self.B = B
-        Ks = [_pyramid.scale_intrinsics(aligner.K, level) for level in range(len(shapes))]
-        self.K = [wp.array(np.broadcast_to(Kl.astype(np.float32), (B, 3, 3)).copy(), dtype=wp.mat33f, device="cpu")
-                  for Kl in Ks]
-        self.f = [math.sqrt(Kl[0, 0] * Kl[1, 1]) for Kl in Ks]
-        # a distorted lens: its coefficients (the same at every level) and each level's pixel rays
-        self.dist = None if aligner.dist is None else wp.array(
-            np.broadcast_to(aligner.dist.astype(np.float32), (B, 8)).copy(), dtype=_launch.vec8f, device="cpu")
-        self.shapes = list(shapes)
-        self._rays: dict[int, wp.array] = {}
-        self.min_count = [max(_MIN_VALID_PIXELS, aligner.min_valid_fraction * h * w) for h, w in shapes]
-
-        def arr(dtype, n=B):
-            a = wp.zeros(n, dtype=dtype, device="cpu")
-            return a, a.numpy()
-
-        self.pose, pose_np = arr(_launch.mat34f)
-        self.pose_np = pose_np.reshape(B, 3, 4)
-        self.T, T_np = arr(_launch.mat34d)
-        self.T_np = T_np.reshape(B, 3, 4)
-        self.Tn, _ = arr(_launch.mat34d)
-        self.H, _ = arr(wp.float64, B * 36)
-        self.g, _ = arr(wp.float64, B * 6)
-        self.zmean, self.zmean_np = arr(wp.float64)
-        self.mean, self.mean_np = arr(wp.float64)
-        self.count, self.count_np = arr(wp.float64)
-        self.lam, _ = arr(wp.float64)
-        self.step, self.step_np = arr(wp.float64)
-        self.trials, self.trials_np = arr(wp.int32)
-        self.active, self.active_np = arr(wp.int32)
-        self.ok, self.ok_np = arr(wp.int32)
-        self._runners: dict[tuple, tuple] = {}
-
-    def runner(self, ref: Frame, live: Frame, level: int):
-        """(normal-equation launches, first LM step, next LM step) for this pair at ``level``."""
-        al = self.aligner
-        # the live depth serves the depth term and the occlusion test (the finest _OCCLUSION_LEVELS
-        # levels; skipped without live depths)
-        occlusion = al.occlusion > 0 and level < _OCCLUSION_LEVELS
-        use_depth = live.depths is not None and (al.depth_weight > 0 or occlusion)
-        key = (level, id(ref.images[level]), id(ref.depths[level]), id(live.images[level]),
-               id(live.depths[level]) if use_depth else None)
-        run = self._runners.get(key)
-        if run is None:
-            if len(self._runners) >= _SYSTEM_CACHE:
-                self._runners.pop(next(iter(self._runners)))
-            run = self._runners[key] = self._make_runner(ref, live, level, use_depth)
-        return run[:3]
-
-    def _make_runner(self, ref: Frame, live: Frame, level: int, use_depth: bool):
-        from ..kernels import photometric_normal_equations
-
-        al = self.aligner
-        args = (ref.images[level], ref.depths[level], live.images[level], self.pose, self.K[level])
-        kw = {"robust": al.robust, "scale": al.scale, "depth_weight": al.depth_weight, "min_depth": al.min_depth,
-              "occlusion": al.occlusion if level < _OCCLUSION_LEVELS else 0.0,
-              "live_depth": live.depths[level] if use_depth else None}
-        if self.dist is not None:  # the level's rays, computed once per aligner state
-            if level not in self._rays:
-                from ..kernels.sampling.pipeline import pixel_rays
-
-                h, w = self.shapes[level]
-                self._rays[level] = pixel_rays(self.K[level], self.dist, h, w, al.model)
-            kw.update(dist=self.dist, model=al.model, rays=self._rays[level])
-        ne = photometric_normal_equations(*args, **kw)
-        cmds = getattr(ne, "_cmds", None)
-        rows = getattr(ne, "_rows", None)
-        if cmds and len(cmds) == 2 and rows is not None:
-            # the row kernel only: the LM step reduces its per-row sums itself (one launch fewer per trial)
-            cmds = cmds[:1]
-            system = [rows, rows.shape[0] // (self.B * _pk.ROW_STRIDE), _pk.ROW_STRIDE]
-            step_kernel = _lm.lm_step_rows
-        else:
-            if not cmds:  # no recorded launches to replay: the public call with out= each time
-                cmds = [functools.partial(photometric_normal_equations, *args, out=ne, **kw)]
-            system = [ne.JtWJ.flatten(), ne.JtWr.flatten(), ne.cost, ne.count]
-            step_kernel = _lm.lm_step
-        lm = []
-        for first in (1, 0):
-            lm.append(_launch.wp_launch(
-                step_kernel, dim=self.B,
-                inputs=[*system, self.zmean, first,
-                        self.min_count[level], self.f[level], al.tolerance, max(al.tolerance, al.take_step / 2**level),
-                        al.lm_lambda, al.lm_up, al.lm_down,
-                        _LAMBDA_MAX, al.min_decrease],
-                outputs=[self.T, self.Tn, self.pose, self.H, self.g, self.mean, self.count, self.lam, self.step,
-                         self.trials, self.active, self.ok],
-                device="cpu", record_cmd=True,
-            ))
-        # the arrays stay referenced with their recorded launches: their ids (the cache key) and
-        # addresses cannot be reused by other arrays while the entry exists
-        keep = (ref.images[level], ref.depths[level], live.images[level], kw["live_depth"], ne, lm)
-        lm_first, lm_next = (_compat.replay_function(c) for c in lm)
-        return tuple(cmds), lm_first, lm_next, keep

@@ -98,6 +98,7 @@ def evaluate_trajectory(
         gt_valid: (N,) bool, frames that have ground truth (default: all). Frames without it are
             left out; RPE pairs are then consecutive frames *with* ground truth.
     """
+    # evo on first use: it imports scipy (about a second), which pose_error and the figures do not need
     from evo.core import metrics, sync
     from evo.core.geometry import GeometryException
     from evo.core.trajectory import PoseTrajectory3D
@@ -159,7 +160,7 @@ def _top_view_axes(positions: np.ndarray) -> tuple[int, int]:
 def plot_top_view(path: str | Path, estimate: np.ndarray, ground_truth: np.ndarray | None = None,
                   title: str = "trajectory (top view)") -> None:
     """PNG of camera positions seen from above: estimate (after alignment, if given so) and ground truth."""
-    import matplotlib
+    import matplotlib  # (on first use: only the figures need it, and it is slow to import)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -189,7 +190,7 @@ def plot_errors(path: str | Path, m: TrajectoryMetrics, unconverged: np.ndarray 
                 title: str = "per-frame relative pose error (1-frame RPE)") -> None:
     """PNG of the per-pair translation (cm) and rotation (deg) errors against the frame index, with
     the failure thresholds and the frames whose alignment did not converge marked."""
-    import matplotlib
+    import matplotlib  # (on first use: only the figures need it, and it is slow to import)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

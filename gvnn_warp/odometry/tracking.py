@@ -28,6 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 __all__ = [
     "KeyframePolicy",
@@ -338,8 +339,6 @@ def track(
             module docstring; the same poses). None (default): when the aligner allows it
             (``concurrent_prepare``).
     """
-    from tqdm import tqdm
-
     tracker = Tracker(aligner, n_frames, start_pose=start_pose, keyframes=keyframes, init=init, warmup=warmup,
                       pipeline=pipeline)
     # frame 0 (with the warm-up, which loads or first compiles the kernels) before the bar, so that

@@ -2,19 +2,24 @@
 
 - :mod:`.model`: the siamese pose-regression network (:class:`SiameseVO`) and the coarse-to-fine
   cascade of them that refines the pose on the live image warped by the pose so far (:class:`CascadeVO`);
+- :mod:`.pose`: pose vectors (omega or [omega, t]) and their algebra;
 - :mod:`.data`: rendered synthetic RGB-D trajectories and frame pairs;
 - :mod:`.loss`: the photometric cost between the live image warped with the predicted and with the
   ground-truth pose, and pose-error metrics;
-- :mod:`.train`: training (DDP-aware), checkpoints, evaluation, ``metrics.json``, figures.
+- :mod:`.config`: a run's configuration (:class:`VOConfig`), its defaults and checks;
+- :mod:`.train`: training (DDP-aware); :mod:`.checkpoint`: checkpoints and the trained network they
+  hold; :mod:`.evaluation`: evaluation, ``metrics.json``; :mod:`.plots`: figures;
+- :mod:`.frontend`: the trained network as an odometry front end (``gvnn-warp track --method vo``).
 
-The command line is ``gvnn-warp vo`` (:mod:`gvnn_warp.demos.vo`).
+The command line is ``gvnn-warp vo`` (:mod:`gvnn_warp.cli`).
 """
-
 from __future__ import annotations
 
+from .config import VOConfig, default_config
 from .loss import DEFAULT_LOSS, LOSSES, photometric_loss, pose_errors
-from .model import SYMMETRIES, CascadeVO, SiameseVO, compose_pose, invert_pose, mirror_pose, pose_dim
-from .train import VOConfig, default_config, train
+from .model import SYMMETRIES, CascadeVO, SiameseVO, pose_dim
+from .pose import compose_pose, invert_pose, mirror_pose
+from .train import train
 
 __all__ = [
     "DEFAULT_LOSS",

@@ -7,18 +7,37 @@ whenever what is stored changes; a file of another format is refused with a one-
 :class:`CheckpointError` (format 1 had no ``"format"`` key and held pickled numpy arrays; format 2
 had no ``"network"`` entry, so the network could not be rebuilt without the training code's
 defaults).
+
+Checkpoints are written atomically (:func:`atomic_save`) and hold the global random generators'
+state (:func:`rng_state`), so that a resumed run continues exactly.
 """
 
 from __future__ import annotations
 
+import os
+import random
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from .model import CascadeVO
 
-__all__ = ["CHECKPOINT_FORMAT", "CheckpointError", "build_network", "load_network", "network_spec", "read_checkpoint"]
+__all__ = [
+    "CHECKPOINT",
+    "CHECKPOINT_FORMAT",
+    "CheckpointError",
+    "atomic_save",
+    "atomic_write_text",
+    "build_network",
+    "load_network",
+    "network_spec",
+    "read_checkpoint",
+    "rng_state",
+    "set_rng_state",
+]
 
+CHECKPOINT = "checkpoint.pt"  # its file name in a run's output directory
 CHECKPOINT_FORMAT = 4
 
 # the CascadeVO constructor arguments stored under "network" -> "kwargs"
@@ -83,3 +102,35 @@ def load_network(path: str | Path) -> tuple[CascadeVO, dict]:
                               f"{str(e).splitlines()[0] if str(e) else ''})") from None
     net.eval()
     return net, spec
+
+
+def atomic_save(obj, path: Path) -> None:
+    """``torch.save`` to a temporary file in ``path``'s folder, then renamed over ``path``: a run
+    stopped while saving leaves the previous checkpoint whole."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def atomic_write_text(text: str, path: Path) -> None:
+    """Write ``text`` to ``path`` through a temporary file renamed over it (as :func:`atomic_save`)."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def rng_state() -> dict:
+    """The global generators' states as tensors and plain Python values (see CHECKPOINT_FORMAT)."""
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    numpy_state = {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                   "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+    return {"torch": torch.get_rng_state(), "numpy": numpy_state, "python": random.getstate()}
+
+
+def set_rng_state(state: dict) -> None:
+    """Restore the global generators from :func:`rng_state`'s dict."""
+    torch.set_rng_state(state["torch"])
+    n = state["numpy"]
+    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached_gaussian"]))
+    version, internal, gauss = state["python"]

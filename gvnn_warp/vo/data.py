@@ -20,6 +20,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..datasets.errors import DatasetError
+from ..datasets.tum import read_tum
+from ..functional.geometry import so3_log
+from ..synthetic.render import render_rgbd
+from ..synthetic.scene import make_room_scene
+from ..synthetic.trajectories import default_intrinsics, relative_pose, rotation_trajectory, smooth_se3_trajectory
+from .frontend import resize_frame, scale_intrinsics
+
 __all__ = ["PairSet", "make_pairs", "read_split", "render_split", "split_seeds", "tum_frames"]
 
 
@@ -60,19 +68,15 @@ def split_seeds(seed: int, split: str, n: int) -> list[int]:
 
 
 def _trajectory(motion: str, n_frames: int, seed: int, **kwargs) -> np.ndarray:
-    from .. import synthetic
-
     if motion == "so3":
-        return synthetic.rotation_trajectory(n_frames, seed, **kwargs)
+        return rotation_trajectory(n_frames, seed, **kwargs)
     if motion == "se3":
-        return synthetic.smooth_se3_trajectory(n_frames, seed, **kwargs)
+        return smooth_se3_trajectory(n_frames, seed, **kwargs)
     raise ValueError(f"motion must be 'so3' or 'se3', got {motion!r}")
 
 
 def make_pairs(T_world_cam: np.ndarray, gaps: tuple[int, ...], both_directions: bool) -> tuple[np.ndarray, ...]:
     """Index pairs (ref, live) within one trajectory and their poses ``T_live_ref`` (float64)."""
-    from ..synthetic import relative_pose
-
     n = T_world_cam.shape[0]
     ref, live = [], []
     for g in gaps:
@@ -104,8 +108,6 @@ def render_split(
     ``motion`` picks the trajectory family: ``so3`` = ``rotation_trajectory`` (pure rotation,
     several degrees per frame), ``se3`` = ``smooth_se3_trajectory`` (6-DoF, a few cm per frame).
     """
-    from ..synthetic import default_intrinsics, make_room_scene, render_rgbd
-
     W, H = size
     K = default_intrinsics(W, H)
     scene = make_room_scene(seed=scene_seed, n_boxes=n_boxes)
@@ -127,8 +129,6 @@ def render_split(
 def tum_frames(root, max_frames: int | None = None):
     """The TUM sequence in folder ``root`` (``gvnn_warp.datasets.tum.read_tum``) and the indices of
     its first ``max_frames`` frames that have ground truth; ``DatasetError`` if it has none."""
-    from ..datasets.tum import DatasetError, read_tum
-
     seq = read_tum(root)
     if seq.gt_poses is None:
         raise DatasetError(f"{seq.root / 'groundtruth.txt'}: missing (training and evaluation need ground truth)")
@@ -153,9 +153,6 @@ def read_split(
     frames with ground truth; its pose is ``T_live_ref`` from the ground truth. The folders must
     have the same intrinsics once resized (the network is trained for one camera).
     """
-    from ..datasets.tum import DatasetError
-    from .frontend import resize_frame, scale_intrinsics
-
     images, depths, refs, lives, poses = [], [], [], [], []
     K = None
     offset = 0
@@ -181,8 +178,6 @@ def read_split(
 
 
 def _pair_set(images, depths, refs, lives, poses, K) -> PairSet:
-    from .. import so3_log
-
     pose = torch.from_numpy(np.concatenate(poses))
     omega = so3_log(pose[:, :3, :3].contiguous())
     xi = torch.cat([omega, pose[:, :3, 3]], dim=1)

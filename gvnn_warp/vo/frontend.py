@@ -19,7 +19,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .loss import full_xi
+from ..functional.geometry import se3_to_matrix
+from .pose import full_xi
 
 __all__ = ["NetworkAligner", "VOFrame", "resize_frame", "scale_intrinsics"]
 
@@ -111,8 +112,6 @@ class NetworkAligner:
 
     def predict(self, ref: VOFrame, live: VOFrame) -> np.ndarray:
         """The network's ``T_live_ref`` (4, 4) float64."""
-        from .. import se3_to_matrix
-
         with torch.no_grad():
             xi = self.net.predict(ref.image, live.image, ref.depth, live.depth, self.K_net, refine=self.refine,
                                   symmetries=self.symmetries)

@@ -8,7 +8,7 @@ warps have the same missing pixels). For ``so3`` motion the pose vector is [omeg
 
 Per-pixel penalties of the residual r (RGB, in [0, 1] units): ``l1`` = |r| (the default, see
 ``DEFAULT_LOSS``), ``l2`` = r^2, or an M-estimator of the paper's table via
-``gvnn_warp.perpixel.robust_rho(r, kind, scale)`` (``huber``, ``cauchy``, ``geman_mcclure``,
+``gvnn_warp.robust_rho(r, kind, scale)`` (``huber``, ``cauchy``, ``geman_mcclure``,
 ``tukey``; ``scale`` is the M-estimator's epsilon / c, in intensity units).
 """
 
@@ -18,6 +18,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..functional.geometry import se3_to_matrix, so3_log, warp_frame_depth
+from ..functional.perpixel import robust_rho
+from ..synthetic.trajectories import pose_error
+from .pose import full_xi, median_depth
+
+# full_xi (now in .pose) stays importable from here
 __all__ = [
     "DEFAULT_LOSS",
     "LOSSES",
@@ -35,17 +41,8 @@ LOSSES = ("l1", "l2", *ROBUST_LOSSES)
 DEFAULT_LOSS = "l1"
 
 
-def full_xi(pred: Tensor) -> Tensor:
-    """(B, 3) omega -> (B, 6) [omega, 0]; (B, 6) passes through."""
-    if pred.shape[-1] == 6:
-        return pred
-    return torch.cat([pred, torch.zeros_like(pred)], dim=-1)
-
-
 def warp_live(live: Tensor, ref_depth: Tensor, pose: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     """The live image warped into the reference frame by ``pose`` = T_live_ref ((B, 3|4, 4))."""
-    from .. import warp_frame_depth
-
     return warp_frame_depth(live, ref_depth, pose, K)
 
 
@@ -56,12 +53,6 @@ def penalty(r: Tensor, kind: str = DEFAULT_LOSS, scale: float = 0.1) -> Tensor:
     if kind == "l2":
         return r.square()
     if kind in ROBUST_LOSSES:
-        try:
-            from ..functional.perpixel import robust_rho
-        except ImportError as e:  # the M-estimators live in gvnn_warp.perpixel
-            raise RuntimeError(
-                f"--loss {kind} needs gvnn_warp.perpixel.robust_rho, which is not available ({e})"
-            ) from e
         return robust_rho(r, kind, scale)
     raise ValueError(f"loss must be one of {LOSSES}, got {kind!r}")
 
@@ -89,8 +80,6 @@ def photometric_loss(
         loss (B,): the mean penalty over the channels of the pixels valid in both warps;
         pred_warp (B, 3, H, W): the live image warped with the prediction; valid (B, 1, H, W).
     """
-    from .. import se3_to_matrix
-
     pred_warp, pred_valid = warp_live(live, ref_depth, se3_to_matrix(full_xi(pred)), K)
     valid = pred_valid & gt_valid
     m = valid.to(pred_warp.dtype)
@@ -113,9 +102,6 @@ def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor, t_weight: float = 1
     ``t_weight |t - t_gt|_1 / d`` with ``d`` the median reference depth (a translation's parallax,
     in radians).
     The ground-truth rotation vector is ``so3_log(R_gt)`` (no gradient needed)."""
-    from .. import so3_log
-    from .model import median_depth
-
     with torch.no_grad():
         omega_gt = so3_log(T_gt[:, :3, :3].contiguous().to(pred.dtype))
     out = (pred[:, :3] - omega_gt).abs().sum(1)
@@ -127,9 +113,6 @@ def pose_loss(pred: Tensor, T_gt: Tensor, ref_depth: Tensor, t_weight: float = 1
 def pose_errors(pred: Tensor, T_gt: Tensor) -> tuple[Tensor, Tensor]:
     """Rotation error (degrees, geodesic angle of R_pred^T R_gt) and translation error (metres,
     |t_pred - t_gt|) per pair, computed in float64; ``pred`` as from the network ((B, 3) or (B, 6))."""
-    from .. import se3_to_matrix
-    from ..synthetic import pose_error
-
     T_pred = se3_to_matrix(full_xi(pred.detach()).double())
     rot, trans = pose_error(T_pred.numpy(), T_gt.detach().double().cpu().numpy())
     return torch.from_numpy(rot), torch.from_numpy(trans)

@@ -18,8 +18,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .loss import full_xi
+from ..functional.geometry import se3_to_matrix, warp_frame_depth
+from .pose import compose_pose, full_xi, invert_pose, median_depth, mirror_pose
 
+# compose_pose, invert_pose and mirror_pose (now in .pose) stay importable from here
 __all__ = ["MOTIONS", "SYMMETRIES", "CascadeVO", "SiameseVO", "compose_pose", "invert_pose", "mirror_pose", "pose_dim"]
 
 MOTIONS = {"so3": 3, "se3": 6}
@@ -43,14 +45,6 @@ def _conv(c_in: int, c_out: int, stride: int = 2, act: bool = True) -> nn.Sequen
     if act:
         layers.append(nn.PReLU(c_out))
     return nn.Sequential(*layers)
-
-
-def median_depth(depth: Tensor) -> Tensor:
-    """(B,) median of the valid (finite, > 1e-3 m) depths of each (B, 1, H, W) map (1 if none)."""
-    d = depth.flatten(1)
-    d = torch.where(torch.isfinite(d) & (d > 1e-3), d, torch.full_like(d, float("nan")))
-    med = d.nanmedian(dim=1).values
-    return torch.nan_to_num(med, nan=1.0)
 
 
 class SiameseVO(nn.Module):
@@ -126,8 +120,8 @@ class SiameseVO(nn.Module):
         scale = [omega_scale] * 3 + [t_scale] * (self.out_dim - 3)
         self.register_buffer("out_scale", torch.tensor(scale, dtype=torch.float32), persistent=False)
         self.reset_parameters()
-        # float32 whatever torch's default dtype (the data are float32); channels-last convolutions
-        # were ~1.5x faster (forward + backward) on this CPU
+        # float32 whatever torch's default dtype (the data are float32); channels-last: the faster
+        # layout of the convolutions (forward + backward) on this CPU
         self.to(dtype=torch.float32, memory_format=torch.channels_last)
 
     def reset_parameters(self) -> None:
@@ -172,45 +166,6 @@ class SiameseVO(nn.Module):
                 raise ValueError("depth_normalised_t needs the reference depth")
             out = torch.cat([out[:, :3], out[:, 3:] * median_depth(ref_depth)[:, None]], dim=1)
         return out
-
-
-def compose_pose(a: Tensor, b: Tensor) -> Tensor:
-    """Pose vector of the product ``T(a) T(b)`` (both (B, 3) omega or (B, 6) [omega, t], as
-    :func:`gvnn_warp.se3_to_matrix` reads them: ``R = exp(omega)``, ``t = t``).
-
-    ``omega = so3_log(exp(a_omega) exp(b_omega))`` and ``t = exp(a_omega) b_t + a_t``; differentiable
-    in both (gvnn_warp's Warp ops)."""
-    from .. import so3_exp, so3_log
-
-    R_a = so3_exp(a[:, :3])
-    omega = so3_log((R_a @ so3_exp(b[:, :3])).contiguous())
-    if a.shape[1] == 3:
-        return omega
-    t = (R_a @ b[:, 3:, None])[:, :, 0] + a[:, 3:]
-    return torch.cat([omega, t], dim=1)
-
-
-def invert_pose(xi: Tensor) -> Tensor:
-    """Pose vector of ``T^-1`` for ``T`` = (omega) or ([omega, t]): ``-omega`` and ``-R^T t``."""
-    if xi.shape[1] == 3:
-        return -xi
-    from .. import so3_exp
-
-    R = so3_exp(xi[:, :3].contiguous())
-    return torch.cat([-xi[:, :3], -(R.transpose(1, 2) @ xi[:, 3:, None])[:, :, 0]], dim=1)
-
-
-def mirror_pose(xi: Tensor, axis: int) -> Tensor:
-    """Pose vector of ``M T M`` with M the reflection of camera axis ``axis`` (0: x, left-right; 1: y,
-    upside-down): the pose of a pair whose images are both mirrored along that axis. The rotation
-    axis of ``M R M`` is ``det(M) M a = -M a``, so omega keeps its ``axis`` component and negates the
-    other two; t negates its ``axis`` component."""
-    sign = torch.full((xi.shape[1],), -1.0, dtype=xi.dtype)
-    sign[axis] = 1.0
-    if xi.shape[1] == 6:
-        sign[3:] = 1.0
-        sign[3 + axis] = -1.0
-    return xi * sign
 
 
 class CascadeVO(nn.Module):
@@ -268,8 +223,6 @@ class CascadeVO(nn.Module):
         with the estimate so far (test-time iterative refinement: the last network was trained to
         correct an estimate from the pair it leaves; training itself uses ``refine=0``).
         """
-        from .. import se3_to_matrix, warp_frame_depth
-
         if refine < 0 or (refine and len(self.stages) < 2):
             raise ValueError(f"CascadeVO: refine must be >= 0 and needs at least 2 stages, got {refine!r}")
         xi = self._stage(0, ref, live, ref_depth, live_depth)

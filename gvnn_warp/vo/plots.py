@@ -8,14 +8,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..functional.geometry import se3_to_matrix
 from .data import PairSet
-from .loss import full_xi, warp_live
+from .loss import pose_errors, warp_live
+from .pose import full_xi
 
 __all__ = ["panel_figure", "plot_panel", "plot_training_curve", "training_curve_figure"]
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # (on first use: only the figures need it, and it is slow to import)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -67,8 +69,6 @@ def panel_figure(
     (live warped with the predicted pose, its pose error below), the ground truth (live warped with
     the true pose) and |prediction - ground truth| (mean over RGB, 0 where either warp is invalid),
     with one colour bar for the residuals."""
-    from .. import se3_to_matrix
-
     plt = _plt()
     steps = sorted(stages)
     n_rows, n_pairs = len(steps), len(idx)
@@ -132,8 +132,6 @@ def _save(fig, path: Path) -> None:
 
 
 def _pose_err_text(pred: Tensor, pose: Tensor) -> str:
-    from .loss import pose_errors
-
     rot, trans = pose_errors(pred, pose)
     text = f"{float(rot[0]):.2f} deg"
     if pred.shape[-1] == 6:

@@ -1,0 +1,116 @@
+"""The aligner's arguments: numpy arrays or CPU torch tensors as numpy views, numbers, cameras and
+initial poses, checked with one-line errors that name the method and the argument.
+
+Import needs no torch; torch is imported only when a tensor comes in.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from ..kernels.geometry import lens as _lens
+
+__all__ = ["as_numpy", "fail", "initial_pose", "is_torch", "lens_camera", "real_number"]
+
+RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)
+
+
+def fail(fn: str, exc: type[Exception], msg: str):
+    raise exc(f"gvnn_warp.odometry.{fn}: {msg}")
+
+
+def real_number(v) -> float:
+    """``v`` as a float if it is a real number (Python, numpy, or a one-element numpy array or torch
+    tensor), else NaN (which every range check refuses)."""
+    if (isinstance(v, np.ndarray) and v.size == 1) or (hasattr(v, "numel") and callable(v.numel) and v.numel() == 1):
+        v = v.item()
+    return float(v) if isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) else math.nan
+
+
+def is_torch(x) -> bool:
+    return type(x).__module__.split(".")[0] == "torch"
+
+
+def as_numpy(fn: str, name: str, x, ndims: tuple[int, ...]) -> np.ndarray:
+    """numpy float32/float64 view of a numpy array or CPU torch tensor with one of ``ndims``."""
+    if is_torch(x):
+        import torch  # (only when a tensor comes in: the odometry never needs torch otherwise)
+
+        if not isinstance(x, torch.Tensor):
+            fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
+        if x.device.type != "cpu":
+            fail(fn, ValueError, f"argument '{name}' must be on the CPU, got device {x.device}")
+        if x.dtype not in (torch.float32, torch.float64):
+            fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
+        x = x.detach().numpy()
+    elif not isinstance(x, np.ndarray):
+        fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
+    elif x.dtype not in (np.float32, np.float64):
+        fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
+    if x.ndim not in ndims:
+        want = " or ".join(f"{d}-D" for d in ndims)
+        fail(fn, ValueError, f"argument '{name}' must be {want}, got shape {tuple(x.shape)}")
+    return x
+
+
+def lens_camera(fn: str, K, model, dist):
+    """(K (3, 3) float64, model name, packed dist (8,) float64 or None for the pinhole) from K and
+    the ``model`` / ``dist`` arguments, or from a camera of ``gvnn_warp.cameras``."""
+    if hasattr(K, "model") and hasattr(K, "K") and hasattr(K, "dist") and not isinstance(K, np.ndarray):
+        if model is not None or dist is not None:
+            fail(fn, ValueError, "arguments 'model' and 'dist' must not be given with a camera object")
+        cam = K
+        if cam.K.dim() != 2 or (cam.dist is not None and cam.dist.dim() != 1):
+            fail(fn, ValueError, "argument 'K' must be an unbatched camera (K (3, 3), dist (n,))")
+        model = {v: k for k, v in _lens.MODEL_IDS.items()}[int(cam.model)]
+        K, dist = cam.K, cam.dist
+    K = as_numpy(fn, "K", K, (2,)).astype(np.float64)
+    if model is None:
+        model = "pinhole" if dist is None else "radtan"
+    if model not in _lens.MODEL_IDS:
+        fail(fn, ValueError, f"argument 'model' must be one of {list(_lens.MODEL_IDS)}, got {model!r}")
+    mid = _lens.MODEL_IDS[model]
+    if mid == _lens.PINHOLE:
+        if dist is not None:
+            fail(fn, ValueError, "argument 'dist' must be None for the pinhole model")
+        return K, model, None
+    n = _lens.N_COEFFS[mid]
+    if isinstance(dist, (list, tuple)):
+        dist = np.asarray(dist, dtype=np.float64)
+    coeffs = None if dist is None else as_numpy(fn, "dist", dist, (1,)).astype(np.float64)
+    if coeffs is None or coeffs.shape != (n,) or not np.all(np.isfinite(coeffs)):
+        got = None if coeffs is None else coeffs.tolist()
+        fail(fn, ValueError, f"argument 'dist' must be {n} finite coefficients for the {model} model, got {got}")
+    return K, model, _lens.pack_dist(mid, coeffs)
+
+
+def initial_pose(fn: str, init, B: int, batched: bool) -> np.ndarray:
+    """(B, 4, 4) float64 starting poses from ``init`` ((4, 4) / (B, 4, 4), or 3x4 rows [R | t]), a
+    rigid transform each; the identity for None."""
+    if init is None:
+        return np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
+    T = as_numpy(fn, "init", init, (3,) if batched else (2,)).astype(np.float64)
+    if not batched:
+        T = T[None]
+    if T.shape[0] != B or T.shape[1:] not in ((4, 4), (3, 4)):
+        want = f"({B}, 4, 4)" if batched else "(4, 4)"
+        fail(fn, ValueError, f"argument 'init' must have shape {want} (or 3x4 rows), got {tuple(np.shape(init))}")
+    if not np.all(np.isfinite(T)):
+        fail(fn, ValueError, "argument 'init' must be finite")
+    R = T[:, :3, :3]
+    off = np.abs(np.einsum("bji,bjk->bik", R, R) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((off > RIGID_TOLERANCE) | (np.linalg.det(R) < 0))
+    if T.shape[1] == 4:
+        bad = np.union1d(bad, np.flatnonzero(np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > RIGID_TOLERANCE))
+    if bad.size:
+        b = int(bad[0])
+        fail(fn, ValueError, f"argument 'init' must be rigid transforms [R | t] (R a rotation: R^T R = I within "
+                             f"{RIGID_TOLERANCE:g}, det +1; a 4x4's last row 0 0 0 1), but "
+                             f"{'item ' + str(b) if batched else 'it'} is not: "
+                             f"{np.array2string(T[b], precision=4, separator=', ').replace(chr(10), '')}")
+    out = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
+    out[:, :3, :] = T[:, :3, :]
+    return out
