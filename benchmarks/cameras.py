@@ -16,6 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,8 +84,7 @@ def groups(W: int, H: int) -> dict[str, list[tuple[str, Case]]]:
 
 
 def accuracy(W: int, H: int) -> dict[str, float]:
-    import cv2
-    import numpy as np
+    import cv2  # OpenCV, the reference, is in the test extra only: needed by this measurement alone
 
     f64 = torch.float64
     K = torch.tensor(TUM_K, dtype=f64)

@@ -10,6 +10,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
+import warp
+
+import gvnn_warp as G
 
 
 @dataclass
@@ -55,10 +58,8 @@ def machine() -> dict:
                     break
     except OSError:
         pass
-    import warp
-
     try:
-        import kornia
+        import kornia  # the peer of most benchmarks, but optional here: the machine is described without it
 
         kornia_version = kornia.__version__
     except ImportError:  # pragma: no cover
@@ -87,8 +88,6 @@ def wfd_scene(B: int, C: int, H: int, W: int, dtype=torch.float32, seed: int = 0
     """An image, a smooth depth map (a slanted, bumpy surface 1.5-2.5 m away), small random
     camera motions (rotations ~1.7 deg, translations ~3 cm) and shared intrinsics:
     (image, depth, pose (B, 3, 4), pose44 (B, 4, 4), K (B, 3, 3))."""
-    import gvnn_warp as G
-
     g = torch.Generator().manual_seed(seed)
     image = torch.rand(B, C, H, W, generator=g, dtype=dtype)
     yy, xx = torch.meshgrid(

@@ -38,6 +38,8 @@ def _reset_peak() -> bool:
 
 
 def measure(impl: str, B: int, C: int, H: int, W: int, threads: int) -> dict:
+    # run in the measuring child process (main --impl), where torch's thread count is set before kornia
+    # and gvnn_warp load; importing this module (benchmarks.run does, to start that child) loads none of them
     import torch
 
     torch.set_num_threads(threads)

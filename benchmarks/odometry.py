@@ -5,8 +5,9 @@
 
 (run from the repository root; Open3D is the optional extra ``pip install -e ".[bench]"``, whose
 wheel needs the system's libusb-1.0). For each size a se3 sequence (1.5-4 cm and 0.6-1.6 deg per
-frame) is rendered by ``gvnn-warp render``'s code into a temporary TUM folder and read back
-through ``gvnn_warp.datasets.tum`` (or ``--data DIR`` is read: one existing TUM folder). Then:
+frame) is rendered by ``gvnn_warp.synthetic.sequence`` (``gvnn-warp render``'s library) into a
+temporary TUM folder and read back through ``gvnn_warp.datasets.tum`` (or ``--data DIR`` is read:
+one existing TUM folder). Then:
 
 1. Tracking: frame-to-frame odometry over the whole sequence (identity initial guess, as Open3D's
    examples), by Open3D 0.20's tensor ``rgbd_odometry_multi_scale`` (``Method.Intensity``,
@@ -45,6 +46,7 @@ import platform
 import sys
 import tempfile
 import time
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
@@ -55,10 +57,19 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+import warp as wp  # noqa: E402
+from gvnn_warp.kernels.core.launch import mat34f  # noqa: E402
+from gvnn_warp.kernels.photometric import pipeline as photometric_pipeline  # noqa: E402
+from PIL import Image  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from gvnn_warp.cli.args import image_size, positive_int  # noqa: E402  (argument types of this command line)
 from gvnn_warp.datasets.tum import read_tum  # noqa: E402
 from gvnn_warp.odometry.evaluation import FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.odometry.sequence import make_aligner  # noqa: E402
 from gvnn_warp.odometry.tracking import Tracker, frame_aligner  # noqa: E402
 from gvnn_warp.synthetic import relative_pose  # noqa: E402
+from gvnn_warp.synthetic.sequence import render_sequence  # noqa: E402
 
 OPEN3D_DEPTH_MAX = 10.0  # metres; the rendered room is 8 m deep (Open3D's default, 3 m, drops much of it)
 
@@ -69,6 +80,7 @@ class Open3DAligner:
     name = "Open3D 0.20 Intensity"
 
     def __init__(self, K: np.ndarray, depth_scale: float):
+        # Open3D is an optional extra (``.[bench]``): an ImportError here skips it (see main)
         import open3d as o3d
 
         self.o3d = o3d
@@ -96,8 +108,6 @@ class Open3DAligner:
 
 def _raw_reader(seq):
     """Frames as Open3D takes them from files: uint8 (H, W, 3) colour, uint16 (H, W) depth."""
-    from PIL import Image
-
     def read(i):
         rgb = np.ascontiguousarray(np.asarray(Image.open(seq.rgb_files[i]).convert("RGB")))
         depth = np.ascontiguousarray(np.asarray(Image.open(seq.depth_files[i])).astype(np.uint16))
@@ -111,16 +121,8 @@ def _gray_reader(seq):
 
 
 def our_aligner(K: np.ndarray):
-    """``gvnn_warp.odometry.DirectAligner`` with the settings ``gvnn-warp track`` uses, or None if
-    that module is not there yet."""
-    try:
-        from gvnn_warp.cli.track import make_aligner
-    except ImportError:
-        return None
-    try:
-        return make_aligner(K)
-    except ImportError:
-        return None
+    """``gvnn_warp.odometry.DirectAligner`` with the settings ``gvnn-warp track`` uses."""
+    return make_aligner(K)
 
 
 def _cache(reader, n, aligner):
@@ -155,10 +157,6 @@ class NormalEquationsProbe:
     into the probe's arrays first (not timed)."""
 
     def __init__(self, K: np.ndarray, width: int, height: int, calls: int = 3):
-        import warp as wp
-        from gvnn_warp.kernels.core.launch import mat34f
-        from gvnn_warp.kernels.photometric import pipeline as photometric_pipeline
-
         self.ne, self.calls = photometric_pipeline.photometric_normal_equations, calls
         shape = (1, 1, height, width)
         self.ref, self.depth, self.live = (wp.zeros(shape, dtype=wp.float32) for _ in range(3))
@@ -204,8 +202,6 @@ def normal_equations_summary(ms: list[float], label: str, open3d: dict | None) -
 
 
 def run_size(seq, methods: dict, strides: list[int], progress: bool, probe: NormalEquationsProbe | None = None) -> dict:
-    from tqdm import tqdm
-
     n = len(seq)
     gt, valid = seq.gt_poses, seq.gt_valid
     if gt is None or not valid.all():
@@ -275,8 +271,6 @@ def table(size: str, n: int, results: dict, strides: list[int]) -> str:
 
 def machine() -> dict:
     """nproc, CPU model, load and versions (without importing torch)."""
-    from importlib.metadata import PackageNotFoundError, version
-
     model = platform.processor() or "unknown"
     try:
         with open("/proc/cpuinfo") as f:
@@ -294,8 +288,6 @@ def machine() -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gvnn_warp.cli.args import image_size, positive_int
-
     p = argparse.ArgumentParser(prog="python -m benchmarks.odometry", description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=positive_int, default=200, help="frames to render (default 200)")
     p.add_argument("--sizes", default="320x240,640x480", help="comma-separated WxH sizes (default 320x240,640x480)")
@@ -321,8 +313,6 @@ def main(argv: list[str] | None = None) -> int:
         sources = [(args.data, None)] if args.data else [(Path(tmp) / f"{w}x{h}", (w, h)) for w, h in sizes]
         for folder, size in sources:
             if size is not None:
-                from gvnn_warp.cli.render import render_sequence
-
                 t = time.perf_counter()
                 render_sequence(folder, "se3", args.frames, size, args.seed, progress=False)
                 print(f"rendered {args.frames} frames at {size[0]}x{size[1]} in {time.perf_counter() - t:.0f} s",
@@ -335,11 +325,7 @@ def main(argv: list[str] | None = None) -> int:
                 except ImportError:
                     print("Open3D is not installed (pip install -e '.[bench]'); skipped", file=sys.stderr)
             if not args.no_ours:
-                ours = our_aligner(seq.K)
-                if ours is None:
-                    print("gvnn_warp.odometry.DirectAligner is not available yet; skipped", file=sys.stderr)
-                else:
-                    methods["gvnn_warp DirectAligner"] = (ours, _gray_reader(seq))
+                methods["gvnn_warp DirectAligner"] = (our_aligner(seq.K), _gray_reader(seq))
             if not methods:
                 raise SystemExit("benchmarks.odometry: nothing to run")
             label = f"{seq.width}x{seq.height}"

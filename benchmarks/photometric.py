@@ -36,11 +36,14 @@ import kornia  # noqa: E402
 import numpy as np  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 import warp as wp  # noqa: E402
+from gvnn_warp.kernels.core import launch  # noqa: E402
 from gvnn_warp.kernels.core.launch import mat34f  # noqa: E402
+from gvnn_warp.kernels.photometric import normal_equations as pk  # noqa: E402
 from gvnn_warp.kernels.photometric import pipeline as photometric_pipeline  # noqa: E402
 
 import gvnn_warp as G  # noqa: E402
 from benchmarks.common import Case, affine_grid, clear_grads, interleaved, leaves, machine, wfd_scene  # noqa: E402
+from gvnn_warp.ops import photometric as ops  # noqa: E402
 
 
 def error_cases(B=8, C=3, H=240, W=320) -> list[Case]:
@@ -119,9 +122,6 @@ def cpu_ms(fn, n=5) -> float:
 
 def one_thread_table(n: int) -> dict:
     """ns per pixel on one thread (thread CPU time)."""
-    from gvnn_warp.kernels.core import launch
-    from gvnn_warp.kernels.photometric import normal_equations as pk
-
     torch.set_num_threads(1)
     launch.set_num_threads(1)
     try:
@@ -142,8 +142,6 @@ def one_thread_table(n: int) -> dict:
             G.photometric_error(ref, d, image, p, K)[0].sum().backward()
 
         def fb_reference():  # the same through the reference row kernel and its Warp adjoint
-            from gvnn_warp.ops import photometric as ops
-
             d.grad = p.grad = None
             rows = ops.photometric_rows(ref, d, image, p, K, C, H, W, 5, 1.0, 1e-3)
             ops.photometric_mean(*rows, H, C)[0].sum().backward()

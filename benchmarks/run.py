@@ -102,6 +102,8 @@ def lens_cases(B, C, H, W) -> list[Case]:
     camera shared by the batch (their rays cached, as for any fixed camera), and a radtan camera
     whose rays are recomputed in every call (a camera that changes every call: its own cache entry
     is dropped before each call, untimed, and the other cameras' entries are left alone)."""
+    # the torch front loads on first use (as G.* does): `python -m benchmarks.run --help` and the
+    # report's tests (tests/test_benchmark_report.py) import this module without waiting for it
     from gvnn_warp.cameras.models import FisheyeCamera, RadTanCamera
     from gvnn_warp.functional import geometry as Fn
 

@@ -20,6 +20,12 @@ import argparse
 import statistics
 import time
 
+from gvnn_warp.kernels.core import launch
+
+from gvnn_warp.datasets.tum import read_tum
+from gvnn_warp.odometry import aligner as odometry  # its _OCCLUSION_LEVELS, set by --occlusion-levels
+from gvnn_warp.odometry.sequence import make_aligner
+
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -29,11 +35,6 @@ def main(argv=None) -> None:
     p.add_argument("--occlusion-levels", type=int, default=None)
     args = p.parse_args(argv)
 
-    from gvnn_warp.kernels.core import launch
-
-    from gvnn_warp.datasets.tum import read_tum
-    from gvnn_warp.odometry import aligner as odometry
-
     if args.threads is not None:
         launch.set_num_threads(args.threads)
     if args.occlusion_levels is not None:
@@ -41,7 +42,7 @@ def main(argv=None) -> None:
     seq = read_tum(args.data)
     frames = [(seq.image(i, gray=True), seq.depth(i)) for i in range(len(seq))]
     # as gvnn-warp track: through the camera's radial-tangential distortion when it has one
-    aligner = odometry.DirectAligner(seq.K, **({} if seq.dist is None else {"model": "radtan", "dist": seq.dist}))
+    aligner = make_aligner(seq.K, dist=seq.dist)
     wall = {"prepare": [], "align": []}
     cpu = {"prepare": [], "align": []}
     for rep in range(max(2, args.reps)):

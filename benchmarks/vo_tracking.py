@@ -6,11 +6,12 @@
 (run from the repository root, after training the networks with ``gvnn-warp vo --motion se3 --out
 out/vo_se3`` and ``--motion so3 --out out/vo_so3``, the defaults of ``--se3`` / ``--so3``; a motion
 whose checkpoint is missing is skipped). For each checkpoint a held-out sequence is rendered by
-``gvnn-warp render``'s code into a temporary TUM folder - in the room the network was trained in
-(its ``scene_seed``), along a trajectory of another seed (``--seed``, not among the training or
-evaluation seeds) of the same family: se3 (1.5-4 cm, 0.6-1.6 deg per frame) or so3 (rapid rotation,
-2-8 deg per frame) - at ``--size`` (the network's input is smaller: frames are resized and K
-scaled, as ``gvnn-warp track --method vo`` does) and read back through ``gvnn_warp.datasets.tum``.
+``gvnn_warp.synthetic.sequence`` (``gvnn-warp render``'s library) into a temporary TUM folder - in
+the room the network was trained in (its ``scene_seed``), along a trajectory of another seed
+(``--seed``, not among the training or evaluation seeds) of the same family: se3 (1.5-4 cm, 0.6-1.6
+deg per frame) or so3 (rapid rotation, 2-8 deg per frame) - at ``--size`` (the network's input is
+smaller: frames are resized and K scaled, as ``gvnn-warp track --method vo`` does) and read back
+through ``gvnn_warp.datasets.tum``.
 Then, for the methods
 
 - identity: every relative pose is the identity (the camera assumed still);
@@ -47,11 +48,19 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+import torch  # noqa: E402  (after OMP_WAIT_POLICY is set)
+from tqdm import tqdm  # noqa: E402
+
 from benchmarks.odometry import machine  # noqa: E402
+from gvnn_warp.cli.args import bounded_int_list, image_size, positive_int  # noqa: E402  (argument types)
 from gvnn_warp.datasets.tum import read_tum  # noqa: E402
 from gvnn_warp.odometry.evaluation import evaluate_trajectory, pose_error  # noqa: E402
+from gvnn_warp.odometry.sequence import make_aligner  # noqa: E402
 from gvnn_warp.odometry.tracking import Tracker  # noqa: E402
 from gvnn_warp.synthetic import relative_pose  # noqa: E402
+from gvnn_warp.synthetic.sequence import render_sequence  # noqa: E402
+from gvnn_warp.vo.checkpoint import load_network, read_checkpoint  # noqa: E402
+from gvnn_warp.vo.frontend import NetworkAligner  # noqa: E402
 
 FAIL_ROT_DEG = 2.0
 FAIL_TRANS_M = 0.05
@@ -69,9 +78,6 @@ class Identity:
 
 
 def make_methods(seq, network, spec) -> dict:
-    from gvnn_warp.cli.track import make_aligner
-    from gvnn_warp.vo.frontend import NetworkAligner
-
     size = (seq.width, seq.height)
     refine = spec.get("refine", 0)
     symmetries = tuple(spec.get("symmetries", ()))
@@ -86,8 +92,6 @@ def make_methods(seq, network, spec) -> dict:
 
 def run_tracking(frames, methods: dict, gt, stamps, progress: bool) -> dict:
     """Frame-to-frame tracking by every method in lockstep; ATE, RPE and frames per second."""
-    from tqdm import tqdm
-
     n = len(frames)
     trackers = {name: Tracker(a, n, start_pose=gt[0]) for name, a in methods.items()}
     names = list(trackers)
@@ -110,8 +114,6 @@ def run_tracking(frames, methods: dict, gt, stamps, progress: bool) -> dict:
 
 def run_pairs(frames, methods: dict, gt, gaps: list[int], progress: bool) -> dict:
     """Every pair (i, i + g), each aligned on its own: failure rate (> 2 deg or > 5 cm) and median errors."""
-    from tqdm import tqdm
-
     prepared = {name: [a.prepare(*f) for f in frames] for name, a in methods.items()}
     n = len(frames)
     out = {name: {} for name in methods}
@@ -134,11 +136,6 @@ def run_pairs(frames, methods: dict, gt, gaps: list[int], progress: bool) -> dic
 
 
 def run_motion(motion: str, ckpt: Path, args, tmp: Path) -> dict | None:
-    import torch
-
-    from gvnn_warp.cli.render import render_sequence
-    from gvnn_warp.vo.checkpoint import load_network, read_checkpoint
-
     if not ckpt.exists():
         print(f"{ckpt}: missing, {motion} skipped (train it: gvnn-warp vo --motion {motion} --out {ckpt.parent})",
               file=sys.stderr)
@@ -187,8 +184,6 @@ def table(results: dict, gaps: list[int]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gvnn_warp.cli.args import bounded_int_list, image_size, positive_int
-
     p = argparse.ArgumentParser(prog="python -m benchmarks.vo_tracking", description=__doc__.split("\n\n")[0])
     p.add_argument("--se3", type=Path, default=Path("out/vo_se3/checkpoint.pt"), help="se3 checkpoint")
     p.add_argument("--so3", type=Path, default=Path("out/vo_so3/checkpoint.pt"), help="so3 checkpoint")

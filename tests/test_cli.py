@@ -342,7 +342,8 @@ def test_ctrl_c_in_align_exits_130_with_one_line(tmp_path):
 SWALLOWS_CTRL_C = """
 import argparse, sys, time
 from gvnn_warp import cli
-cli.EXIT_GRACE_SECONDS = 1.0
+from gvnn_warp.cli import runner
+runner.EXIT_GRACE_SECONDS = 1.0  # read by runner's Ctrl-C timer
 
 def run(args):
     print("ready", flush=True)
@@ -467,7 +468,7 @@ def _colorbar_labels(fig):
 def test_align_figure_has_a_labelled_colour_bar():
     import matplotlib.pyplot as plt
 
-    from gvnn_warp.cli.align import figure
+    from gvnn_warp.demos.align import figure
 
     g = torch.Generator().manual_seed(0)
     ref, live, before, after = (torch.rand(3, 24, 32, generator=g) for _ in range(4))
@@ -485,7 +486,7 @@ def test_align_figure_has_a_labelled_colour_bar():
 def test_flow_figure_colour_bars_have_units():
     import matplotlib.pyplot as plt
 
-    from gvnn_warp.cli.flow import figure
+    from gvnn_warp.demos.flow import figure
 
     g = torch.Generator().manual_seed(0)
     f1, f2, warped = (torch.rand(1, 3, 24, 32, generator=g) for _ in range(3))

@@ -16,26 +16,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
+from ..synthetic.sequence import MOTIONS, TUM_FILES, render_sequence
 from .args import UsageError, bounded_int, description, image_size, output_dir, seed
+from .runner import command_main
 
-__all__ = ["add_parser", "check", "render_sequence", "run"]
+__all__ = ["add_parser", "check", "run"]
 
 REQUIRES = ("tqdm",)  # checked by gvnn_warp.cli before run(); rendering and writing need no torch
 
 MAX_SIDE = 2048  # largest image side: a 2048x2048 RGB-D frame is 64 MiB in float32
 MAX_FRAMES = 100_000  # about an hour at 30 fps
-FPS = 30.0
-T0 = 1_700_000_000.0  # first timestamp (s), in the range of real sensor clocks
-CHUNK = 16  # at most this many frames rendered per Warp launch
-CHUNK_BYTES = 256 * 2**20  # ... and at most this much float32 colour + depth per launch
-TUM_FILES = ("rgb.txt", "depth.txt", "groundtruth.txt", "intrinsics.txt")
-
-MOTIONS = {
-    "se3": "smooth hand-held-like 6-DoF motion: 1.5-4 cm and 0.6-1.6 deg per frame",
-    "so3": "rotation about a fixed centre only: 2-8 deg per frame",
-}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -64,15 +55,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def trajectory(motion: str, frames: int, seed: int):
-    """``T_world_cam`` (frames, 4, 4) of the ``motion`` (see ``MOTIONS``)."""
-    from ..synthetic import rotation_trajectory, smooth_se3_trajectory
-
-    if motion == "se3":
-        return smooth_se3_trajectory(frames, seed)
-    return rotation_trajectory(frames, seed)
-
-
 def check(args: argparse.Namespace) -> None:
     """Checks that need what is on disk (raises UsageError before any work): --out must not hold a
     TUM sequence already, unless --overwrite."""
@@ -80,44 +62,6 @@ def check(args: argparse.Namespace) -> None:
     if existing and not args.overwrite:
         raise UsageError(f"--out {args.out} already holds a sequence ({existing[0]}); pass --overwrite or choose "
                          "another folder")
-
-
-def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], seed: int,
-                    progress: bool = True, scene_seed: int | None = None) -> float:
-    """Render and write the sequence (the room of ``scene_seed``, default ``seed``); returns the
-    seconds spent rendering (not writing)."""
-    import numpy as np
-    from tqdm import tqdm
-
-    from ..datasets.tum import TUMWriter
-    from ..synthetic import default_intrinsics, make_room_scene, render_rgbd
-
-    width, height = size
-    K = default_intrinsics(width, height)
-    poses = trajectory(motion, frames, seed)
-    scene = make_room_scene(seed if scene_seed is None else scene_seed)
-    stamps = T0 + np.arange(frames) / FPS
-    chunk = max(1, min(CHUNK, CHUNK_BYTES // (16 * width * height)))  # 4 float32 channels per pixel
-    if out.is_dir():  # --overwrite: drop the old images so no stale frame is left beside the new lists
-        for kind in ("rgb", "depth"):
-            for f in (out / kind).glob("*.png"):
-                f.unlink()
-    comment = f"gvnn-warp render --motion {motion} --frames {frames} --size {width}x{height} --seed {seed}"
-    if scene_seed is not None and scene_seed != seed:
-        comment += f" --scene-seed {scene_seed}"
-    render_s = 0.0
-    with TUMWriter(out, K, comment=comment) as writer, tqdm(
-        total=frames, unit="frame", disable=not progress, desc="render"
-    ) as bar:
-        for start in range(0, frames, chunk):
-            stop = min(start + chunk, frames)
-            t = time.perf_counter()
-            image, depth = render_rgbd(scene, poses[start:stop], K, width, height)
-            render_s += time.perf_counter() - t
-            for k in range(stop - start):
-                writer.add(stamps[start + k], image[k], depth[k], poses[start + k])
-                bar.update(1)
-    return render_s
 
 
 def run(args: argparse.Namespace) -> int:
@@ -135,9 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m gvnn_warp.cli.render ...``: the same as ``gvnn-warp render ...``."""
-    from . import main as cli_main
-
-    return cli_main(["render", *(sys.argv[1:] if argv is None else argv)])
+    return command_main(add_parser, REQUIRES, argv)
 
 
 if __name__ == "__main__":

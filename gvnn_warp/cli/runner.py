@@ -1,25 +1,40 @@
-"""The gvnn-warp command line: demos of the layers on data made at run time.
+"""How every ``gvnn-warp`` command runs, shared by the package's ``main`` and by each command run on
+its own (``python -m gvnn_warp.cli.<command>``): the packages a command needs are checked before it
+starts, a bad combination of arguments (``UsageError``) is one line after the usage line (status 2), a
+file the command cannot make, read or write is one line (status 1), and Ctrl-C ends it with one line
+and status 130.
 
-Every command checks its arguments before it starts (a bad one gets a one-line error after the
-usage line and exit status 2), checks that the packages it needs are installed, and exits with one
-line and status 130 on Ctrl-C.
+Imports no command module (the package ``gvnn_warp.cli`` holds the table of commands).
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import ctypes
 import importlib.util
 import os
 import signal
 import sys
 import threading
+from collections.abc import Callable, Iterable
 
+import warp as wp
+
+from .. import _warp_setup
 from .args import HelpFormatter, UsageError, plain_text
 
-# subcommand modules in gvnn_warp.demos; each has add_parser(subparsers), its own run(args), and
-# optionally REQUIRES: the importable packages it needs, checked before it starts
-DEMOS = ("align", "flow", "vo", "render", "track")
+__all__ = [
+    "EXIT_GRACE_SECONDS",
+    "INSTALL_HINTS",
+    "INTERRUPTED_STATUS",
+    "add_command",
+    "announce_compiles",
+    "command_main",
+    "missing_packages",
+    "parse_and_run",
+    "run_command",
+    "tidy_parser",
+]
 
 # what to tell a user who lacks a package a command needs
 INSTALL_HINTS = {
@@ -42,22 +57,8 @@ def tidy_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return parser
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="gvnn-warp", description=__doc__.split("\n\n")[0], formatter_class=HelpFormatter
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in DEMOS:
-        module = importlib.import_module(f"gvnn_warp.cli.{name}")
-        module.add_parser(sub)
-        p = tidy_parser(sub.choices[name])
-        p.set_defaults(_parser=p, _requires=tuple(getattr(module, "REQUIRES", ())))
-    for action in sub._choices_actions:  # the one-line summaries in `gvnn-warp --help`
-        action.help = plain_text(action.help)
-    return parser
-
-
-def missing_packages(names) -> list[str]:
+def missing_packages(names: Iterable[str]) -> list[str]:
+    """The importable packages among ``names`` that are not installed (found without importing them)."""
     return [n for n in names if importlib.util.find_spec(n) is None]
 
 
@@ -65,17 +66,14 @@ def announce_compiles() -> None:
     """Print one line on stderr before Warp first compiles a kernel module in this process (a
     cold kernel cache: the first run, or a new gvnn_warp or Warp version); nothing when every
     module comes from the cache. Only rank 0 prints under torchrun."""
-    from .._warp_setup import on_first_compile
-
     if os.environ.get("RANK", "0") != "0":
         return
-    import warp as wp
 
     def notify():
         print(f"gvnn-warp: compiling kernels, once (a few seconds per module; cached in "
               f"{wp.config.kernel_cache_dir})", file=sys.stderr, flush=True)
 
-    on_first_compile(notify)
+    _warp_setup.on_first_compile(notify)
 
 
 class _CtrlC:
@@ -121,16 +119,14 @@ def _clear_unhandled_interrupt() -> bool:
     returns False (tests/test_cli.py runs the real Ctrl-C and checks the status).
     """
     try:
-        import ctypes
-
         flag = ctypes.c_int.in_dll(ctypes.pythonapi, "_Py_UnhandledKeyboardInterrupt")
-    except (ImportError, ValueError, AttributeError, OSError):
+    except (ValueError, AttributeError, OSError):
         return False
     flag.value = 0
     return True
 
 
-def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requires=()) -> int:
+def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requires: Iterable[str] = ()) -> int:
     """Run ``args.func(args)``: the packages in ``requires`` are checked first (one line, status 1,
     if one is missing); a ``UsageError`` is printed after the usage line (status 2); an OSError
     naming a file (one the command cannot make, read or write) is one line, status 1; Ctrl-C ends
@@ -140,8 +136,6 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
         hints = "; ".join(INSTALL_HINTS.get(n, f"{n}, which is not installed") for n in missing)
         print(f"{parser.prog}: error: this command needs {hints}", file=sys.stderr)
         return 1
-    from .._warp_setup import cancel_first_compile
-
     ctrl_c = _CtrlC(parser.prog)
     try:
         with ctrl_c:
@@ -161,21 +155,41 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
         _clear_unhandled_interrupt()
         return INTERRUPTED_STATUS
     finally:
-        cancel_first_compile()  # the notice is the command's, not of later library use in this process
+        # the notice is the command's, not of later library use in this process (looked up at call
+        # time: tests replace it)
+        _warp_setup.cancel_first_compile()
 
 
-def main(argv: list[str] | None = None) -> int:
+def add_command(subparsers, add_parser: Callable, requires: Iterable[str] = ()) -> argparse.ArgumentParser:
+    """The parser of one command: made by the command's ``add_parser(subparsers)``, its help tidied
+    (:func:`tidy_parser`), and knowing itself and the packages the command needs (``requires``), which
+    :func:`parse_and_run` reads back from the parsed arguments."""
+    p = tidy_parser(add_parser(subparsers))
+    p.set_defaults(_parser=p, _requires=tuple(requires))
+    return p
+
+
+def parse_and_run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
+    """Parse ``argv`` with ``parser`` and run the command the arguments name (:func:`run_command`
+    with the command's parser and packages, set by :func:`add_command`). Ctrl-C while parsing is one
+    line and status 130; Ctrl-C again while ``run_command`` cleans up after reporting one is still
+    status 130, not Python's exit for an unhandled KeyboardInterrupt (killed by SIGINT, status -2)."""
     try:
-        parser = build_parser()
         args = parser.parse_args(argv)
     except KeyboardInterrupt:
-        print("gvnn-warp: interrupted", file=sys.stderr)
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS
     try:
         return run_command(args._parser, args, args._requires)
     except KeyboardInterrupt:
-        # raised again while run_command cleaned up after reporting one: still the one line and 130,
-        # not Python's exit for an unhandled KeyboardInterrupt (killed by SIGINT, status -2)
         _clear_unhandled_interrupt()
         return INTERRUPTED_STATUS
 
+
+def command_main(add_parser: Callable, requires: Iterable[str] = (), argv: list[str] | None = None) -> int:
+    """One command run on its own (``python -m gvnn_warp.cli.<command> ...``, e.g. under torchrun):
+    the same parser, checks and handling as ``gvnn-warp <command> ...``; ``argv`` defaults to
+    ``sys.argv[1:]``."""
+    root = argparse.ArgumentParser(prog="gvnn-warp")
+    parser = add_command(root.add_subparsers(), add_parser, requires)
+    return parse_and_run(parser, sys.argv[1:] if argv is None else argv)

@@ -36,14 +36,17 @@ the headers), and refuses an OUT that is the sequence's folder or holds an earli
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
 
+from ..datasets.tum import DatasetError, read_tum
+from ..odometry.sequence import RESULT_FILES, make_aligner, track_sequence
+from ..odometry.tracking import KeyframePolicy
 from .args import UsageError, bounded_int, description, finite_float, output_dir, positive_float
+from .runner import INSTALL_HINTS, command_main, missing_packages
 
-__all__ = ["add_parser", "check", "make_aligner", "run"]
+__all__ = ["add_parser", "check", "run"]
 
 # checked by gvnn_warp.cli before run(): evo computes the metrics, matplotlib draws the figures; the
 # aligner, the reader and the tracking loop are numpy and Warp (no torch)
@@ -54,8 +57,6 @@ PRESETS = ("fr1", "fr2", "fr3", "icl")
 METHODS = ("direct", "vo", "vo+direct")
 MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
 MAX_ITERATIONS = 1000
-LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the summary warns (depth scale, images)
-PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth suggests a wrong --depth-scale
 
 
 def intrinsics_arg(text: str):
@@ -74,8 +75,6 @@ def intrinsics_arg(text: str):
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..odometry.tracking import KeyframePolicy
-
     kf = KeyframePolicy()
     p.add_argument("data", type=Path, metavar="DIR", help="TUM RGB-D folder (rgb.txt, depth.txt[, groundtruth.txt])")
     p.add_argument("--out", type=output_dir, required=True, metavar="OUT",
@@ -133,28 +132,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
-                 depth_weight: float = 0.0, color: bool = False, dist=None):
-    """The ``gvnn_warp.odometry.DirectAligner`` that ``gvnn-warp track`` uses (None: the aligner's default;
-    ``dist``: radial-tangential coefficients (k1, k2, p1, p2, k3) of the images, None for a pinhole)."""
-    from ..odometry.aligner import DirectAligner
-
-    kwargs = {"robust": robust, "depth_weight": depth_weight, "color": color}
-    if dist is not None:
-        kwargs.update(model="radtan", dist=dist)
-    if levels is not None:
-        kwargs["levels"] = levels
-    if iterations is not None:
-        kwargs["iterations"] = iterations
-    return DirectAligner(K, **kwargs)
-
-
 def _summary(rows: list[tuple[str, str]]) -> str:
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
 
 
-RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png")
 KEYFRAME_OPTIONS = {"keyframe_trans": "max_trans_m", "keyframe_rot": "max_rot_deg", "keyframe_valid": "min_valid"}
 # (option -> its KeyframePolicy field)
 
@@ -165,8 +147,6 @@ def check(args: argparse.Namespace):
     and associated, every image to be tracked exists and has the right format and size (from its
     header; the pixels are read while tracking), there are at least 2 frames, and the principal
     point is inside the image. Returns (sequence, number of frames to track)."""
-    from ..datasets.tum import DatasetError, read_tum
-
     if not getattr(args, "keyframes", False):
         given = [name for name in KEYFRAME_OPTIONS if getattr(args, name, None) is not None]
         if given:
@@ -207,10 +187,9 @@ def check_method(args: argparse.Namespace):
         return None
     if ckpt is None:
         raise UsageError(f"--method {method} needs --checkpoint CKPT (the checkpoint.pt written by gvnn-warp vo)")
-    from . import INSTALL_HINTS, missing_packages
-
     if missing_packages(("torch",)):
         raise UsageError(f"--method {method} needs {INSTALL_HINTS['torch']}")
+    # torch loads only here, for a network: --method direct (the default) never imports it
     from ..vo.checkpoint import CheckpointError, load_network
 
     try:
@@ -220,8 +199,6 @@ def check_method(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..datasets.tum import DatasetError
-
     seq, n = check(args)
     network = check_method(args)
     aligner = None
@@ -229,155 +206,32 @@ def run(args: argparse.Namespace) -> int:
         aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
                                depth_weight=args.depth_weight, color=args.color, dist=seq.dist)
     if network is not None:
-        from ..vo.frontend import NetworkAligner
+        from ..vo.frontend import NetworkAligner  # torch: only with a network (see check_method)
 
         net, spec = network
         aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner,
                                  symmetries=tuple(spec.get("symmetries", ())))
-    try:
-        return _track_and_report(args, seq, n, aligner)
-    except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
-        print(f"gvnn-warp track: error: {e}", file=sys.stderr)
-        return 1
-
-
-def _track_and_report(args, seq, n: int, aligner) -> int:
-    import numpy as np
-
-    from ..datasets.tum import write_trajectory
-    from ..odometry.evaluation import (
-        ATE_ALIGNMENT,
-        FAIL_ROT_DEG,
-        FAIL_TRANS_M,
-        evaluate_trajectory,
-        plot_errors,
-        plot_top_view,
-    )
-    from ..odometry.tracking import KeyframePolicy, track
-
-    method = getattr(args, "method", "direct")
-    gray = not args.color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
-    has_gt = seq.gt_poses is not None and int(seq.gt_valid[:n].sum()) >= 2
-    start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
     policy = None
     if args.keyframes:  # the options given, else the policy's defaults
         given = {field: getattr(args, option, None) for option, field in KEYFRAME_OPTIONS.items()}
         policy = KeyframePolicy(**{field: v for field, v in given.items() if v is not None})
-    result = track(lambda i: (seq.image(i, gray=gray), seq.depth(i)), n, aligner, start_pose=start,
-                   keyframes=policy, init=args.init, progress=not args.no_progress)
-
-    stamps = seq.timestamps[:n]
-    # only now, with the run done: make --out, and (--overwrite) remove the earlier run's files, so
-    # that a run that fails leaves nothing, or the earlier results, and no file of theirs is left
-    # beside the new ones
-    args.out.mkdir(parents=True, exist_ok=True)
-    for name in RESULT_FILES:
-        (args.out / name).unlink(missing_ok=True)
-    write_trajectory(args.out / "trajectory.txt", stamps, result.poses,
-                     comment=f"gvnn-warp track {seq.root}: estimated T_world_cam")
-    unconverged = result.unconverged_frames
-    metrics = {
-        "sequence": str(seq.root),
-        "frames": n,
-        "pairs": n - 1,
-        "size": [seq.width, seq.height],
-        "intrinsics": {"fx": seq.K[0, 0], "fy": seq.K[1, 1], "cx": seq.K[0, 2], "cy": seq.K[1, 2],
-                       "radtan": None if seq.dist is None else [float(v) for v in seq.dist],
-                       "source": seq.intrinsics_source},
-        "settings": {"method": method,
-                     "checkpoint": str(args.checkpoint) if getattr(args, "checkpoint", None) else None,
-                     "mode": "keyframe" if policy else "frame-to-frame",
-                     "init": args.init if method == "direct" else "network",
-                     "levels": args.levels or "auto", "iterations": args.iterations, "robust": args.robust,
-                     "depth_weight": args.depth_weight,
-                     "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale},
-        "ms_per_pair": result.ms_per_pair,
-        "ms_per_pair_note": "alignment incl. the live frame's pyramid; file reading excluded",
-        "keyframes": len(result.keyframes) if policy else None,
-        "unconverged_pairs": len(unconverged),
-        "unconverged_frames": unconverged,
-        "median_valid_fraction": _median_valid(result.valid_fraction),
-        "ground_truth": has_gt,
-    }
-    K = seq.K
-    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method})"),
-            ("intrinsics", f"fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
-                           f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
-                           f"({seq.intrinsics_source})"),
-            ("ms per pair", f"{result.ms_per_pair:.2f}"),
-            ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {_frames_text(unconverged)})" if unconverged
-                                                           else ""))]
-    if policy:
-        rows.append(("keyframes", str(len(result.keyframes))))
-    depth0 = seq.depth(0)
-    depth0 = depth0[np.isfinite(depth0) & (depth0 > 0)]
-    median0 = metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
-    if median0 is not None and not PLAUSIBLE_DEPTH_M[0] <= median0 <= PLAUSIBLE_DEPTH_M[1]:
-        rows.append(("warning", f"the first frame's median depth is {median0:.4g} m: check --depth-scale "
-                                f"({seq.depth_scale:g} units per metre)"))
-    valid = metrics["median_valid_fraction"]
-    if valid is not None and valid < LOW_VALID_FRACTION:
-        rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
-                                f"the depth images and --depth-scale ({seq.depth_scale:g} units per metre)"))
-    if has_gt:
-        m = evaluate_trajectory(stamps, result.poses, seq.gt_poses[:n], seq.gt_valid[:n])
-        failed = m.pair_frames[m.failed]
-        metrics.update({
-            "evaluated_frames": int(m.frames.size),
-            "ate_rmse_m": m.ate_rmse_m,
-            "ate_alignment": m.ate_alignment,
-            "rpe_trans_rmse_m": m.rpe_trans_rmse_m,
-            "rpe_rot_rmse_deg": m.rpe_rot_rmse_deg,
-            "rpe_delta": "1 frame (consecutive pairs)",
-            "failed_pairs": int(failed.shape[0]),
-            "failed_pair_frames": failed.tolist(),
-            "failure_threshold": {"trans_m": FAIL_TRANS_M, "rot_deg": FAIL_ROT_DEG},
-            "metrics_by": "evo",
-        })
-        aligned_by = "SE(3)-aligned" if m.ate_alignment == ATE_ALIGNMENT else "first pose aligned"
-        rows += [("ATE RMSE", f"{100 * m.ate_rmse_m:.2f} cm ({aligned_by})"),
-                 ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame"),
-                 ("RPE rot RMSE", f"{m.rpe_rot_rmse_deg:.4f} deg per frame"),
-                 ("failed pairs", f"{failed.shape[0]} of {m.pair_frames.shape[0]} (> 1 cm or > 0.25 deg)")]
-        if m.frames.size < n:
-            rows.append(("evaluated frames", f"{m.frames.size} of {n} (the others have no ground-truth pose within "
-                                             f"--max-difference {args.max_difference:g} s)"))
-        plot_top_view(args.out / "trajectory.png", m.aligned, m.ground_truth,
-                      title=f"{seq.root.name}: estimate ({aligned_by}) vs ground truth")
-        plot_errors(args.out / "errors.png", m, np.array(unconverged))
-    else:
-        plot_top_view(args.out / "trajectory.png", result.poses, None, title=f"{seq.root.name}: estimate")
-        if seq.gt_poses is None:
-            why = "none (no groundtruth.txt): no ATE/RPE"
-        else:
-            why = (f"none usable: {int(seq.gt_valid[:n].sum())} of the {n} frames have a pose in groundtruth.txt "
-                   f"within --max-difference {args.max_difference:g} s (2 needed): no ATE/RPE")
-        rows.append(("ground truth", why))
-        metrics["ground_truth_note"] = why
-    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    print(f"track {seq.root}:\n{_summary(rows)}\nwrote {args.out}")
+    try:
+        report = track_sequence(
+            seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
+            checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
+            levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
+            max_difference=args.max_difference, progress=not args.no_progress,
+        )
+    except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
+        print(f"gvnn-warp track: error: {e}", file=sys.stderr)
+        return 1
+    print(f"track {seq.root}:\n{_summary(report.rows)}\nwrote {args.out}")
     return 0
-
-
-def _median_valid(fractions) -> float | None:
-    """The median of the pairs' valid fractions (NaN: unknown, e.g. frame 0), None if none known."""
-    import numpy as np
-
-    known = np.asarray(fractions, dtype=np.float64)
-    known = known[np.isfinite(known)]
-    return float(np.median(known)) if known.size else None
-
-
-def _frames_text(frames: list[int], limit: int = 12) -> str:
-    text = ", ".join(str(f) for f in frames[:limit])
-    return text + (f", ... ({len(frames)} in all)" if len(frames) > limit else "")
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m gvnn_warp.cli.track ...``: the same as ``gvnn-warp track ...``."""
-    from . import main as cli_main
-
-    return cli_main(["track", *(sys.argv[1:] if argv is None else argv)])
+    return command_main(add_parser, REQUIRES, argv)
 
 
 if __name__ == "__main__":

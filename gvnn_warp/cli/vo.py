@@ -34,7 +34,8 @@ from pathlib import Path
 # is first imported (this module does not import torch at import time).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from .args import (
+from ..kernels.robust import KINDS  # noqa: E402  (pure Warp: no torch)
+from .args import (  # noqa: E402
     UsageError,
     bounded_int,
     bounded_int_list,
@@ -46,6 +47,7 @@ from .args import (
     positive_int,
     seed,
 )
+from .runner import command_main  # noqa: E402
 
 MAX_SIDE = 1024  # larger frames make the network and the rendered data set too big for a demo
 _SIZE = image_size(32, MAX_SIDE)
@@ -57,12 +59,12 @@ REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 
 def _losses() -> tuple[str, ...]:
     # the choices of --loss without importing torch (gvnn_warp.vo.loss.LOSSES; a test checks they agree)
-    from ..kernels.robust import KINDS
-
     return ("l1", "l2", *KINDS)
 
 
 def _symmetries(text: str) -> tuple[str, ...]:
+    # the network's module imports torch: only when --symmetries is given (not for --help, nor on import,
+    # which must come before torch so that OMP_WAIT_POLICY above takes effect)
     from ..vo.model import SYMMETRIES
 
     names = () if text.strip() == "none" else tuple(n.strip() for n in text.split(",") if n.strip())
@@ -138,7 +140,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _config(args: argparse.Namespace):
-    from ..vo.train import default_config
+    from ..vo.train import default_config  # torch: only when the command runs (see run)
 
     return default_config(
         args.motion,
@@ -167,6 +169,8 @@ def _config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    # gvnn_warp.vo imports torch: only now, once gvnn_warp.cli has checked that torch is installed
+    # (--help and the other commands never load it) and after OMP_WAIT_POLICY is set above
     from ..vo.train import ConfigError, check_config, train
 
     try:  # every check that needs several options, or the checkpoint to resume, before any work
@@ -189,17 +193,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m gvnn_warp.cli.vo ...``, also under torchrun)."""
-    from . import run_command, tidy_parser
-
-    parser = tidy_parser(argparse.ArgumentParser(prog="gvnn-warp vo", description=description(__doc__)))
-    add_arguments(parser)
-    parser.set_defaults(func=run)
-    try:
-        args = parser.parse_args(argv)
-    except KeyboardInterrupt:
-        return 130
-    return run_command(parser, args, REQUIRES)
+    """Stand-alone entry (``python -m gvnn_warp.cli.vo ...``, also under torchrun): the same as
+    ``gvnn-warp vo ...``."""
+    return command_main(add_parser, REQUIRES, argv)
 
 
 if __name__ == "__main__":

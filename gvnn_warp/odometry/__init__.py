@@ -1,6 +1,8 @@
-"""Direct RGB-D odometry without torch (numpy and Warp): the aligner (:mod:`.aligner`), tracking a
-sequence frame to frame or to keyframes (:mod:`.tracking`), and trajectory metrics and figures
-computed with evo (:mod:`.evaluation`).
+"""Direct RGB-D odometry without torch (numpy and Warp): the aligner (:mod:`.aligner`; its parts: the
+arguments it takes (:mod:`.inputs`), prepared frames and their pooled pyramids (:mod:`.frame`), the
+Levenberg-Marquardt state and recorded launches (:mod:`.solver`)), tracking a sequence frame to
+frame or to keyframes (:mod:`.tracking`), and trajectory metrics and figures computed with evo
+(:mod:`.evaluation`).
 """
 
 from . import aligner

@@ -1,0 +1,209 @@
+"""A TUM RGB-D sequence tracked and its results written (what ``gvnn-warp track`` does; no torch).
+
+- :func:`make_aligner`: the :class:`.DirectAligner` with the settings ``gvnn-warp track`` uses;
+- :func:`track_sequence`: every frame of a sequence (``gvnn_warp.datasets.tum.TUMSequence``) aligned
+  by :func:`.tracking.track` with any pairwise aligner, then written into a folder:
+
+  - ``trajectory.txt``: the estimate in the TUM format (``timestamp tx ty tz qx qy qz qw``,
+    ``T_world_cam``, metres), one pose per frame, starting at the ground truth's first pose
+    (identity without ground truth);
+  - ``metrics.json``: ``frames``, ``ms_per_pair`` (alignment incl. pyramids; file reading
+    excluded), ``unconverged_pairs`` / ``unconverged_frames``, the settings, and with ground truth
+    ``ate_rmse_m`` (SE(3) Umeyama-aligned), ``rpe_trans_rmse_m``, ``rpe_rot_rmse_deg`` (1-frame
+    steps) and ``failed_pairs`` - all by evo (:mod:`.evaluation`);
+  - ``trajectory.png`` (top view, estimate vs truth) and, with ground truth, ``errors.png``;
+
+  and returns them with the rows of a summary (label, text), whose warnings and notes name the
+  options of ``gvnn-warp track`` that set what they are about (``--depth-scale``,
+  ``--max-difference``).
+
+Example::
+
+    from pathlib import Path
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.odometry.sequence import make_aligner, track_sequence
+
+    seq = read_tum("seq")
+    report = track_sequence(seq, len(seq), make_aligner(seq.K, dist=seq.dist), Path("out"))
+    print(report.metrics["ate_rmse_m"])
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..datasets.tum import TUMSequence, write_trajectory
+from .aligner import DirectAligner
+from .evaluation import ATE_ALIGNMENT, FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, plot_errors, plot_top_view
+from .tracking import KeyframePolicy, TrackResult, track
+
+__all__ = [
+    "LOW_VALID_FRACTION",
+    "PLAUSIBLE_DEPTH_M",
+    "RESULT_FILES",
+    "SequenceReport",
+    "make_aligner",
+    "track_sequence",
+]
+
+RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png")  # what track_sequence writes
+LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the summary warns (depth scale, images)
+PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth suggests a wrong depth scale
+
+
+def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
+                 depth_weight: float = 0.0, color: bool = False, dist=None) -> DirectAligner:
+    """The :class:`.DirectAligner` that ``gvnn-warp track`` uses for images of intrinsics ``K``
+    (3, 3), pixels. ``levels``, ``iterations``: None for the aligner's defaults; ``robust``: the
+    photometric penalty; ``depth_weight``: weight of the depth term (0: photometric only); ``color``:
+    the photometric term on RGB instead of grey; ``dist``: radial-tangential coefficients (k1, k2, p1,
+    p2, k3) of the images, None for a pinhole."""
+    kwargs = {"robust": robust, "depth_weight": depth_weight, "color": color}
+    if dist is not None:
+        kwargs.update(model="radtan", dist=dist)
+    if levels is not None:
+        kwargs["levels"] = levels
+    if iterations is not None:
+        kwargs["iterations"] = iterations
+    return DirectAligner(K, **kwargs)
+
+
+@dataclass
+class SequenceReport:
+    """What :func:`track_sequence` wrote: ``result`` (the tracking, :class:`.TrackResult`),
+    ``metrics`` (the contents of ``metrics.json``) and ``rows``, the summary as (label, text) pairs."""
+
+    result: TrackResult
+    metrics: dict
+    rows: list[tuple[str, str]]
+
+
+def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str = "direct",
+                   checkpoint: Path | None = None, color: bool = False, keyframes: KeyframePolicy | None = None,
+                   init: str = "identity", levels: int | None = None, iterations: int | None = None,
+                   robust: str = "huber", depth_weight: float = 0.0, max_difference: float = 0.02,
+                   progress: bool = True) -> SequenceReport:
+    """Track the first ``n`` (>= 2) frames of ``seq`` with ``aligner`` and write the results into the
+    folder ``out`` (see the module docstring); returns them (:class:`SequenceReport`).
+
+    ``out`` is made, and the files of :data:`RESULT_FILES` in it removed, only once the tracking is
+    done: a run that fails leaves nothing, or the earlier results, and no earlier file is left
+    beside the new ones. The frames go to the aligner grey unless ``color`` or ``method`` is not
+    ``"direct"`` (a network takes RGB). ``keyframes``: align to keyframes replaced by this policy
+    (None: to the previous frame); ``init``: ``"identity"`` or ``"velocity"`` (constant velocity)
+    initial guess; ``progress``: a tqdm bar. ``method``, ``checkpoint``, ``levels``, ``iterations``,
+    ``robust`` and ``depth_weight`` describe the aligner, as recorded in ``metrics.json``'s
+    ``settings``; ``max_difference`` (s) is the ground-truth matching the sequence was read with, for
+    the summary's notes.
+    """
+    gray = not color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
+    has_gt = seq.gt_poses is not None and int(seq.gt_valid[:n].sum()) >= 2
+    start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
+    result = track(lambda i: (seq.image(i, gray=gray), seq.depth(i)), n, aligner, start_pose=start,
+                   keyframes=keyframes, init=init, progress=progress)
+
+    stamps = seq.timestamps[:n]
+    # only now, with the run done: make out, and remove the earlier run's files, so that a run that
+    # fails leaves nothing, or the earlier results, and no file of theirs is left beside the new ones
+    out.mkdir(parents=True, exist_ok=True)
+    for name in RESULT_FILES:
+        (out / name).unlink(missing_ok=True)
+    write_trajectory(out / "trajectory.txt", stamps, result.poses,
+                     comment=f"gvnn-warp track {seq.root}: estimated T_world_cam")
+    unconverged = result.unconverged_frames
+    metrics = {
+        "sequence": str(seq.root),
+        "frames": n,
+        "pairs": n - 1,
+        "size": [seq.width, seq.height],
+        "intrinsics": {"fx": seq.K[0, 0], "fy": seq.K[1, 1], "cx": seq.K[0, 2], "cy": seq.K[1, 2],
+                       "radtan": None if seq.dist is None else [float(v) for v in seq.dist],
+                       "source": seq.intrinsics_source},
+        "settings": {"method": method,
+                     "checkpoint": str(checkpoint) if checkpoint else None,
+                     "mode": "keyframe" if keyframes else "frame-to-frame",
+                     "init": init if method == "direct" else "network",
+                     "levels": levels or "auto", "iterations": iterations, "robust": robust,
+                     "depth_weight": depth_weight,
+                     "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale},
+        "ms_per_pair": result.ms_per_pair,
+        "ms_per_pair_note": "alignment incl. the live frame's pyramid; file reading excluded",
+        "keyframes": len(result.keyframes) if keyframes else None,
+        "unconverged_pairs": len(unconverged),
+        "unconverged_frames": unconverged,
+        "median_valid_fraction": _median_valid(result.valid_fraction),
+        "ground_truth": has_gt,
+    }
+    K = seq.K
+    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method})"),
+            ("intrinsics", f"fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
+                           f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
+                           f"({seq.intrinsics_source})"),
+            ("ms per pair", f"{result.ms_per_pair:.2f}"),
+            ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {_frames_text(unconverged)})" if unconverged
+                                                           else ""))]
+    if keyframes:
+        rows.append(("keyframes", str(len(result.keyframes))))
+    depth0 = seq.depth(0)
+    depth0 = depth0[np.isfinite(depth0) & (depth0 > 0)]
+    median0 = metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
+    if median0 is not None and not PLAUSIBLE_DEPTH_M[0] <= median0 <= PLAUSIBLE_DEPTH_M[1]:
+        rows.append(("warning", f"the first frame's median depth is {median0:.4g} m: check --depth-scale "
+                                f"({seq.depth_scale:g} units per metre)"))
+    valid = metrics["median_valid_fraction"]
+    if valid is not None and valid < LOW_VALID_FRACTION:
+        rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
+                                f"the depth images and --depth-scale ({seq.depth_scale:g} units per metre)"))
+    if has_gt:
+        m = evaluate_trajectory(stamps, result.poses, seq.gt_poses[:n], seq.gt_valid[:n])
+        failed = m.pair_frames[m.failed]
+        metrics.update({
+            "evaluated_frames": int(m.frames.size),
+            "ate_rmse_m": m.ate_rmse_m,
+            "ate_alignment": m.ate_alignment,
+            "rpe_trans_rmse_m": m.rpe_trans_rmse_m,
+            "rpe_rot_rmse_deg": m.rpe_rot_rmse_deg,
+            "rpe_delta": "1 frame (consecutive pairs)",
+            "failed_pairs": int(failed.shape[0]),
+            "failed_pair_frames": failed.tolist(),
+            "failure_threshold": {"trans_m": FAIL_TRANS_M, "rot_deg": FAIL_ROT_DEG},
+            "metrics_by": "evo",
+        })
+        aligned_by = "SE(3)-aligned" if m.ate_alignment == ATE_ALIGNMENT else "first pose aligned"
+        rows += [("ATE RMSE", f"{100 * m.ate_rmse_m:.2f} cm ({aligned_by})"),
+                 ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame"),
+                 ("RPE rot RMSE", f"{m.rpe_rot_rmse_deg:.4f} deg per frame"),
+                 ("failed pairs", f"{failed.shape[0]} of {m.pair_frames.shape[0]} (> 1 cm or > 0.25 deg)")]
+        if m.frames.size < n:
+            rows.append(("evaluated frames", f"{m.frames.size} of {n} (the others have no ground-truth pose within "
+                                             f"--max-difference {max_difference:g} s)"))
+        plot_top_view(out / "trajectory.png", m.aligned, m.ground_truth,
+                      title=f"{seq.root.name}: estimate ({aligned_by}) vs ground truth")
+        plot_errors(out / "errors.png", m, np.array(unconverged))
+    else:
+        plot_top_view(out / "trajectory.png", result.poses, None, title=f"{seq.root.name}: estimate")
+        if seq.gt_poses is None:
+            why = "none (no groundtruth.txt): no ATE/RPE"
+        else:
+            why = (f"none usable: {int(seq.gt_valid[:n].sum())} of the {n} frames have a pose in groundtruth.txt "
+                   f"within --max-difference {max_difference:g} s (2 needed): no ATE/RPE")
+        rows.append(("ground truth", why))
+        metrics["ground_truth_note"] = why
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return SequenceReport(result, metrics, rows)
+
+
+def _median_valid(fractions) -> float | None:
+    """The median of the pairs' valid fractions (NaN: unknown, e.g. frame 0), None if none known."""
+    known = np.asarray(fractions, dtype=np.float64)
+    known = known[np.isfinite(known)]
+    return float(np.median(known)) if known.size else None
+
+
+def _frames_text(frames: list[int], limit: int = 12) -> str:
+    text = ", ".join(str(f) for f in frames[:limit])
+    return text + (f", ... ({len(frames)} in all)" if len(frames) > limit else "")
