@@ -11,7 +11,8 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def readme_pure_warp_example(marker: str = "<!-- pure-warp-example -->") -> str:
-    text = README.read_text()
+    # the README's example, or the Gauss-Newton loop of docs/odometry.md
+    text = next(t for t in (p.read_text() for p in (README, README.parent / "docs" / "odometry.md")) if marker in t)
     start = text.index("```python", text.index(marker)) + len("```python")
     return text[start : text.index("```", start)]
 
