@@ -13,12 +13,12 @@ import json
 import torch
 import warp as wp
 from gvnn_warp.kernels.core import launch
-from gvnn_warp.kernels.geometry import camera_kernels, lie_kernels
+from gvnn_warp.kernels.geometry import kernels as geometry_kernels
 from gvnn_warp.kernels.sampling import kernels as sampling_kernels
 
 import gvnn_warp  # noqa: F401  (initialises Warp quietly)
 from benchmarks.common import Case, affine_grid, interleaved, wfd_scene
-from gvnn_warp.ops.bridge import _descriptor, _null
+from gvnn_warp.ops.bridge import descriptor, null_array
 
 F32 = wp.float32
 
@@ -28,8 +28,8 @@ def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=(), launches=None, a
     (default ``n``, the elements reported); adjoint None if ``adjoint`` is false."""
     launches = n if launches is None else launches
     k = fk[F32]
-    d_in = [_descriptor(t, kd, F32) for t, kd in zip(ins, kinds)]
-    d_out = [_descriptor(t, kd, F32) for t, kd in zip(outs, out_kinds)]
+    d_in = [descriptor(t, kd, F32) for t, kd in zip(ins, kinds)]
+    d_out = [descriptor(t, kd, F32) for t, kd in zip(outs, out_kinds)]
 
     def fwd(keep=(ins, outs)):  # descriptors hold no references: the closures keep the tensors
         launch.launch(k, launches, [*d_in, *params], d_out)
@@ -39,8 +39,8 @@ def _launch_case(fk, n, ins, kinds, outs, out_kinds, params=(), launches=None, a
     grads = [torch.zeros_like(t) for t in ins]
     adj_outs = [torch.ones_like(t) if kd != "bool" else None for t, kd in zip(outs, out_kinds)]
     keep = (ins, outs, grads, adj_outs)
-    d_grads = [_descriptor(g, kd, F32) for g, kd in zip(grads, kinds)]
-    d_adj_out = [_descriptor(g, kd, F32) if g is not None else _null(kd, F32) for g, kd in zip(adj_outs, out_kinds)]
+    d_grads = [descriptor(g, kd, F32) for g, kd in zip(grads, kinds)]
+    d_adj_out = [descriptor(g, kd, F32) if g is not None else null_array(kd, F32) for g, kd in zip(adj_outs, out_kinds)]
 
     def adj(keep=keep):
         launch.launch(
@@ -59,11 +59,11 @@ def kernel_cases(quick: bool) -> dict:
     cases = {}
     omega = torch.randn(n_rot, 3)
     R = torch.empty(n_rot, 3, 3)
-    cases["so3_exp"] = (n_rot, *_launch_case(lie_kernels.so3_exp, n_rot, [omega], ["vec3"], [R], ["mat33"]))
+    cases["so3_exp"] = (n_rot, *_launch_case(geometry_kernels.so3_exp, n_rot, [omega], ["vec3"], [R], ["mat33"]))
     u = torch.randn(n_rot, 3)
     T = torch.empty(n_rot, 3, 4)
     cases["se3_exp"] = (
-        n_rot, *_launch_case(lie_kernels.se3_exp, n_rot, [omega, u], ["vec3", "vec3"], [T], ["mat34"])
+        n_rot, *_launch_case(geometry_kernels.se3_exp, n_rot, [omega, u], ["vec3", "vec3"], [T], ["mat34"])
     )
     n_pix = B * H * W
     flat_depth = depth.reshape(-1).contiguous()
@@ -71,7 +71,7 @@ def kernel_cases(quick: bool) -> dict:
     cases["depth_to_points"] = (
         n_pix,
         *_launch_case(
-            camera_kernels.depth_to_points, n_pix, [flat_depth, K], ["scalar", "mat33"], [points], ["vec3"], (H, W)
+            geometry_kernels.depth_to_points, n_pix, [flat_depth, K], ["scalar", "mat33"], [points], ["vec3"], (H, W)
         ),
     )
     pts = torch.randn(n_pix, 3) + torch.tensor([0.0, 0.0, 3.0])
@@ -79,7 +79,7 @@ def kernel_cases(quick: bool) -> dict:
     cases["project_points"] = (
         n_pix,
         *_launch_case(
-            camera_kernels.project_points, n_pix, [pts, K], ["vec3", "mat33"], [pix], ["vec2"], (H * W, 1e-3)
+            geometry_kernels.project_points, n_pix, [pts, K], ["vec3", "mat33"], [pix], ["vec2"], (H * W, 1e-3)
         ),
     )
     grid = affine_grid(B, H, W).reshape(-1, 2).contiguous()

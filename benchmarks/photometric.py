@@ -40,6 +40,7 @@ from gvnn_warp.kernels.core import launch  # noqa: E402
 from gvnn_warp.kernels.core.launch import mat34f  # noqa: E402
 from gvnn_warp.kernels.photometric import normal_equations as pk  # noqa: E402
 from gvnn_warp.kernels.photometric import pipeline as photometric_pipeline  # noqa: E402
+from gvnn_warp.kernels.photometric.normal_equations_reduce import ROW_STRIDE  # noqa: E402
 
 import gvnn_warp as G  # noqa: E402
 from benchmarks.common import Case, affine_grid, clear_grads, interleaved, leaves, machine, wfd_scene  # noqa: E402
@@ -165,8 +166,8 @@ def one_thread_table(n: int) -> dict:
                 lambda arrays=arrays, out=out: photometric_pipeline.photometric_normal_equations(
                     *arrays, scale=0.1, out=out), n
             ) / (H * W)
-            scalar = wp.zeros(H * pk.ROW_STRIDE, dtype=wp.float64)
-            cmd = wp.launch(pk.normal_equations_rows[0][wp.float32], dim=H, record_cmd=True, inputs=[
+            scalar = wp.zeros(H * ROW_STRIDE, dtype=wp.float64)
+            cmd = wp.launch(pk.normal_equations_rows(False, False)[wp.float32], dim=H, record_cmd=True, inputs=[
                 0, arrays[0].flatten(), arrays[1].flatten(), arrays[2].flatten(), wp.zeros(0, dtype=wp.float32),
                 arrays[3], arrays[4], 1, H, W, 0, 0.1, 1e-3, 0.0, 0.0, scalar])
             rows[f"normal_equations {W}x{H} (plain kernel, launch alone)"] = 1e6 * cpu_ms(cmd.launch, n) / (H * W)

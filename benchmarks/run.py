@@ -104,8 +104,8 @@ def lens_cases(B, C, H, W) -> list[Case]:
     is dropped before each call, untimed, and the other cameras' entries are left alone)."""
     # the torch front loads on first use (as G.* does): `python -m benchmarks.run --help` and the
     # report's tests (tests/test_benchmark_report.py) import this module without waiting for it
-    from gvnn_warp.cameras.models import FisheyeCamera, RadTanCamera
-    from gvnn_warp.functional import geometry as Fn
+    from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
+    from gvnn_warp.cameras import fused as Fn
 
     image, depth, pose, _, K = wfd_scene(B, C, H, W)
     K0 = K[0].clone()
@@ -125,11 +125,11 @@ def lens_cases(B, C, H, W) -> list[Case]:
 
     def forget_changing():
         clear()
-        keys = [k for k in Fn._RAYS_CACHE if k[4] == changing_key]
+        keys = [k for k in Fn.RAYS_CACHE if k[4] == changing_key]
         if runs and len(keys) != 1:
             raise RuntimeError(f"lens_cases: {len(keys)} rays cache entries of the changing camera, expected 1")
         for key in keys:
-            del Fn._RAYS_CACHE[key]
+            del Fn.RAYS_CACHE[key]
 
     def run_changing():
         runs.append(True)

@@ -35,7 +35,7 @@ t4 = time.perf_counter()
 res = {"torch_import_s": t1 - t0, "import_and_first_forward_s": t3 - t2, "import_and_first_call_s": t4 - t2}
 if "--all-modules" in sys.argv:
     import warp as wp
-    import gvnn_warp.functional, gvnn_warp.layers  # noqa: F401
+    import gvnn_warp.functional, gvnn_warp.nn  # noqa: F401
     for extra in ("gvnn_warp.perpixel", "gvnn_warp.synthetic"):
         try:
             __import__(extra)

@@ -39,15 +39,11 @@ from .kernels.core.moved import moved  # noqa: E402
 
 # the torch front, whose public names (their __all__) are gvnn_warp's, in the order they are searched
 _FRONT = ("functional", "nn", "cameras")
-_SUBPACKAGES = (*_FRONT, "cli", "datasets", "kernels", "odometry", "ops", "synthetic", "vo")
+_SUBPACKAGES = (*_FRONT, "cli", "datasets", "demos", "kernels", "odometry", "ops", "synthetic", "vo")
 
 # the module paths of earlier releases, kept importable (a tuple: the old module's names now live in several)
 moved({f"{__name__}.{old}": new if isinstance(new, tuple) else f"{__name__}.{new}" for old, new in {
     "layers": tuple(f"{__name__}.nn.{m}" for m in ("lie", "camera", "sampling")),
-    "nn.layers": tuple(f"{__name__}.nn.{m}" for m in ("lie", "camera", "sampling")),
-    "functional.geometry": (*(f"{__name__}.functional.{m}" for m in ("lie", "camera", "sampling")),
-                            f"{__name__}.cameras.fused"),
-    "cameras.models": tuple(f"{__name__}.cameras.{m}" for m in ("base", "pinhole", "radtan", "fisheye", "undistort")),
     "perpixel_layers": "nn.perpixel",
     "perpixel": "functional.perpixel",
     "photometric": (f"{__name__}.functional.photometric", f"{__name__}.nn.photometric"),

@@ -33,22 +33,24 @@ _NAMES = {
     **{n: "sampling.sampler" for n in ("bilinear", "normalized_to_pixel", "sample_position")},
 }
 
-# the module paths of earlier releases (gvnn_warp.kernels.lie, ...), kept importable
+# the module paths of earlier releases (gvnn_warp.kernels.lie, ...), kept importable; a tuple: the old
+# module's names now live in several. The thin kernels through a lens (lens_kernels,
+# sampling_lens_kernels, photometric_lens_kernels) have no old path: they are made on first use by the
+# <name>_lens() makers beside their pinhole twins.
 _MOVED = {
     "_compat": "core.compat", "kinds": "core.kinds", "launch": "core.launch", "threads": "core.threads",
-    "lie": "geometry.lie", "camera": "geometry.camera", "lens": "geometry.lens", "lens_rays": "geometry.lens.rays",
+    "lie": "geometry.lie", "camera": "geometry.camera", "lens": "geometry.lens",
+    "lens_rays": ("geometry.lens.rays", "geometry.lens.lanes", "sampling.lens_block"),
     "lie_kernels": "geometry.kernels", "camera_kernels": "geometry.kernels",
-    "geometry.lie_kernels": "geometry.kernels", "geometry.camera_kernels": "geometry.kernels",
-    "lens_kernels": "geometry.lens_kernels",
-    "sampler": "sampling.sampler", "sampling_kernels": "sampling.kernels",
-    "sampling_lens_kernels": "sampling.lens_kernels",
-    "pipeline": "sampling.pipeline",
+    "sampler": "sampling.sampler", "sampling_kernels": "sampling.kernels", "pipeline": "sampling.pipeline",
     "perpixel_kernels": "perpixel.kernels",
-    "photometric_error_kernels": "photometric.error", "photometric_kernels": "photometric.normal_equations",
-    "photometric_lens_kernels": "photometric.lens_kernels", "photometric_pipeline": "photometric.pipeline",
-    "lm": "photometric.lm",
+    "photometric_error_kernels": ("photometric.error", "photometric.error_reduce"),
+    "photometric_kernels": ("photometric.error_rows", "photometric.normal_equations",
+                            "photometric.normal_equations_lanes", "photometric.normal_equations_reduce"),
+    "photometric_pipeline": "photometric.pipeline", "lm": "photometric.lm",
 }
-moved({f"{__name__}.{old}": f"{__name__}.{new}" for old, new in _MOVED.items()})
+moved({f"{__name__}.{old}": tuple(f"{__name__}.{n}" for n in new) if isinstance(new, tuple) else f"{__name__}.{new}"
+       for old, new in _MOVED.items()})
 
 
 def __getattr__(name: str):

@@ -398,7 +398,7 @@ print("ok")
     err = res.stderr.strip().splitlines()
     assert len(err) == 1, res.stderr
     assert err[0].startswith("gvnn-warp vo: error: this command needs PyTorch")
-    assert "pip install 'gvnn_warp[torch]'" in err[0] and "download.pytorch.org/whl/cpu" in err[0]
+    assert "pip install -e '.[torch]'" in err[0] and "download.pytorch.org/whl/cpu" in err[0]
     assert not (tmp_path / "o").exists()
 
 

@@ -282,7 +282,7 @@ def test_rays_cache_follows_the_camera_values():
     c[0] = 0.0  # the first camera changed in place: its rays are recomputed
     a2 = G.warp_frame_depth(image, depth, pose, RadTanCamera(K, c))[0]
     assert not torch.equal(a, b) and torch.equal(a2, b)
-    assert len(Fn._RAYS_CACHE) <= Fn._RAYS_CACHE_SIZE
+    assert len(Fn.RAYS_CACHE) <= Fn.RAYS_CACHE_SIZE
 
 
 def test_spatial_transformer_3d_with_a_camera_learns_its_coefficients():

@@ -22,12 +22,12 @@ TORCH_PACKAGES = ("torch", "functorch", "torchgen")
 SMOKE_KERNELS = """
 import sys, numpy as np, warp as wp
 import gvnn_warp.kernels as gk
-from gvnn_warp.kernels import lie_kernels
+from gvnn_warp.kernels.geometry import kernels as geometry_kernels
 from gvnn_warp.kernels.launch import launch
 assert gk.__file__.startswith(sys.prefix), (gk.__file__, sys.prefix)  # the wheel's copy, in the venv
 w = wp.array(np.array([[0.0, 0.0, np.pi / 2]]), dtype=wp.vec3d)
 R = wp.zeros(1, dtype=wp.mat33d)
-launch(lie_kernels.so3_exp[wp.float64], 1, [w], [R])
+launch(geometry_kernels.so3_exp[wp.float64], 1, [w], [R])
 assert np.allclose(R.numpy()[0], [[0, -1, 0], [1, 0, 0], [0, 0, 1]]), R.numpy()
 from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd
 image, depth = render_rgbd(make_room_scene(seed=0), np.eye(4), default_intrinsics(8, 6), 8, 6)

@@ -13,8 +13,8 @@ from .base import Camera, camera_args
 
 __all__: list[str] = []  # (used by gvnn_warp.functional; not part of the public API)
 
-_RAYS_CACHE: dict = {}  # (model, dtype, H, W, K bytes, dist bytes) -> rays, for cameras without gradients
-_RAYS_CACHE_SIZE = 8
+RAYS_CACHE: dict = {}  # (model, dtype, H, W, K bytes, dist bytes) -> rays, for cameras without gradients
+RAYS_CACHE_SIZE = 8
 
 
 class FusedCamera:
@@ -52,10 +52,10 @@ class FusedCamera:
         if Kc.requires_grad or dc.requires_grad or torch.compiler.is_compiling():
             return _sampling_ops.pixel_rays(Kc, dc, H, W, self.model), stride
         key = (self.model, Kc.dtype, H, W, Kc.numpy().tobytes(), dc.numpy().tobytes())
-        rays = _RAYS_CACHE.pop(key, None)
+        rays = RAYS_CACHE.pop(key, None)
         if rays is None:
             rays = _sampling_ops.pixel_rays(Kc, dc, H, W, self.model)
-            if len(_RAYS_CACHE) >= _RAYS_CACHE_SIZE:
-                _RAYS_CACHE.pop(next(iter(_RAYS_CACHE)))
-        _RAYS_CACHE[key] = rays
+            if len(RAYS_CACHE) >= RAYS_CACHE_SIZE:
+                RAYS_CACHE.pop(next(iter(RAYS_CACHE)))
+        RAYS_CACHE[key] = rays
         return rays, stride

@@ -38,8 +38,8 @@ __all__ = [
 
 # what to tell a user who lacks a package a command needs
 INSTALL_HINTS = {
-    "torch": "PyTorch, which is not installed: pip install 'gvnn_warp[torch]' (for the CPU-only build, first: "
-    "pip install torch --index-url https://download.pytorch.org/whl/cpu)",
+    "torch": "PyTorch, which is not installed: in the clone, pip install -e '.[torch]' (for the CPU-only build, "
+    "first: pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu)",
     # plain dependencies of gvnn_warp: missing only from a broken installation
     "matplotlib": "matplotlib, which is not installed: pip install matplotlib",
     "tqdm": "tqdm, which is not installed: pip install tqdm",

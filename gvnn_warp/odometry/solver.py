@@ -20,7 +20,7 @@ from ..kernels import pyramid as _pyramid
 from ..kernels.core import compat as _compat
 from ..kernels.core import launch as _launch
 from ..kernels.photometric import lm as _lm
-from ..kernels.photometric import normal_equations as _pk
+from ..kernels.photometric import normal_equations_reduce as _ne_reduce
 from ..kernels.photometric.pipeline import photometric_normal_equations
 from ..kernels.sampling.pipeline import pixel_rays
 from .frame import Frame
@@ -111,7 +111,7 @@ class LMState:
         if cmds and len(cmds) == 2 and rows is not None:
             # the row kernel only: the LM step reduces its per-row sums itself (one launch fewer per trial)
             cmds = cmds[:1]
-            system = [rows, rows.shape[0] // (self.B * _pk.ROW_STRIDE), _pk.ROW_STRIDE]
+            system = [rows, rows.shape[0] // (self.B * _ne_reduce.ROW_STRIDE), _ne_reduce.ROW_STRIDE]
             step_kernel = _lm.lm_step_rows
         else:
             if not cmds:  # no recorded launches to replay: the public call with out= each time

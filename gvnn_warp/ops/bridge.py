@@ -91,7 +91,6 @@ def descriptor(t: torch.Tensor, kind: str, float_type):
     return array_descriptor(t.data_ptr(), n, inner * t.element_size())
 
 
-_descriptor, _null = descriptor, null_array  # (re-export for benchmarks/kernels.py; the lead removes it)
 
 
 def warp_op(

@@ -9,7 +9,7 @@ the public function and layer it serves.
 
 from __future__ import annotations
 
-from ..kernels.geometry import camera_kernels, lie_kernels
+from ..kernels.geometry import kernels as gk
 from .bridge import warp_op
 from .registry import Output, Param, lazy_ops, per_row, rows
 
@@ -19,37 +19,37 @@ _INVERSE = "no layer: the inverse map, applied to outputs rather than learnt thr
 # ----------------------------------------------------------------------------- rotations, rigid motions
 
 so3_exp = warp_op(
-    "so3_exp", lie_kernels.so3_exp, ["omega"], [], [Output("R", "mat33", per_row(3, 3))], rows,
+    "so3_exp", gk.so3_exp, ["omega"], [], [Output("R", "mat33", per_row(3, 3))], rows,
     function="so3_exp", layer="SO3",
 )
 so3_log = warp_op(
-    "so3_log", lie_kernels.so3_log, ["R"], [], [Output("omega", "vec3", per_row(3))], rows,
+    "so3_log", gk.so3_log, ["R"], [], [Output("omega", "vec3", per_row(3))], rows,
     function="so3_log", layer=_INVERSE,
 )
 quaternion_to_matrix = warp_op(
-    "quaternion_to_matrix", lie_kernels.quaternion_to_matrix, ["q"], [], [Output("R", "mat33", per_row(3, 3))], rows,
+    "quaternion_to_matrix", gk.quaternion_to_matrix, ["q"], [], [Output("R", "mat33", per_row(3, 3))], rows,
     function="quaternion_to_matrix", layer=_PARAMETRISATION,
 )
 euler_to_matrix = warp_op(
-    "euler_to_matrix", lie_kernels.euler_to_matrix, ["angles"],
+    "euler_to_matrix", gk.euler_to_matrix, ["angles"],
     [Param("a0", "int"), Param("a1", "int"), Param("a2", "int")], [Output("R", "mat33", per_row(3, 3))], rows,
     function="euler_to_matrix", layer=_PARAMETRISATION,
 )
 se3_to_matrix = warp_op(
-    "se3_to_matrix", lie_kernels.se3_to_matrix, ["omega", "t"], [], [Output("T", "mat34", per_row(3, 4))], rows,
+    "se3_to_matrix", gk.se3_to_matrix, ["omega", "t"], [], [Output("T", "mat34", per_row(3, 4))], rows,
     function="se3_to_matrix", layer="SE3",
 )
 sim3_to_matrix = warp_op(
-    "sim3_to_matrix", lie_kernels.sim3_to_matrix, ["omega", "t", "sigma"], [],
+    "sim3_to_matrix", gk.sim3_to_matrix, ["omega", "t", "sigma"], [],
     [Output("T", "mat34", per_row(3, 4))], rows,
     function="sim3_to_matrix", layer="Sim3",
 )
 se3_exp = warp_op(
-    "se3_exp", lie_kernels.se3_exp, ["omega", "u"], [], [Output("T", "mat34", per_row(3, 4))], rows,
+    "se3_exp", gk.se3_exp, ["omega", "u"], [], [Output("T", "mat34", per_row(3, 4))], rows,
     function="se3_exp", layer="no layer: SE3 covers the exponential map as gvnn's layer does",
 )
 se3_log = warp_op(
-    "se3_log", lie_kernels.se3_log, ["T"], [],
+    "se3_log", gk.se3_log, ["T"], [],
     [Output("omega", "vec3", per_row(3)), Output("u", "vec3", per_row(3))], rows,
     function="se3_log", layer=_INVERSE,
 )
@@ -58,19 +58,19 @@ se3_log = warp_op(
 
 # depth (B*H*W,), K (B, 3, 3) -> points (B*H*W, 3)
 depth_to_points = warp_op(
-    "depth_to_points", camera_kernels.depth_to_points, ["depth", "K"], [Param("H", "int"), Param("W", "int")],
+    "depth_to_points", gk.depth_to_points, ["depth", "K"], [Param("H", "int"), Param("W", "int")],
     [Output("points", "vec3", per_row(3))], rows,
     function="depth_to_points", layer="GridGenerator3D",
 )
 # T (B, 3, 4), points (B*P, 3) -> (B*P, 3)
 transform_points = warp_op(
-    "transform_points", camera_kernels.transform_points, ["T", "points"], [Param("P", "int")],
+    "transform_points", gk.transform_points, ["T", "points"], [Param("P", "int")],
     [Output("out", "vec3", lambda T, p, P: (p.shape[0], 3))], lambda T, p, P: p.shape[0],
     function="transform_points", layer="GridGenerator3D",
 )
 # points (B*P, 3), K (B, 3, 3) -> pixels (B*P, 2)
 project_points = warp_op(
-    "project_points", camera_kernels.project_points, ["points", "K"], [Param("P", "int"), Param("min_depth", "float")],
+    "project_points", gk.project_points, ["points", "K"], [Param("P", "int"), Param("min_depth", "float")],
     [Output("pixels", "vec2", per_row(2))], rows,
     function="project_points", layer="PinholeProjection",
 )
@@ -86,44 +86,36 @@ _LENS = {"K": "mat33", "dist": "vec8"}
 _valid = Output("valid", "bool", lambda t, *_: (t.shape[0],), differentiable=False)
 
 
-def _lens_kernels():
-    # (imported on first launch: defining the lens kernels takes seconds, which pinhole users never pay;
-    # the lead points each maker below at kernels.geometry.kernels' <name>_lens)
-    from ..kernels.geometry import lens_kernels
-
-    return lens_kernels
-
-
 # points (B*P, 3) -> pixels (B*P, 2), valid (B*P,)
 warp_op(
-    "project_points_camera", lambda: _lens_kernels().project_points, ["points", "K", "dist"],
+    "project_points_camera", gk.project_points_lens, ["points", "K", "dist"],
     [Param("P", "int"), Param("min_depth", "float"), Param("model", "int")],
     [Output("pixels", "vec2", per_row(2)), _valid], rows, array_kinds={"points": "vec3", **_LENS}, lazy=True,
     function="project_points", layer="no layer: a camera object's project (gvnn_warp.cameras)",
 )
 # depth (B*H*W,) -> points (B*H*W, 3), valid (B*H*W,)
 warp_op(
-    "depth_to_points_camera", lambda: _lens_kernels().depth_to_points, ["depth", "K", "dist"],
+    "depth_to_points_camera", gk.depth_to_points_lens, ["depth", "K", "dist"],
     [Param("H", "int"), Param("W", "int"), Param("model", "int")],
     [Output("points", "vec3", per_row(3)), _valid], rows, array_kinds={"depth": "scalar", **_LENS}, lazy=True,
     function="depth_to_points", layer="no layer: depth_to_points given a camera object",
 )
 # pixels (B*P, 2), depth (B*P,) -> points (B*P, 3), valid (B*P,)
 warp_op(
-    "unproject_points", lambda: _lens_kernels().unproject_points, ["pixels", "depth", "K", "dist"],
+    "unproject_points", gk.unproject_points_lens, ["pixels", "depth", "K", "dist"],
     [Param("P", "int"), Param("model", "int")], [Output("points", "vec3", per_row(3)), _valid], rows,
     array_kinds={"pixels": "vec2", "depth": "scalar", **_LENS}, lazy=True,
     function="unproject_points", layer="no layer: a camera object's unproject (gvnn_warp.cameras)",
 )
 # pixels (B*P, 2) -> pixels (B*P, 2), valid (B*P,): ideal -> distorted image, and back
 warp_op(
-    "distort_points", lambda: _lens_kernels().distort_pixels, ["pixels", "K", "dist"],
+    "distort_points", gk.distort_pixels_lens, ["pixels", "K", "dist"],
     [Param("P", "int"), Param("model", "int")], [Output("out", "vec2", per_row(2)), _valid], rows,
     array_kinds={"pixels": "vec2", **_LENS}, lazy=True,
     function="distort_points", layer="no layer: a fixed resampling map, used once",
 )
 warp_op(
-    "undistort_points", lambda: _lens_kernels().undistort_pixels, ["pixels", "K", "dist"],
+    "undistort_points", gk.undistort_pixels_lens, ["pixels", "K", "dist"],
     [Param("P", "int"), Param("model", "int")], [Output("out", "vec2", per_row(2)), _valid], rows,
     array_kinds={"pixels": "vec2", **_LENS}, lazy=True,
     function="undistort_points", layer="no layer: a fixed resampling map, used once",

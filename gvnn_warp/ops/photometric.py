@@ -10,14 +10,14 @@ it serves.
 
 from __future__ import annotations
 
-import functools
 import threading
 
 import torch
 
 from ..kernels.core.launch import RecordedLaunch, get_num_threads, launch
-from ..kernels.photometric import error as pek
-from ..kernels.photometric import normal_equations as pk
+from ..kernels.photometric import error, error_reduce, error_rows, normal_equations, normal_equations_lanes
+from ..kernels.photometric import normal_equations_reduce as ne_reduce
+from ..kernels.photometric.residual import GRAIN_PIXELS
 from .bridge import FLOAT_TYPES, descriptor, null_array, warp_op
 from .registry import Output, Param, custom_op, define_op, lazy_ops
 
@@ -29,7 +29,7 @@ _NOT_DIFFERENTIABLE = "no layer: not differentiable (a Gauss-Newton system for a
 # row_sum (B*H,) (differentiable), row_count (B*H,)
 photometric_rows = warp_op(
     "photometric_rows",
-    pk.photometric_rows,
+    error_rows.photometric_rows,
     ["ref_image", "ref_depth", "live_image", "pose", "K"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("kind", "int"), Param("scale", "float"),
      Param("min_depth", "float")],
@@ -42,20 +42,11 @@ photometric_rows = warp_op(
 )
 
 
-def _lens_kernels():
-    # (imported on first launch: defining the lens kernels takes seconds, which pinhole users never pay;
-    # the lead points the makers that use it at kernels.photometric's photometric_rows_lens and
-    # normal_equations_rows_lens)
-    from ..kernels.photometric import lens_kernels
-
-    return lens_kernels
-
-
 # photometric_rows through a distorted lens: + dist (B, 8), rays (Bc*H*W, 3) (ray_stride H*W, or 0: shared);
 # its kernel made on the first launch, its torch op defined on first use (see gvnn_warp.ops.lens)
 warp_op(
     "photometric_rows_lens",
-    lambda: _lens_kernels().photometric_rows_lens,
+    error_rows.photometric_rows_lens,
     ["ref_image", "ref_depth", "live_image", "pose", "K", "dist", "rays"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("kind", "int"), Param("scale", "float"),
      Param("min_depth", "float"), Param("model", "int"), Param("ray_stride", "int")],
@@ -72,7 +63,7 @@ warp_op(
 # row_sum (B*H,), row_count (B*H,) -> error (B,) (differentiable), count (B,)
 photometric_mean = warp_op(
     "photometric_mean",
-    pk.photometric_mean,
+    error_rows.photometric_mean,
     ["row_sum", "row_count"],
     [Param("H", "int"), Param("C", "int")],
     [
@@ -126,19 +117,19 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
     entries = _RECORDED.entries
     entry = entries.pop(key, None)
     if entry is None:
-        rows = torch.empty(B * H * pk.ROW_STRIDE, dtype=torch.float64)
+        rows = torch.empty(B * H * ne_reduce.ROW_STRIDE, dtype=torch.float64)
         scratch = [rows]
         rows_d = descriptor(rows, "scalar", wp_float64)
         extra = [rows_d]
         if acc:  # the row kernel's 8-lane running sums
-            scratch.append(torch.empty(B * H * pk.ROW_STRIDE * 8, dtype=ref_image.dtype))
+            scratch.append(torch.empty(B * H * ne_reduce.ROW_STRIDE * 8, dtype=ref_image.dtype))
             extra.append(descriptor(scratch[-1], "vec8", ft))
         # the pure-Warp host function's launcher (one launch per thread, on Python threads: see there)
         inputs = [descriptor(t, kind, ft) for t, kind in arrays]
         entry = (scratch, RecordedLaunch(rows_kernel, B * H, [*inputs, *scalars, *extra], work=W,
-                                         grain=pk._GRAIN_PIXELS),
-                 RecordedLaunch(pk.normal_equations_reduce[ft], B * pk.N_SUMS, [rows_d, H, *out_d],
-                                grain=pk._GRAIN_PIXELS),
+                                         grain=GRAIN_PIXELS),
+                 RecordedLaunch(ne_reduce.normal_equations_reduce[ft], B * ne_reduce.N_SUMS, [rows_d, H, *out_d],
+                                grain=GRAIN_PIXELS),
                  pointers)
         keep = sum(t.numel() * t.element_size() for t in scratch) <= _Recorded.MAX_BYTES
     else:
@@ -182,8 +173,9 @@ def _normal_equations(
         return tuple(outs)
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [(pose, "mat34"), (K, "mat33")]
-    _run_normal_equations(pk.normal_equations_lanes_for(int(depth_term), C, kind, W)[FLOAT_TYPES[ref_image.dtype]],
-                          ref_image, arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
+    rows_kernel = normal_equations_lanes.normal_equations_lanes(depth_term, False, C, kind, W)
+    _run_normal_equations(rows_kernel[FLOAT_TYPES[ref_image.dtype]], ref_image, arrays,
+                          [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
     return tuple(outs)
 
 
@@ -197,13 +189,6 @@ photometric_normal_equations = custom_op(
     "photometric_normal_equations", _normal_equations, _normal_equations_fake,
     function="photometric_normal_equations", layer=_NOT_DIFFERENTIABLE, untested={"scopes": _RECORDED_SPLIT},
 )
-
-
-@functools.cache
-def _normal_equations_rows_lens(depth_term: int):
-    """The row kernel of the normal equations through a lens, with or without the depth term (the
-    lead points it at kernels.photometric's maker normal_equations_rows_lens(depth, occlusion))."""
-    return _lens_kernels().normal_equations_rows_lens[depth_term]
 
 
 def _normal_equations_lens(
@@ -233,9 +218,9 @@ def _normal_equations_lens(
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [
         (pose, "mat34"), (K, "mat33"), (dist, "vec8"), (rays, "vec3")]
-    _run_normal_equations(_normal_equations_rows_lens(int(depth_term))[FLOAT_TYPES[ref_image.dtype]], ref_image,
-                          arrays, [C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride], outs,
-                          acc=False)
+    rows_kernel = normal_equations.normal_equations_rows_lens(depth_term, False)
+    _run_normal_equations(rows_kernel[FLOAT_TYPES[ref_image.dtype]], ref_image, arrays,
+                          [C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride], outs, acc=False)
     return tuple(outs)
 
 
@@ -250,7 +235,7 @@ custom_op(
 #
 # One forward op computes the error, the count and, for the inputs autograd will want (``needs``,
 # bit k for input k of (ref_image, ref_depth, live_image, pose, K)), the gradients of the
-# per-batch sums S_b = C n_b error_b, all in one pass (kernels/photometric_error_kernels.py); the
+# per-batch sums S_b = C n_b error_b, all in one pass (kernels/photometric/error.py); the
 # backward op only scales them by grad_error_b / (C n_b). The live image's gradient (a scatter) is
 # the Warp adjoint of photometric_rows, run by the backward op when asked for. photometric_rows
 # and photometric_mean above stay as the reference the tests compare this path with.
@@ -292,18 +277,19 @@ def _error(
     if B == 0:
         return tuple(outs)
     grad = int(needs & _NEED_FUSED != 0)
-    rows = torch.empty(B * H * pek.ROW_SLOTS, dtype=torch.float64)
+    rows = torch.empty(B * H * error_reduce.ROW_SLOTS, dtype=torch.float64)
     rows_d = descriptor(rows, "scalar", wp_float64)
     if H * W > 0:
         arrays = [descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
             descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft)]
-        acc = torch.empty(B * H * pek.ACC_SLOTS * 8, dtype=ref_image.dtype)  # the rows' running sums
-        launch(pek.error_lanes(kind, C, W)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth, grad],
+        acc = torch.empty(B * H * error.ACC_SLOTS * 8, dtype=ref_image.dtype)  # the rows' running sums
+        launch(error.error_lanes(kind, C, W)[ft], B * H, [*arrays, C, H, W, kind, scale, min_depth, grad],
                [rows_d, descriptor(acc, "vec8", ft), descriptor(outs[2], "scalar", ft),
                 descriptor(outs[3], "scalar", ft)])
     else:
         rows.zero_()
-    launch(pek.error_reduce[ft], B, [rows_d, descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft), H, C, grad],
+    launch(error_reduce.error_reduce[ft], B,
+           [rows_d, descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft), H, C, grad],
            [descriptor(o, "scalar", ft) for o in (outs[0], outs[1], outs[4], outs[5])])
     return tuple(outs)
 
@@ -355,21 +341,22 @@ def _error_backward_impl(
             n = g.numel()
             if n:
                 src = src.contiguous()  # (the op's own forward outputs are; a direct caller's may not be)
-                launch(pek.scale_segments[ft], pek.scale_segments_dim(n),
+                launch(error_reduce.scale_segments[ft], error_reduce.scale_segments_dim(n),
                        [*_views8(src, ft), ge, n_d, n // max(B, 1), n, C], _views8(g, ft))
             out.append(g)
     if needs & _NEED_LIVE and B * H * W > 0:
         # d error_b / d row_sum = grad_error_b / (C n_b) for the rows of b, then the rows' adjoint
         adj_rows = torch.empty(B * H, dtype=ref_image.dtype)
         ones = torch.ones(B * H, dtype=ref_image.dtype)  # alive while its descriptor is used
-        launch(pek.scale_segments[ft], pek.scale_segments_dim(B * H),
+        launch(error_reduce.scale_segments[ft], error_reduce.scale_segments_dim(B * H),
                [*_views8(ones, ft), ge, n_d, H, B * H, C], _views8(adj_rows, ft))
         scratch = [torch.empty(B * H, dtype=ref_image.dtype) for _ in range(2)]
         arrays = [descriptor(t, "scalar", ft) for t in (ref_image, ref_depth, live_image)] + [
             descriptor(pose, "mat34", ft), descriptor(K, "mat33", ft)]
         params = [C, H, W, kind, scale, min_depth]
         null_s, null_34, null_33 = null_array("scalar", ft), null_array("mat34", ft), null_array("mat33", ft)
-        launch(pk.photometric_rows[ft], B * H, [*arrays, *params], [descriptor(s, "scalar", ft) for s in scratch],
+        launch(error_rows.photometric_rows[ft], B * H, [*arrays, *params],
+               [descriptor(s, "scalar", ft) for s in scratch],
                adjoint=True, adj_inputs=[null_s, null_s, descriptor(out[2], "scalar", ft), null_34, null_33, *params],
                adj_outputs=[descriptor(adj_rows, "scalar", ft), null_s])
     return out

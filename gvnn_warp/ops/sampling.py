@@ -66,17 +66,9 @@ warp_frame_depth = warp_op(
 # this module's attributes through __getattr__ below; gvnn_warp.ops.lens defines them all).
 
 
-def _lens_kernels():
-    # (imported on first launch: defining the lens kernels takes seconds, which pinhole users never pay;
-    # the lead points each maker below at kernels.sampling.kernels' <name>_lens)
-    from ..kernels.sampling import lens_kernels
-
-    return lens_kernels
-
-
 # K (Bc, 3, 3), dist (Bc, 8) -> rays (Bc*H*W, 3): the undistorted ray (xn, yn, w) of every pixel
 warp_op(
-    "pixel_rays", lambda: _lens_kernels().pixel_rays, ["K", "dist"],
+    "pixel_rays", sampling_kernels.pixel_rays_lens, ["K", "dist"],
     [Param("H", "int"), Param("W", "int"), Param("model", "int")],
     [Output("rays", "vec3", lambda K, d, H, W, m: (K.shape[0] * H * W, 3))], lambda K, d, H, W, m: K.shape[0] * H * W,
     array_kinds={"K": "mat33", "dist": "vec8"}, lazy=True,
@@ -84,7 +76,7 @@ warp_op(
 )
 # warp_frame_depth through a lens model: + dist (B, 8), rays (Bc*H*W, 3) (Bc = B, or 1 with ray_stride 0)
 warp_op(
-    "warp_frame_depth_lens", lambda: _lens_kernels().warp_frame_depth_lens,
+    "warp_frame_depth_lens", sampling_kernels.warp_frame_depth_lens,
     ["image", "depth", "pose", "K", "dist", "rays"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"), Param("padding", "int"),
      Param("model", "int"), Param("ray_stride", "int")],

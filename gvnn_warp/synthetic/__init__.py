@@ -8,7 +8,9 @@ front imports it. Never imports torch (numpy and Warp only).
 - :mod:`.trajectories`: :func:`default_intrinsics`, :func:`rotation_trajectory`,
   :func:`smooth_se3_trajectory`, :func:`relative_pose`, :func:`pose_error`, :func:`euler_to_rotation`,
   :func:`rotation_angle_deg`;
-- :mod:`.render`: :func:`render_rgbd` (colour and depth of a scene from camera poses, on the CPU).
+- :mod:`.render`: :func:`render_rgbd` (colour and depth of a scene from camera poses, on the CPU);
+- :mod:`.sequence`: :func:`~.sequence.render_sequence`, a rendered sequence written as a TUM RGB-D
+  folder (what ``gvnn-warp render`` does).
 
 Example::
 

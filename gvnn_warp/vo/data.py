@@ -22,7 +22,7 @@ from torch import Tensor
 
 from ..datasets.errors import DatasetError
 from ..datasets.tum import read_tum
-from ..functional.geometry import so3_log
+from ..functional.lie import so3_log
 from ..synthetic.render import render_rgbd
 from ..synthetic.scene import make_room_scene
 from ..synthetic.trajectories import default_intrinsics, relative_pose, rotation_trajectory, smooth_se3_trajectory

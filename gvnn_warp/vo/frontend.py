@@ -19,7 +19,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..functional.geometry import se3_to_matrix
+from ..functional.lie import se3_to_matrix
 from .pose import full_xi
 
 __all__ = ["NetworkAligner", "VOFrame", "resize_frame", "scale_intrinsics"]

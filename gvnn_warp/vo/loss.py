@@ -18,8 +18,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..functional.geometry import se3_to_matrix, so3_log, warp_frame_depth
+from ..functional.lie import se3_to_matrix, so3_log
 from ..functional.perpixel import robust_rho
+from ..functional.sampling import warp_frame_depth
 from ..synthetic.trajectories import pose_error
 from .pose import full_xi, median_depth
 

@@ -18,7 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..functional.geometry import se3_to_matrix, warp_frame_depth
+from ..functional.lie import se3_to_matrix
+from ..functional.sampling import warp_frame_depth
 from .pose import compose_pose, full_xi, invert_pose, median_depth, mirror_pose
 
 # compose_pose, invert_pose and mirror_pose (now in .pose) stay importable from here

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..functional.geometry import se3_to_matrix
+from ..functional.lie import se3_to_matrix
 from .data import PairSet
 from .loss import pose_errors, warp_live
 from .pose import full_xi

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..functional.geometry import so3_exp, so3_log
+from ..functional.lie import so3_exp, so3_log
 
 __all__ = ["compose_pose", "full_xi", "invert_pose", "median_depth", "mirror_pose"]
 

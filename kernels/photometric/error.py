@@ -37,10 +37,7 @@ from ..geometry import camera, lie
 from ..sampling import sampler
 from ..sampling.kernels import INSIDE_TOLERANCE
 from . import residual as ph
-
-# (error_reduce, scale_segments, scale_segments_dim: re-exports for gvnn_warp/ops/photometric.py and tests; the
-# lead removes them)
-from .error_reduce import ROW_SLOTS, error_reduce, scale_segments, scale_segments_dim  # noqa: F401
+from .error_reduce import ROW_SLOTS
 
 
 @wp.func

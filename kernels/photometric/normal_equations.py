@@ -35,14 +35,7 @@ from ..core.kinds import FloatKernel
 from ..geometry import camera, lie
 from ..sampling.kernels import INSIDE_TOLERANCE
 from . import residual as ph
-
-# (photometric_*, rows_mean, normal_equations_lanes_for, N_SUMS, normal_equations_reduce: re-exports for
-# gvnn_warp/ops/photometric.py, gvnn_warp/odometry/aligner.py and tests; the lead removes them)
-from .error_rows import photometric_mean, photometric_rows, rows_mean  # noqa: F401
-from .normal_equations_lanes import normal_equations_lanes_for  # noqa: F401
-from .normal_equations_reduce import N_SUMS, ROW_STRIDE, mat66d, normal_equations_reduce, vec6d  # noqa: F401
-
-_GRAIN_PIXELS = ph.GRAIN_PIXELS  # (re-export for gvnn_warp/ops/photometric.py; the lead removes it)
+from .normal_equations_reduce import ROW_STRIDE, mat66d, vec6d
 
 
 @specialise("photometric.normal_equations_rows")

@@ -287,9 +287,3 @@ def normal_equations_lanes(depth: bool, occlusion: bool, C: int, kind: int, W: i
     pixels (:func:`normal_equations_lanes_kernel` compiled for them), with or without the ``depth``
     term and the ``occlusion`` test."""
     return normal_equations_lanes_kernel(depth, occlusion, C, kind, W < 8)
-
-
-def normal_equations_lanes_for(variant: int, C: int, kind: int, W: int) -> FloatKernel:
-    """:func:`normal_equations_lanes` with ``variant`` = depth term (1) + 2 * occlusion test (1)."""
-    # (re-export for gvnn_warp/ops/photometric.py; the lead removes it)
-    return normal_equations_lanes_kernel(variant & 1 == 1, variant >= 2, C, kind, W < 8)
