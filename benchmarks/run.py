@@ -103,7 +103,7 @@ def lens_cases(B, C, H, W) -> list[Case]:
     whose rays are recomputed in every call (a camera that changes every call: its own cache entry
     is dropped before each call, untimed, and the other cameras' entries are left alone)."""
     # the torch front loads on first use (as G.* does): `python -m benchmarks.run --help` and the
-    # report's tests (tests/test_benchmark_report.py) import this module without waiting for it
+    # report's tests (tests/project/test_benchmark_report.py) import this module without waiting for it
     from gvnn_warp.cameras import FisheyeCamera, RadTanCamera
     from gvnn_warp.cameras import fused as Fn
 

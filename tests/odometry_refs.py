@@ -1,4 +1,4 @@
-"""Test-only references and data for the direct aligner (tests/test_odometry.py, benchmarks).
+"""Test-only references and data for the direct aligner (tests/odometry/test_aligner.py, benchmarks).
 
 - :func:`normal_equations_torch`: a slow, independent float64 Gauss-Newton system of the
   photometric residuals, with the Jacobian from torch's forward-mode autograd through a plain torch

@@ -1,8 +1,8 @@
 """Sample arguments for every registered ``gvnn_warp::*`` op (flattened, as the ops take them),
 and :data:`OPS`, the registry, with every registration module of ``gvnn_warp.ops`` loaded.
 
-One entry per op: ``tests/test_ops_registry.py`` fails, with a list, for an op that has none.
-Used by the opcheck tests (tiny sizes) and by ``tests/test_scopes.py`` (sizes large enough to cut
+One entry per op: ``tests/ops/test_registry.py`` fails, with a list, for an op that has none.
+Used by the opcheck tests (tiny sizes) and by ``tests/ops/test_scopes.py`` (sizes large enough to cut
 every launch into many pieces).
 """
 

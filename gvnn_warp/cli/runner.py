@@ -116,7 +116,7 @@ def _clear_unhandled_interrupt() -> bool:
     the interpreter kill itself with SIGINT (status -2) whatever ``sys.exit`` was given: the one
     line was printed but the status was -2 (measured: the flag was 1 after every interrupted
     ``align``). Later CPythons keep it in private runtime state; there this does nothing and
-    returns False (tests/test_cli.py runs the real Ctrl-C and checks the status).
+    returns False (tests/cli/test_cli.py runs the real Ctrl-C and checks the status).
     """
     try:
         flag = ctypes.c_int.in_dll(ctypes.pythonapi, "_Py_UnhandledKeyboardInterrupt")

@@ -115,7 +115,7 @@ def warp_op(
     ``params`` its scalar arguments (after the tensors), ``outputs`` its output arrays (last).
     ``n_threads(*tensors, *params)`` is the launch size. ``function`` is the public function of
     gvnn_warp the op serves, ``layer`` its ``nn.Module`` layer or ``"no layer: <why>"``
-    (``tests/test_ops_registry.py`` checks both exist and are documented); ``untested`` maps a
+    (``tests/ops/test_registry.py`` checks both exist and are documented); ``untested`` maps a
     test of every op (``"scopes"``, ``"gradients"``) that does not apply to this one to why.
     Returns the forward op.
 

@@ -1,6 +1,6 @@
 """Adapters for the few torch internals gvnn_warp relies on, one small function each.
 
-Each is pinned by a test in ``tests/test_compat.py`` that fails loudly if a torch upgrade changes
+Each is pinned by a test in ``tests/ops/test_compat.py`` that fails loudly if a torch upgrade changes
 it. (Warp's internals have their own adapters in :mod:`gvnn_warp.kernels._compat`.)
 """
 

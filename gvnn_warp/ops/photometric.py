@@ -183,8 +183,8 @@ def _normal_equations_fake(ref_image, *_):
     return tuple(torch.empty(s, dtype=ref_image.dtype) for s in _ne_shapes(ref_image))
 
 
-_RECORDED_SPLIT = ("launches through RecordedLaunch, which replays its own recorded split (tests/test_photometric.py "
-                   "checks its results for any thread count)")
+_RECORDED_SPLIT = ("launches through RecordedLaunch, which replays its own recorded split "
+                   "(tests/functional/test_photometric.py checks its results for any thread count)")
 photometric_normal_equations = custom_op(
     "photometric_normal_equations", _normal_equations, _normal_equations_fake,
     function="photometric_normal_equations", layer=_NOT_DIFFERENTIABLE, untested={"scopes": _RECORDED_SPLIT},

@@ -1,6 +1,6 @@
 """Adapters for the few Warp internals gvnn_warp.kernels relies on, one small function each.
 
-Each is pinned by a test in ``tests/test_compat.py`` that fails loudly if a Warp upgrade changes
+Each is pinned by a test in ``tests/ops/test_compat.py`` that fails loudly if a Warp upgrade changes
 it (warp-lang is pinned to 1.19.x in pyproject.toml). Never imports torch.
 """
 

@@ -142,7 +142,7 @@ class FloatKernel:
                 gradient entries no other element writes), ``"segment"`` (the entries it writes
                 are written only by elements of its own segment) or ``"any"``. Inputs not named
                 count as ``"any"`` (always correct, but cut into pieces with partial buffers);
-                outputs need none (adjoints only read them). ``tests/test_scopes.py`` runs every
+                outputs need none (adjoints only read them). ``tests/ops/test_scopes.py`` runs every
                 registered kernel cut into many pieces and fails on a wrong declaration.
             forward: False if the forward pass accumulates into shared outputs (atomics): it
                 then runs on one thread.

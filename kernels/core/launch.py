@@ -24,7 +24,7 @@ Results are bitwise identical for every thread count, forward and backward:
   plan says so, and where a segment or the whole range must be cut into pieces (few batch items,
   or ``"any"`` arrays), the pieces are a fixed function of the launch size, never of the thread
   count; pieces after the first accumulate into zeroed partial buffers that are added to the
-  result in a fixed order afterwards. ``tests/test_scopes.py`` runs every registered kernel cut
+  result in a fixed order afterwards. ``tests/ops/test_scopes.py`` runs every registered kernel cut
   into many pieces, in reverse order, against one piece: a wrong declaration fails it.
 
 A kernel may also register a *blocked* variant with the same arguments that handles ``L``
@@ -186,7 +186,7 @@ def plan_chunks(
     return [(start, size, q) for q, (start, size) in enumerate(_even_chunks(n, pieces))]
 
 
-# The planner launch() uses; tests replace it (tests/test_scopes.py cuts every kernel into many pieces).
+# The planner launch() uses; tests replace it (tests/ops/test_scopes.py cuts every kernel into many pieces).
 _planner = plan_chunks
 
 

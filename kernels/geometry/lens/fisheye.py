@@ -19,7 +19,7 @@ _HALF_PI = wp.constant(wp.float64(math.pi / 2.0))
 # Chebyshev interpolant of c in w = 2 z - 1 (values computed in 40-digit arithmetic, converted to
 # monomials of w in the same precision, then rounded). Its error is below one float64 ulp of c over
 # [0, 1] (c's singularities at z = -1 and infinity are far: the coefficients fall ~3x per degree);
-# tests/test_cameras.py checks it against 40-digit arithmetic. Evaluated by Estrin's scheme (depth 5,
+# tests/cameras/test_models.py checks it against 40-digit arithmetic. Evaluated by Estrin's scheme (depth 5,
 # not Horner's 20 dependent steps, which measured no faster than the atan). The coefficients (lowest
 # first) of c (ATAN_H) and of its derivative dc/dw (ATAN_G, degree 19), evaluated by estrin20's
 # functions below and by their 8-lane twins in :mod:`.lanes`.

@@ -572,7 +572,7 @@ def test_every_module_load_holds_the_first_launch_lock():
     import sys
     from pathlib import Path
 
-    out = subprocess.run([sys.executable, "-c", _LOADS_UNDER_THE_LOCK, str(Path(__file__).parent)],
+    out = subprocess.run([sys.executable, "-c", _LOADS_UNDER_THE_LOCK, str(Path(__file__).parents[1])],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     calls, unlocked = map(int, out.stdout.split()[-2:])

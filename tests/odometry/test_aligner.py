@@ -566,7 +566,7 @@ def test_readme_example_runs_and_module_needs_no_torch():
     import sys
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     start = text.index("```python", text.index("<!-- odometry-example -->")) + len("```python")
     code = text[start : text.index("```", start)]
     code += "\nimport sys\nassert 'torch' not in sys.modules, 'torch was imported'\n"

@@ -9,7 +9,7 @@ from op_samples import OPS, op_samples
 
 import gvnn_warp
 
-API_DOC = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
+API_DOC = (Path(__file__).resolve().parents[2] / "docs" / "api.md").read_text()
 
 
 def missing_for(name, spec, samples):
@@ -30,7 +30,8 @@ def missing_for(name, spec, samples):
         missing.append("sample arguments in tests/op_samples.py (opcheck, AOT/compile and scope tests use them)")
     for test, why in spec.untested.items():
         if test not in ("scopes", "gradients") or not why:
-            missing.append(f"untested={{{test!r}: ...}}: a test of tests/test_compile.py or test_scopes.py, and why")
+            missing.append(f"untested={{{test!r}: ...}}: a test of tests/ops/test_compile.py or test_scopes.py, "
+                           "and why")
     kernels = [spec.fk, spec.backward_kernel] if spec.select is None else [spec.backward_kernel]
     for fk in kernels:
         if fk is not None and fk not in kinds.registered():

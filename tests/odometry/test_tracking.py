@@ -453,7 +453,7 @@ def test_odometry_benchmark_runs_without_open3d(tmp_path):
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-m", "benchmarks.odometry", "--frames", "8", "--sizes", "80x60",
                           "--strides", "5", "--no-open3d", "--no-progress", "--json", str(tmp_path / "r.json")],
                          cwd=root, capture_output=True, text=True, timeout=300)

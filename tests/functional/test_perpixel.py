@@ -658,7 +658,7 @@ def test_flow_demo_smoke(tmp_path, capsys):
         parser.parse_args(["flow", "--out", str(tmp_path), "--size", "48"])
 
 
-# opcheck and the wanted-gradients test of these ops: tests/test_compile.py (all ops)
+# opcheck and the wanted-gradients test of these ops: tests/ops/test_compile.py (all ops)
 
 
 @pytest.mark.parametrize("B", [1, 3])

@@ -237,7 +237,7 @@ def test_help_is_plain_text_with_defaults_and_descriptions():
 
 
 def test_readme_torchrun_line_is_the_help_one():
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     line = "torchrun --standalone --nproc_per_node=2 -m gvnn_warp.cli.vo"
     assert line in readme
     _, commands = _subparsers()

@@ -10,7 +10,7 @@ not seen: the lazy name tables of the package ``__init__`` files use them on pur
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TREES = {"gvnn_warp": ROOT / "gvnn_warp", "gvnn_warp.kernels": ROOT / "kernels"}
 
 
