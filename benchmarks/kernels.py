@@ -1,5 +1,5 @@
 """Kernel microbenchmarks: each Warp kernel's forward and adjoint launch, through
-``gvnn_warp.kernels.launch.launch``, on 1 thread and on N threads (no torch autograd, no
+``gvnn_warp.kernels.core.launch.launch``, on 1 thread and on N threads (no torch autograd, no
 allocation: only the launches). Reports milliseconds, ns per element and the threaded speed-up.
 
 Usage: ``python -m benchmarks.kernels [--threads 2] [--quick]``.

@@ -15,7 +15,7 @@ one existing TUM folder). Then:
    ``gvnn_warp.odometry.DirectAligner`` (grey images, as Open3D's Intensity term). Reported: ms per
    pair (alignment incl. the live frame's pyramid; file reading excluded), RPE translation /
    rotation RMSE over 1-frame steps, ATE RMSE (SE(3) Umeyama) - all by ``evo`` - and the failed
-   pairs (RPE above 1 cm or 0.25 deg). Our tracker pipelines (``gvnn_warp.tracking``: frame i's
+   pairs (RPE above 1 cm or 0.25 deg). Our tracker pipelines (``gvnn_warp.odometry.tracking``: frame i's
    pyramid is built on a helper thread while frame i - 1 is aligned; each step returns when its
    work is done); Open3D's call runs on both cores through OpenMP.
 2. Basin: every pair (i, i + s) for s in ``--strides`` (every offset i), aligned from the identity;

@@ -35,12 +35,7 @@ t4 = time.perf_counter()
 res = {"torch_import_s": t1 - t0, "import_and_first_forward_s": t3 - t2, "import_and_first_call_s": t4 - t2}
 if "--all-modules" in sys.argv:
     import warp as wp
-    import gvnn_warp.functional, gvnn_warp.nn  # noqa: F401
-    for extra in ("gvnn_warp.perpixel", "gvnn_warp.synthetic"):
-        try:
-            __import__(extra)
-        except ImportError:
-            pass
+    import gvnn_warp.functional, gvnn_warp.nn, gvnn_warp.odometry, gvnn_warp.synthetic  # noqa: F401
     t5 = time.perf_counter()
     wp.force_load(device="cpu", max_workers=os.cpu_count())  # compile modules in parallel
     res["all_modules_loaded_s"] = time.perf_counter() - t2

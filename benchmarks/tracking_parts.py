@@ -7,7 +7,7 @@ Prepares every frame once and aligns it to the previous one, as ``gvnn-warp trac
 times over the sequence (the first pass warms the caches and is not counted); prints the median
 wall and CPU (``process_time``, all threads) milliseconds per pair of each part. ``--threads 1``
 gives the steadier CPU figure on a shared host. ``--occlusion-levels`` overrides the aligner's
-``_OCCLUSION_LEVELS`` (how many of the finest levels run the occlusion test) to price it.
+``OCCLUSION_LEVELS`` (how many of the finest levels run the occlusion test) to price it.
 
 To compare two versions of the code, run it in separate processes with each version first on
 ``PYTHONPATH`` (a copy of its ``gvnn_warp/`` with ``kernels/`` copied in as
@@ -23,7 +23,7 @@ import time
 from gvnn_warp.kernels.core import launch
 
 from gvnn_warp.datasets.tum import read_tum
-from gvnn_warp.odometry import aligner as odometry  # its _OCCLUSION_LEVELS, set by --occlusion-levels
+from gvnn_warp.odometry import aligner as odometry  # its OCCLUSION_LEVELS, set by --occlusion-levels
 from gvnn_warp.odometry.sequence import make_aligner
 
 
@@ -38,7 +38,7 @@ def main(argv=None) -> None:
     if args.threads is not None:
         launch.set_num_threads(args.threads)
     if args.occlusion_levels is not None:
-        odometry._OCCLUSION_LEVELS = args.occlusion_levels
+        odometry.OCCLUSION_LEVELS = args.occlusion_levels
     seq = read_tum(args.data)
     frames = [(seq.image(i, gray=True), seq.depth(i)) for i in range(len(seq))]
     # as gvnn-warp track: through the camera's radial-tangential distortion when it has one

@@ -18,6 +18,7 @@ The package, by layer (``docs/architecture.md``):
 from __future__ import annotations
 
 import importlib
+import platform as _platform
 
 import warp as _wp
 
@@ -33,6 +34,7 @@ init_warp_quietly()
 
 __version__ = "0.1.0"
 
+from .kernels.core import threads as _threads  # noqa: E402
 from .kernels.core.launch import get_num_threads as get_num_threads  # noqa: E402  (pure Warp, no torch)
 from .kernels.core.launch import set_num_threads as set_num_threads  # noqa: E402
 from .kernels.core.moved import moved  # noqa: E402
@@ -42,15 +44,20 @@ _FRONT = ("functional", "nn", "cameras")
 _SUBPACKAGES = (*_FRONT, "cli", "datasets", "demos", "kernels", "odometry", "ops", "synthetic", "vo")
 
 # the module paths of earlier releases, kept importable (a tuple: the old module's names now live in several)
-moved({f"{__name__}.{old}": new if isinstance(new, tuple) else f"{__name__}.{new}" for old, new in {
-    "layers": tuple(f"{__name__}.nn.{m}" for m in ("lie", "camera", "sampling")),
+_MOVED = {
+    "layers": ("nn.lie", "nn.camera", "nn.sampling"),
     "perpixel_layers": "nn.perpixel",
     "perpixel": "functional.perpixel",
-    "photometric": (f"{__name__}.functional.photometric", f"{__name__}.nn.photometric"),
+    "photometric": ("functional.photometric", "nn.photometric"),
     "tracking": "odometry.tracking",
     "evaluation": "odometry.evaluation",
     "_lens_ops": "ops.lens",
-}.items()})
+}
+moved({f"{__name__}.{old}": tuple(f"{__name__}.{n}" for n in new) if isinstance(new, tuple) else f"{__name__}.{new}"
+       for old, new in _MOVED.items()})
+# what ``from gvnn_warp import *`` binds besides the front's names: the modules it bound before (not
+# the sub-packages a star import would shadow user names with, such as ``nn``)
+_STAR_MODULES = ("cameras", "functional", "kernels", "layers", "perpixel", "perpixel_layers", "photometric")
 
 
 def info() -> dict:
@@ -59,11 +66,7 @@ def info() -> dict:
     ``num_threads``, ``thread_backend`` (``"openmp:<library>"``, ``"python"`` or ``"serial"``) and
     ``thread_backend_reason`` (e.g. why torch's OpenMP team is not used). Loads the torch bridge
     if torch is installed, since that is where the backend is chosen."""
-    import platform
-
-    from .kernels.core import threads
-
-    try:
+    try:  # (torch on demand: importing gvnn_warp never imports it)
         importlib.import_module(".ops.bridge", __name__)
         import torch
 
@@ -74,10 +77,10 @@ def info() -> dict:
         "gvnn_warp": __version__,
         "warp": _wp.config.version,
         "torch": torch_version,
-        "python": platform.python_version(),
-        "num_threads": threads.get_num_threads(),
-        "thread_backend": threads.thread_backend(),
-        "thread_backend_reason": threads.backend_reason(),
+        "python": _platform.python_version(),
+        "num_threads": _threads.get_num_threads(),
+        "thread_backend": _threads.thread_backend(),
+        "thread_backend_reason": _threads.backend_reason(),
     }
 
 
@@ -87,10 +90,10 @@ def _front_names() -> list[str]:
 
 
 def __getattr__(name: str):
-    if name in _SUBPACKAGES:
-        return importlib.import_module(f".{name}", __name__)
+    if name in _SUBPACKAGES or name in _MOVED:
+        return importlib.import_module(f".{name}", __name__)  # (old module names: through the hook)
     if name == "__all__":  # derived from the front's lists (PEP 562 serves it like any other name)
-        return sorted({*_front_names(), *_SUBPACKAGES, "get_num_threads", "info", "set_num_threads"})
+        return sorted({*_front_names(), *_STAR_MODULES, "get_num_threads", "info", "set_num_threads"})
     if not name.startswith("_"):
         for pkg in _FRONT:
             module = importlib.import_module(f".{pkg}", __name__)
@@ -101,4 +104,4 @@ def __getattr__(name: str):
 
 
 def __dir__():
-    return sorted(set(globals()) | set(__getattr__("__all__")))
+    return sorted({n for n in globals() if not n.startswith("_")} | set(__getattr__("__all__")) | set(_SUBPACKAGES))

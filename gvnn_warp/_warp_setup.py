@@ -63,7 +63,7 @@ def on_first_compile(notify: Callable[[], None]) -> bool:
     kernel module in this process; modules loaded from the kernel cache do not count. Returns
     False, and never calls ``notify``, if this Warp has no ``Module._run_codegen`` (the step it runs
     only when a module is not in the cache: warp-lang 1.19's private API)."""
-    try:
+    try:  # (here, not at the top: a private module of Warp's, which another Warp may not have)
         from warp._src.context import Module
     except ImportError:
         return False

@@ -118,7 +118,7 @@ def camera_args(chk: ArgCheck, K, name: str = "K") -> tuple[int, Tensor, Tensor]
         dist = K.new_zeros(B, lens.DIST_SIZE)
         model = lens.PINHOLE
     else:
-        chk._fail(
+        chk.fail(
             TypeError,
             f"argument '{name}' must be a (3, 3) or (B, 3, 3) torch.Tensor or a camera from gvnn_warp.cameras "
             f"(PinholeCamera, RadTanCamera, FisheyeCamera), got {type(K).__name__}",
@@ -131,7 +131,7 @@ def _unproject(chk: ArgCheck, pixels: Tensor, depth: Tensor, camera) -> Tensor:
     chk.tensor("pixels", pixels, "B ... 2")
     chk.tensor("depth", depth, "B ...")
     if tuple(depth.shape) != tuple(pixels.shape[:-1]):
-        chk._fail(
+        chk.fail(
             ValueError, f"argument 'depth' must have shape {tuple(pixels.shape[:-1])} (pixels' without the last "
             f"dimension), got {tuple(depth.shape)}",
         )

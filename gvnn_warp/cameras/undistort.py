@@ -20,7 +20,7 @@ def _camera_object_args(chk: ArgCheck, camera) -> tuple[int, Tensor, Tensor]:
     """:func:`camera_args` for functions whose ``camera`` must be a camera object (a bare K has no
     distortion to apply or undo)."""
     if not isinstance(camera, Camera):
-        chk._fail(
+        chk.fail(
             TypeError,
             "argument 'camera' must be a camera from gvnn_warp.cameras (PinholeCamera, RadTanCamera, "
             f"FisheyeCamera), got {type(camera).__name__}",
@@ -92,7 +92,7 @@ def undistort_image(image: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
     model, Kb, dist = _camera_object_args(chk, camera)
     B, C, H, W = image.shape
     if H < 2 or W < 2:
-        chk._fail(ValueError, f"argument 'image' must be at least 2 x 2 pixels, got {tuple(image.shape)}")
+        chk.fail(ValueError, f"argument 'image' must be at least 2 x 2 pixels, got {tuple(image.shape)}")
     ys, xs = torch.meshgrid(
         torch.arange(H, dtype=image.dtype), torch.arange(W, dtype=image.dtype), indexing="ij"
     )

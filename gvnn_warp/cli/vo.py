@@ -96,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seed of weights, trajectories and batches (default: 0)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.pt")
     p.add_argument("--loss", choices=_losses(), default=None,
-                   help="per-pixel penalty: l1, l2, or an M-estimator of gvnn_warp.perpixel (default: l1)")
+                   help="per-pixel penalty: l1, l2, or an M-estimator of gvnn_warp.functional.perpixel (default: l1)")
     p.add_argument("--loss-scale", type=positive_float, default=None, metavar="X",
                    help="M-estimator scale, intensity units (default: 0.1)")
     p.add_argument("--pose-weight", type=finite_float(0, 1e6), default=None, metavar="W",

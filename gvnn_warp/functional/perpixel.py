@@ -288,8 +288,8 @@ def affine_grid(theta: Tensor, size, align_corners: bool = False) -> Tensor:
         isinstance(size, (tuple, list, torch.Size))
         and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in size)
     ):
-        chk._fail(TypeError, f"argument 'size' must be a sequence of non-negative ints (B, C, H, W), got {size!r}")
-    chk._shape("size", tuple(size), "B * H W")
+        chk.fail(TypeError, f"argument 'size' must be a sequence of non-negative ints (B, C, H, W), got {size!r}")
+    chk.shape("size", tuple(size), "B * H W")
     return _ops.affine_grid(theta.contiguous(), chk.dim("H"), chk.dim("W"), int(bool(align_corners)))
 
 

@@ -176,7 +176,7 @@ def photometric_normal_equations(
     if isinstance(depth_weight, bool) or not isinstance(depth_weight, (int, float)) or not (
         0 <= depth_weight < float("inf")
     ):
-        chk._fail(ValueError, f"argument 'depth_weight' must be a finite number >= 0, got {depth_weight!r}")
+        chk.fail(ValueError, f"argument 'depth_weight' must be a finite number >= 0, got {depth_weight!r}")
     frames = (ref_image.detach().contiguous(), ref_depth.detach().contiguous(), live_image.detach().contiguous(), ld,
               pose34.detach(), cam.K.detach())
     if cam.model == 0:

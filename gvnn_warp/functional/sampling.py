@@ -50,7 +50,7 @@ def bilinear_sample(
     B, C, H, W = image.shape
     h, w = grid.shape[1:3]
     if H * W == 0 and B * h * w > 0:
-        chk._fail(ValueError, f"argument 'image' has no pixels to sample from (shape {tuple(image.shape)})")
+        chk.fail(ValueError, f"argument 'image' has no pixels to sample from (shape {tuple(image.shape)})")
     # 8 output locations per thread where they tile the output (SIMD weights; same results)
     op = _ops.bilinear_sample_lanes if sampling_kernels.fits_lanes(h * w, H, W) else _ops.bilinear_sample
     out = op(image.contiguous(), flat(grid, 1), C, H, W, h * w, int(bool(align_corners)), pad)

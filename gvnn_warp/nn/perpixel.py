@@ -1,4 +1,4 @@
-"""``nn.Module`` wrappers of :mod:`gvnn_warp.perpixel`: each forward is one call of the function.
+"""``nn.Module`` wrappers of :mod:`gvnn_warp.functional.perpixel`: each forward is one call of the function.
 
 Options are validated when the layer is built (same messages as the functions, naming the layer).
 """
@@ -41,7 +41,7 @@ class _Sampler(nn.Module):
 
 
 class FlowWarp(_Sampler):
-    """:func:`gvnn_warp.perpixel.flow_warp`: forward(image (B, C, H, W), flow (B, 2, H, W))
+    """:func:`gvnn_warp.functional.perpixel.flow_warp`: forward(image (B, C, H, W), flow (B, 2, H, W))
     -> (B, C, H, W)."""
 
     def forward(self, image: Tensor, flow: Tensor) -> Tensor:
@@ -49,7 +49,7 @@ class FlowWarp(_Sampler):
 
 
 class DisparityWarp(_Sampler):
-    """:func:`gvnn_warp.perpixel.disparity_warp`: forward(image (B, C, H, W), disparity (B, 1, H, W))
+    """:func:`gvnn_warp.functional.perpixel.disparity_warp`: forward(image (B, C, H, W), disparity (B, 1, H, W))
     -> (B, C, H, W), the image sampled at (x - d, y)."""
 
     def forward(self, image: Tensor, disparity: Tensor) -> Tensor:
@@ -57,7 +57,7 @@ class DisparityWarp(_Sampler):
 
 
 class AffineFlowWarp(_Sampler):
-    """:func:`gvnn_warp.perpixel.affine_flow_warp` (fused): forward(image (B, C, H, W),
+    """:func:`gvnn_warp.functional.perpixel.affine_flow_warp` (fused): forward(image (B, C, H, W),
     params (B, 6, H, W)) -> (B, C, H, W)."""
 
     def forward(self, image: Tensor, params: Tensor) -> Tensor:
@@ -65,14 +65,14 @@ class AffineFlowWarp(_Sampler):
 
 
 class AffineFlow(nn.Module):
-    """:func:`gvnn_warp.perpixel.affine_flow`: forward(params (B, 6, H, W)) -> flow (B, 2, H, W)."""
+    """:func:`gvnn_warp.functional.perpixel.affine_flow`: forward(params (B, 6, H, W)) -> flow (B, 2, H, W)."""
 
     def forward(self, params: Tensor) -> Tensor:
         return P.affine_flow(params)
 
 
 class SE2Flow(nn.Module):
-    """:func:`gvnn_warp.perpixel.se2_flow`: forward(params (B, 3, H, W) [theta, tx, ty])
+    """:func:`gvnn_warp.functional.perpixel.se2_flow`: forward(params (B, 3, H, W) [theta, tx, ty])
     -> flow (B, 2, H, W)."""
 
     def forward(self, params: Tensor) -> Tensor:
@@ -80,14 +80,14 @@ class SE2Flow(nn.Module):
 
 
 class HomographyFlow(nn.Module):
-    """:func:`gvnn_warp.perpixel.homography_flow`: forward(params (B, 9, H, W)) -> flow (B, 2, H, W)."""
+    """:func:`gvnn_warp.functional.perpixel.homography_flow`: forward(params (B, 9, H, W)) -> flow (B, 2, H, W)."""
 
     def forward(self, params: Tensor) -> Tensor:
         return P.homography_flow(params)
 
 
 class SlantedPlaneDisparity(nn.Module):
-    """:func:`gvnn_warp.perpixel.slanted_plane_disparity`: forward(params (B, 3, H, W) [a, b, c])
+    """:func:`gvnn_warp.functional.perpixel.slanted_plane_disparity`: forward(params (B, 3, H, W) [a, b, c])
     -> disparity (B, 1, H, W) = a x + b y + c."""
 
     def forward(self, params: Tensor) -> Tensor:
@@ -95,7 +95,7 @@ class SlantedPlaneDisparity(nn.Module):
 
 
 class PointwiseSE3(nn.Module):
-    """:func:`gvnn_warp.perpixel.pointwise_se3`: forward(points (B, H, W, 3), params (B, 6, H, W))
+    """:func:`gvnn_warp.functional.perpixel.pointwise_se3`: forward(points (B, H, W, 3), params (B, 6, H, W))
     -> (B, H, W, 3)."""
 
     def forward(self, points: Tensor, params: Tensor) -> Tensor:
@@ -103,7 +103,7 @@ class PointwiseSE3(nn.Module):
 
 
 class PointwiseSim3(nn.Module):
-    """:func:`gvnn_warp.perpixel.pointwise_sim3`: forward(points (B, H, W, 3), params (B, 7, H, W))
+    """:func:`gvnn_warp.functional.perpixel.pointwise_sim3`: forward(points (B, H, W, 3), params (B, 7, H, W))
     -> (B, H, W, 3)."""
 
     def forward(self, points: Tensor, params: Tensor) -> Tensor:
@@ -111,7 +111,7 @@ class PointwiseSim3(nn.Module):
 
 
 class PointwiseTransform10(nn.Module):
-    """:func:`gvnn_warp.perpixel.pointwise_transform10`: forward(points (B, H, W, 3),
+    """:func:`gvnn_warp.functional.perpixel.pointwise_transform10`: forward(points (B, H, W, 3),
     params (B, 10, H, W)) -> (B, H, W, 3)."""
 
     def forward(self, points: Tensor, params: Tensor) -> Tensor:
@@ -119,7 +119,7 @@ class PointwiseTransform10(nn.Module):
 
 
 class AffineGridGenerator(nn.Module):
-    """:func:`gvnn_warp.perpixel.affine_grid` (the STN grid generator): forward(theta (B, 2, 3),
+    """:func:`gvnn_warp.functional.perpixel.affine_grid` (the STN grid generator): forward(theta (B, 2, 3),
     size (B, C, H, W)) -> grid (B, H, W, 2)."""
 
     def __init__(self, align_corners: bool = False):
@@ -142,7 +142,7 @@ class _Robust(nn.Module):
 
 
 class RobustLoss(_Robust):
-    """M-estimator loss: forward(x (any shape)) -> rho(x) (:func:`gvnn_warp.perpixel.robust_rho`)
+    """M-estimator loss: forward(x (any shape)) -> rho(x) (:func:`gvnn_warp.functional.perpixel.robust_rho`)
     reduced by ``reduction``: "mean" or "sum" (0-dim tensor) or "none" (same shape as x)."""
 
     def __init__(self, kind: str, scale: float = 1.0, reduction: str = "mean"):
@@ -158,7 +158,7 @@ class RobustLoss(_Robust):
 
 
 class SmoothnessLoss(_Robust):
-    """:func:`gvnn_warp.perpixel.smoothness_loss`: forward(field (B, K, H, W)) -> 0-dim tensor."""
+    """:func:`gvnn_warp.functional.perpixel.smoothness_loss`: forward(field (B, K, H, W)) -> 0-dim tensor."""
 
     def __init__(self, kind: str = "huber", scale: float = 1.0):
         super().__init__(kind, scale)

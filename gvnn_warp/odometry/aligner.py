@@ -26,7 +26,7 @@ How it works
    accepted if the cost per valid pixel goes down (then ``lambda`` shrinks by ``lm_down``), else
    rejected (``lambda`` grows by ``lm_up``). Every trial is one fused pass over the level. The
    whole step (accept/reject, damping, the 6x6 solve, the pose update, the stop test) runs in a
-   Warp kernel (:mod:`gvnn_warp.kernels.lm`), so a trial is a few recorded launches.
+   Warp kernel (:mod:`gvnn_warp.kernels.photometric.lm`), so a trial is a few recorded launches.
 3. A level stops after ``iterations[l]`` trials, or when a step moves the image by less than
    ``tolerance`` pixels of that level: ``f_l (|omega| + |t| / z)`` with ``f_l`` the level's focal
    length and ``z`` the mean valid reference depth, or when ``lambda`` exceeds ``1e8`` (no step
@@ -80,7 +80,7 @@ _LUMA = (0.299, 0.587, 0.114)
 _ROBUST = ("huber", "cauchy", "geman_mcclure", "tukey", "l2")
 _MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
 _AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
-_OCCLUSION_LEVELS = 2  # the occlusion test runs at the finest this many levels (see DirectAligner's 'occlusion')
+OCCLUSION_LEVELS = 2  # the occlusion test runs at the finest this many levels (see DirectAligner's 'occlusion')
 
 
 class DirectAligner:
@@ -150,7 +150,7 @@ class DirectAligner:
 
     # prepare() may run on one thread while align_frames() runs on another (on other frames): they
     # share no buffers (a frame's pyramid comes from the pool of dead frames' pyramids), so
-    # gvnn_warp.tracking pipelines them
+    # gvnn_warp.odometry.tracking pipelines them
     concurrent_prepare = True
 
     def __init__(
@@ -355,7 +355,7 @@ class DirectAligner:
         key = (B, tuple(shapes))
         st = self._states.get(key)
         if st is None:
-            st = self._states[key] = LMState(self, B, shapes, _OCCLUSION_LEVELS)
+            st = self._states[key] = LMState(self, B, shapes, OCCLUSION_LEVELS)
         return st
 
     def _align(self, fn: str, ref: Frame, live: Frame, init):

@@ -1,6 +1,6 @@
 """The bridge from Warp kernels to PyTorch autograd.
 
-:func:`warp_op` turns a :class:`gvnn_warp.kernels.launch.FloatKernel` into a
+:func:`warp_op` turns a :class:`gvnn_warp.kernels.core.kinds.FloatKernel` into a
 ``torch.library.custom_op`` (so ``torch.compile(fullgraph=True)`` can trace it) whose backward is
 a second custom op that runs the *same kernel's Warp adjoint*, and registers it in
 :data:`.registry.OPS` with the public function and layer it serves (beside
@@ -12,9 +12,9 @@ Callers (``gvnn_warp.functional``) validate and flatten arguments first: every t
 op is contiguous, on the CPU, float32 or float64 (all the same), with shape
 ``(n, *element_shape)`` for its kind.
 
-Launches go through :func:`gvnn_warp.kernels.launch.launch`, which splits them over threads; the
+Launches go through :func:`gvnn_warp.kernels.core.launch.launch`, which splits them over threads; the
 thread count follows ``torch.get_num_threads()`` unless set with
-``gvnn_warp.kernels.launch.set_num_threads`` or ``GVNN_WARP_NUM_THREADS``.
+``gvnn_warp.set_num_threads`` or ``GVNN_WARP_NUM_THREADS``.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def _use_torch_openmp() -> None:
 
 _use_torch_openmp()
 
-FLOAT_TYPES = {torch.float32: wp.float32, torch.float64: wp.float64}  # torch dtype -> Warp float type
+WARP_FLOAT = {torch.float32: wp.float32, torch.float64: wp.float64}  # torch dtype -> Warp float type
 
 
 # ----------------------------------------------------------------------------- tensors as Warp arrays
@@ -80,7 +80,7 @@ def null_array(kind: str, float_type):
 
 def descriptor(t: torch.Tensor, kind: str, float_type):
     """Like :func:`to_warp` but returns a bare 1-D array descriptor (~1 us instead of ~9 us), which
-    :func:`~gvnn_warp.kernels.launch.launch` accepts. It holds no reference to ``t``: keep ``t``
+    :func:`~gvnn_warp.kernels.core.launch.launch` accepts. It holds no reference to ``t``: keep ``t``
     alive while the descriptor is used."""
     if not t.is_contiguous():
         return to_warp(t, kind, float_type)  # a copy: the wp.array keeps it alive
@@ -176,7 +176,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
         return [torch.empty(s, dtype=out_dtype(o, ref), device=ref.device) for s, o in zip(shapes, outputs)]
 
     def wrap(args, outs):
-        ft = FLOAT_TYPES[args[0].dtype]
+        ft = WARP_FLOAT[args[0].dtype]
         arrays = [descriptor(t, k, ft) for t, k in zip(args[:n_in], in_kinds)]
         out_arrays = [descriptor(t, o.kind, ft) for t, o in zip(outs, outputs)]
         return ft, arrays, out_arrays
@@ -230,7 +230,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
         scratch = alloc_outputs(fargs)  # the adjoint replays the forward's stores into these
         ft, arrays, out_arrays = wrap(fargs, scratch)
         # a gradient nobody asked for gets a null array: Warp's adjoints skip writes to it, and the
-        # hand-written ones check (see gvnn_warp.kernels.sampler.sample_channels_grad)
+        # hand-written ones check (see gvnn_warp.kernels.sampling.scalar.sample_channels_grad)
         adj_in = [descriptor(g, k, ft) if w else null_array(k, ft) for g, k, w in zip(in_grads, in_kinds, wanted)]
         g_iter = iter(grads)
         # incoming gradients made contiguous, broadcast ones too (e.g. from out.sum().backward()):

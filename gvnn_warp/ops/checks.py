@@ -30,40 +30,40 @@ class ArgCheck:
         self.dims: dict[str, tuple[int, str]] = {}
         self.dtype: tuple[torch.dtype, str] | None = None
 
-    def _fail(self, exc, msg: str):
+    def fail(self, exc, msg: str):
         raise exc(f"{self.fn}: {msg}")
 
     def tensor(self, name: str, t, spec: str, *, floating: bool = True) -> torch.Tensor:
         """Check ``t`` is a CPU tensor of shape ``spec`` (and, if ``floating``, float32/float64,
         the same dtype as every other floating argument of the call). Returns ``t``."""
         if not isinstance(t, torch.Tensor):
-            self._fail(TypeError, f"argument '{name}' must be a torch.Tensor, got {type(t).__name__}")
+            self.fail(TypeError, f"argument '{name}' must be a torch.Tensor, got {type(t).__name__}")
         if t.device.type != "cpu":
-            self._fail(ValueError, f"argument '{name}' must be on the CPU, got device {t.device}")
+            self.fail(ValueError, f"argument '{name}' must be on the CPU, got device {t.device}")
         if floating:
             if t.dtype not in FLOAT_DTYPES:
-                self._fail(TypeError, f"argument '{name}' must be float32 or float64, got {t.dtype}")
+                self.fail(TypeError, f"argument '{name}' must be float32 or float64, got {t.dtype}")
             if self.dtype is None:
                 self.dtype = (t.dtype, name)
             elif t.dtype != self.dtype[0]:
-                self._fail(
+                self.fail(
                     TypeError,
                     f"argument '{name}' has dtype {t.dtype} but '{self.dtype[1]}' has {self.dtype[0]}; "
                     "all floating arguments must share one dtype",
                 )
         if t.numel() >= 2**31:
-            self._fail(ValueError, f"argument '{name}' has {t.numel()} elements; kernels index with int32 (< 2**31)")
+            self.fail(ValueError, f"argument '{name}' has {t.numel()} elements; kernels index with int32 (< 2**31)")
         alternatives = spec.split(" or ")
         if len(alternatives) > 1:  # pick the alternative of matching rank, for a specific message
             same_rank = [a for a in alternatives if len(a.split()) == t.dim()]
             if not same_rank:
                 wants = " or ".join(f"({', '.join(a.split())})" for a in alternatives)
-                self._fail(ValueError, f"argument '{name}' must have shape {wants}, got {tuple(t.shape)}")
+                self.fail(ValueError, f"argument '{name}' must have shape {wants}, got {tuple(t.shape)}")
             spec = same_rank[0]
-        self._shape(name, tuple(t.shape), spec)
+        self.shape(name, tuple(t.shape), spec)
         return t
 
-    def _shape(self, name: str, shape: tuple[int, ...], spec: str) -> None:
+    def shape(self, name: str, shape: tuple[int, ...], spec: str) -> None:
         tokens = spec.split()
         want = f"({', '.join(tokens)})"
         if "..." in tokens:  # fixed tokens before and after any number of free dimensions
@@ -75,17 +75,17 @@ class ArgCheck:
             ok = len(shape) == len(tokens)
             pairs = list(zip(tokens, shape))
         if not ok:
-            self._fail(ValueError, f"argument '{name}' must have shape {want}, got {shape}")
+            self.fail(ValueError, f"argument '{name}' must have shape {want}, got {shape}")
         for tok, size in pairs:
             if tok == "*":
                 continue
             if tok[0].isdigit():
                 if size not in [int(a) for a in tok.split("|")]:
-                    self._fail(ValueError, f"argument '{name}' must have shape {want}, got {shape}")
+                    self.fail(ValueError, f"argument '{name}' must have shape {want}, got {shape}")
             elif tok in self.dims:
                 bound, src = self.dims[tok]
                 if size != bound:
-                    self._fail(
+                    self.fail(
                         ValueError,
                         f"argument '{name}' has {tok}={size} (shape {shape}) but '{src}' has {tok}={bound}",
                     )
@@ -101,7 +101,7 @@ class ArgCheck:
     def option(self, name: str, value, allowed: Sequence):
         """Check ``value`` is one of ``allowed``; returns it."""
         if value not in allowed:
-            self._fail(ValueError, f"argument '{name}' must be one of {list(allowed)}, got {value!r}")
+            self.fail(ValueError, f"argument '{name}' must be one of {list(allowed)}, got {value!r}")
         return value
 
     def positive(self, name: str, value, dtype: torch.dtype | None = None) -> float:
@@ -110,15 +110,15 @@ class ArgCheck:
         dtype (``value`` in [sqrt(tiny), sqrt(max)]: ~[1.1e-19, 1.8e19] for float32), so a scale c
         and c^2 survive the conversion to the kernel's precision."""
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-            self._fail(TypeError, f"argument '{name}' must be a real number, got {type(value).__name__}")
+            self.fail(TypeError, f"argument '{name}' must be a real number, got {type(value).__name__}")
         if not (0 < value < float("inf")):
-            self._fail(ValueError, f"argument '{name}' must be a positive finite number, got {value!r}")
+            self.fail(ValueError, f"argument '{name}' must be a positive finite number, got {value!r}")
         value = float(value)
         if dtype is not None:
             info = torch.finfo(dtype)
             lo, hi = math.sqrt(info.tiny), math.sqrt(info.max)
             if not lo <= value <= hi:
-                self._fail(ValueError, f"argument '{name}' must lie in [{lo:.3g}, {hi:.3g}] for {dtype}, got {value!r}")
+                self.fail(ValueError, f"argument '{name}' must lie in [{lo:.3g}, {hi:.3g}] for {dtype}, got {value!r}")
         return value
 
     def dim(self, name: str) -> int:

@@ -1,7 +1,7 @@
 """Adapters for the few torch internals gvnn_warp relies on, one small function each.
 
 Each is pinned by a test in ``tests/ops/test_compat.py`` that fails loudly if a torch upgrade changes
-it. (Warp's internals have their own adapters in :mod:`gvnn_warp.kernels._compat`.)
+it. (Warp's internals have their own adapters in :mod:`gvnn_warp.kernels.core.compat`.)
 """
 
 from __future__ import annotations

@@ -18,10 +18,10 @@ from ..kernels.core.launch import RecordedLaunch, get_num_threads, launch
 from ..kernels.photometric import error, error_reduce, error_rows, normal_equations, normal_equations_lanes
 from ..kernels.photometric import normal_equations_reduce as ne_reduce
 from ..kernels.photometric.residual import GRAIN_PIXELS
-from .bridge import FLOAT_TYPES, descriptor, null_array, warp_op
+from .bridge import WARP_FLOAT, descriptor, null_array, warp_op
 from .registry import Output, Param, custom_op, define_op, lazy_ops
 
-wp_float64 = FLOAT_TYPES[torch.float64]
+wp_float64 = WARP_FLOAT[torch.float64]
 _LOSS = {"function": "photometric_error", "layer": "PhotometricLoss"}
 _NOT_DIFFERENTIABLE = "no layer: not differentiable (a Gauss-Newton system for a pose update)"
 
@@ -108,7 +108,7 @@ def _run_normal_equations(rows_kernel, ref_image, arrays: list, scalars: list, o
     ``scalars``, then the float64 row sums (B*H*ROW_STRIDE,) and, with ``acc``, 8-lane scratch of
     the same length) and the reduction into ``outs`` (JtWJ, JtWr, cost, count)."""
     B, C, H, W = ref_image.shape
-    ft = FLOAT_TYPES[ref_image.dtype]
+    ft = WARP_FLOAT[ref_image.dtype]
     # (the kernel is the float type's overload; C, H and W are among the scalars)
     key = (rows_kernel, B, *(t.numel() for t, _ in arrays), *scalars, get_num_threads())
     # the inputs' addresses (None: not contiguous, a copy each call)
@@ -174,7 +174,7 @@ def _normal_equations(
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [(pose, "mat34"), (K, "mat33")]
     rows_kernel = normal_equations_lanes.normal_equations_lanes(depth_term, False, C, kind, W)
-    _run_normal_equations(rows_kernel[FLOAT_TYPES[ref_image.dtype]], ref_image, arrays,
+    _run_normal_equations(rows_kernel[WARP_FLOAT[ref_image.dtype]], ref_image, arrays,
                           [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
     return tuple(outs)
 
@@ -219,7 +219,7 @@ def _normal_equations_lens(
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [
         (pose, "mat34"), (K, "mat33"), (dist, "vec8"), (rays, "vec3")]
     rows_kernel = normal_equations.normal_equations_rows_lens(depth_term, False)
-    _run_normal_equations(rows_kernel[FLOAT_TYPES[ref_image.dtype]], ref_image, arrays,
+    _run_normal_equations(rows_kernel[WARP_FLOAT[ref_image.dtype]], ref_image, arrays,
                           [C, H, W, kind, scale, min_depth, depth_weight, 0.0, model, ray_stride], outs, acc=False)
     return tuple(outs)
 
@@ -271,7 +271,7 @@ def _error(
     (B, C, H, W), dS/d ref_depth (B, 1, H, W), dS/d pose (B, 3, 4) and dS/d K (B, 3, 3) (the last two
     whenever any of the four is wanted)."""
     B, C, H, W = ref_image.shape
-    ft = FLOAT_TYPES[ref_image.dtype]
+    ft = WARP_FLOAT[ref_image.dtype]
     # every entry of the gradient buffers is written by the kernels: no zero-fill
     outs = [torch.empty(s, dtype=ref_image.dtype) for s in _error_shapes(ref_image, needs)]
     if B == 0:
@@ -325,7 +325,7 @@ def _error_backward_impl(
     empty): the forward's dS/d x scaled by grad_error_b / (C count_b); the live image's by the
     Warp adjoint of photometric_rows."""
     B, C, H, W = ref_image.shape
-    ft = FLOAT_TYPES[ref_image.dtype]
+    ft = WARP_FLOAT[ref_image.dtype]
     grad_error = grad_error.contiguous()
     ge = descriptor(grad_error, "scalar", ft)
     n_d = descriptor(count, "scalar", ft)

@@ -1,7 +1,7 @@
 """The trained VO network as an odometry front end: alone, or as the initial guess of the direct aligner.
 
 :class:`NetworkAligner` has the ``prepare(image, depth)`` / ``align_frames(ref, live, init=None)``
-interface of :mod:`gvnn_warp.tracking`, so ``gvnn_warp.tracking.track`` runs it over a sequence
+interface of :mod:`gvnn_warp.odometry.tracking`, so ``gvnn_warp.odometry.tracking.track`` runs it over a sequence
 (``gvnn-warp track --method vo|vo+direct``). Frames of another size than the network's are resized
 to it (:func:`resize_frame`: colour by antialiased bilinear filtering, depth by the nearest pixel
 centre, so no depth is invented across edges) and the intrinsics scaled with the pixel-centre

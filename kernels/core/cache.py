@@ -29,6 +29,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from . import compat
 from .kinds import FLOAT_TYPES
 
 __all__ = ["POLICIES", "entries", "float_overloads", "specialise"]
@@ -65,7 +66,8 @@ def specialise(family: str, **constants: tuple | None) -> Callable[[Callable], C
     """
 
     def wrap(make: Callable) -> Callable:
-        params = tuple(inspect.signature(make).parameters)
+        signature = inspect.signature(make)
+        params = tuple(signature.parameters)
         unknown = set(constants) - set(params)
         if unknown or family in POLICIES:
             raise ValueError(f"specialise({family!r}): family already used, or no argument named {sorted(unknown)}")
@@ -76,12 +78,11 @@ def specialise(family: str, **constants: tuple | None) -> Callable[[Callable], C
 
         @functools.wraps(make)
         def get(*args, **kwargs):
-            if kwargs:
-                args = (*args, *(kwargs[p] for p in params[len(args):]))
+            if kwargs:  # (by name: a TypeError names a missing or unknown argument)
+                args = signature.bind(*args, **kwargs).args
             value = seen.get(args)  # the hit path (once per call of a torch op): one dict read, no lock
             if value is None:
-                if len(args) != len(params):
-                    raise TypeError(f"{make.__qualname__}: expected arguments {params}, got {len(args)}")
+                signature.bind(*args)  # (a TypeError for a wrong number of arguments)
                 values = tuple(v if allowed is None or v in allowed else None for v, allowed in zip(args, policy))
                 value = seen[args] = _made((family, values), lambda: make(*values))
             return value
@@ -103,11 +104,10 @@ def float_overloads(make: Callable) -> Any:
         for T in FLOAT_TYPES[1:]:
             other = make(T)
             for f, o in zip(_as_tuple(first), _as_tuple(other), strict=True):
-                f.add_overload(o)
-                f.module.functions[f.key] = f  # (Warp registered the latest under the shared key)
+                compat.add_function_overload(f, o)
         return first
 
-    return _made(("float_overloads", (make.__module__, make.__qualname__)), build)
+    return _made(("float_overloads", make), build)  # (keyed on the maker itself, kept alive here)
 
 
 def _as_tuple(f) -> tuple:
@@ -119,7 +119,7 @@ def entries() -> list[str]:
     out = []
     for family, values in list(_MADE):
         if family == "float_overloads":
-            out.append(f"float_overloads({values[0]}.{values[1]})")
+            out.append(f"float_overloads({values.__module__}.{values.__qualname__})")
         else:
             args = ", ".join(f"{p}={v!r}" for p, v in zip(_PARAMETERS[family], values))
             out.append(f"{family}({args})")

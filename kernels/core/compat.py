@@ -78,6 +78,14 @@ def matrix_shape(dtype) -> tuple[int, ...] | None:
     return tuple(shape) if shape is not None else None
 
 
+def add_function_overload(first, other) -> None:
+    """Make the ``wp.Function`` ``other`` (same name and module, other argument types) an overload of
+    ``first``, and ``first`` the one Warp's module resolves the shared name to (defining ``other``
+    registered it under that name)."""
+    first.add_overload(other)
+    first.module.functions[first.key] = first
+
+
 def gil_enabled() -> bool:
     """False on a free-threaded CPython running without the GIL (``sys._is_gil_enabled``, 3.13+);
     True everywhere else."""
@@ -185,11 +193,10 @@ def lanes_compiler_flags(flags: str | None = None) -> str:
     Warp 1.19's default flags cap that depth at 4. The 8-lane kernels are written as length-8
     vector operations, and LLVM turns them into SIMD instructions only where that vectoriser finds
     whole trees of them. With the cap it gave up on parts of them (one variant of
-    ``photometric_error`` came out entirely scalar). Without the cap, with the same results bit for
-    bit, one thread at 320x240: the normal equations took 14 instead of 22 ns per pixel, and 22.5
-    instead of 46 with the depth term; ``bilinear_sample``'s 8-lane forward took about half the time.
-    Both spellings, ``-mllvm=<option>`` and ``-mllvm <option>``, are removed. Warp scopes ``-mllvm``
-    options to one compilation, so nothing leaks to or from other modules."""
+    ``photometric_error`` came out entirely scalar); without it the same kernels, bit for bit the
+    same results, take up to half the time (figures: ``benchmarks/RESULTS.md``). Both spellings,
+    ``-mllvm=<option>`` and ``-mllvm <option>``, are removed. Warp scopes ``-mllvm`` options to one
+    compilation, so nothing leaks to or from other modules."""
     if flags is None:
         flags = wp.config.cpu_compiler_flags
     if flags is None:

@@ -88,7 +88,7 @@ def declaration(kernel: wp.Kernel) -> Parallel:
     info = _DECLARED.get(id(kernel))
     if info is None:
         raise ValueError(
-            f"gvnn_warp.kernels.launch: kernel {kernel.key!r} has no declaration of how its launches may be "
+            f"gvnn_warp.kernels.core.launch: kernel {kernel.key!r} has no declaration of how its launches may be "
             "split: wrap it as FloatKernel(kernel, ...).set_parallel(scopes={...}, ...) (see CONTRIBUTING.md)"
         )
     return info

@@ -53,9 +53,8 @@ def row8(a: wp.array(dtype=Any), i: int):
 def step_start(x0: int, W: int, narrow: int):
     """The first pixel that an 8-lane step at pixel ``x0`` of a W-pixel row reads: x0, but in the
     row's last, partial block W - 8, the row's last 8 pixels (overlapping the block before: the
-    caller masks the lanes before x0), so that every step reads 8 straight values (:func:`row8`:
-    the error kernel's value and gradient 6-9% faster than with :func:`load8`'s clamped lanes, at
-    C=3); x0 in rows narrower than 8 (``narrow``, a compile-time constant)."""
+    caller masks the lanes before x0), so that every step reads 8 straight values (:func:`row8`,
+    faster than :func:`load8`'s clamped lanes); x0 in rows narrower than 8 (``narrow``, a compile-time constant)."""
     if narrow != 0:
         return x0
     return wp.min(x0, W - 8)

@@ -7,7 +7,7 @@ pyramids). The pure-Warp functions a ``wp.Tape`` can record launch on one thread
 The other jobs of the launch layer live in their own modules: :mod:`.kinds` (array kinds, the
 float32/float64 overloads of :class:`FloatKernel` and each kernel's declaration of how it may be
 split) and :mod:`.threads` (thread count, the Python and OpenMP pools). Their public names are
-re-exported here, so ``from gvnn_warp.kernels.launch import FloatKernel, mat34f, set_num_threads``
+re-exported here, so ``from gvnn_warp.kernels.core.launch import FloatKernel, mat34f, set_num_threads``
 keeps working.
 
 Determinism
@@ -212,9 +212,7 @@ def _accumulate(offset: int, dst: wp.array(dtype=Any), src: wp.array(dtype=Any))
     dst[i] = dst[i] + src[i]
 
 
-_accumulate_f = {
-    ft: wp.overload(_accumulate, {"dst": wp.array(dtype=ft), "src": wp.array(dtype=ft)}) for ft in FLOAT_TYPES
-}
+_accumulate_f = FloatKernel(_accumulate, dst="scalar", src="scalar")  # (run by _run_jobs, not launch(): no declaration)
 
 
 def _run_jobs(jobs: list, n_threads: int) -> None:

@@ -6,7 +6,8 @@ For one new name, ``import`` of the old path gives the new module itself (the sa
 names (a module whose contents now live in several), it gives a module named after the old path
 whose attributes are looked up in those modules, in order, on first use. The tables live in
 ``gvnn_warp/__init__.py`` and ``gvnn_warp/kernels/__init__.py``; new code imports the new paths.
-This module never imports torch.
+``names_of`` serves a package that took the place of a module of the same name (the old module's
+names, found in the package's modules). This module never imports torch.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import importlib.util
 import sys
 import types
 
-__all__ = ["moved"]
+__all__ = ["moved", "names_of"]
 
 
 class _Merged(types.ModuleType):
@@ -28,6 +29,8 @@ class _Merged(types.ModuleType):
         self._sources = sources
 
     def __getattr__(self, attr: str):
+        if attr == "__all__":  # the union of the sources' public names, for ``from <old path> import *``
+            return [n for s in self._sources for n in getattr(importlib.import_module(s), "__all__", ())]
         if not attr.startswith("__"):
             for source in self._sources:
                 module = importlib.import_module(source)
@@ -68,3 +71,22 @@ class _Moved(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 def moved(table: dict[str, str | tuple[str, ...]]) -> None:
     """Make every old module name in ``table`` importable (see the module docstring)."""
     sys.meta_path.append(_Moved(table))
+
+
+def names_of(package: str, *modules: str):
+    """A module ``__getattr__`` for a package that took the place of a module of the same name: a
+    name is the package's submodule if it has one so named, else the name as defined by the first
+    of ``modules`` (relative to ``package``, e.g. ``".residual"``) that has it."""
+
+    def __getattr__(name: str):
+        if not name.startswith("__"):
+            if importlib.util.find_spec(f"{package}.{name}") is not None:
+                return importlib.import_module(f"{package}.{name}")
+            for module in modules:
+                source = importlib.import_module(module, package)
+                if hasattr(source, name):
+                    return getattr(source, name)
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    return __getattr__
+

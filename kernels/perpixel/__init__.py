@@ -2,11 +2,7 @@
 the ``@wp.func`` library (:mod:`.transforms`) and its thin kernels (:mod:`.kernels`).
 """
 
-import importlib
+from ..core.moved import names_of
 
-
-def __getattr__(name: str):
-    # the former module gvnn_warp.kernels.perpixel is now .transforms: its names still resolve here
-    value = getattr(importlib.import_module(".transforms", __name__), name)
-    globals()[name] = value
-    return value
+# the former module gvnn_warp.kernels.perpixel is now this package: its names still resolve here
+__getattr__ = names_of(__name__, ".transforms")

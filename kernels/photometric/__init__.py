@@ -14,11 +14,7 @@
 Variants (a penalty, a channel count, a lens) are made on first use through :mod:`..core.cache`.
 """
 
-import importlib
+from ..core.moved import names_of
 
-
-def __getattr__(name: str):
-    # the former module gvnn_warp.kernels.photometric is now .residual: its names still resolve here
-    value = getattr(importlib.import_module(".residual", __name__), name)
-    globals()[name] = value
-    return value
+# the former module gvnn_warp.kernels.photometric is now this package: its names still resolve here
+__getattr__ = names_of(__name__, ".residual", "..core.lanes")

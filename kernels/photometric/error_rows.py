@@ -30,6 +30,7 @@ import warp as wp
 from ..core.cache import float_overloads, specialise
 from ..core.kinds import FloatKernel
 from ..geometry import camera, lie
+from ..geometry.lens import rays as lens_rays
 from ..sampling.kernels import INSIDE_TOLERANCE
 from . import residual as ph
 
@@ -109,10 +110,6 @@ def photometric_rows_lens() -> FloatKernel:
     """:data:`photometric_rows` through a distorted lens (see the module docstring): its arguments
     and outputs, with ``dist`` (B,) and ``rays`` after ``K`` and ``model``, ``ray_stride`` after
     ``min_depth``. Made on first use."""
-    # (imported here, not at the top: defining the lens models' custom adjoints takes seconds,
-    # which users of the pinhole kernels never pay)
-    from ..geometry.lens import rays as lens_rays
-
     @wp.kernel(module="unique")
     def _photometric_rows_lens(
         offset: int,

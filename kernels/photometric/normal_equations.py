@@ -33,6 +33,7 @@ import warp as wp
 from ..core.cache import specialise
 from ..core.kinds import FloatKernel
 from ..geometry import camera, lie
+from ..geometry.lens import rays as lens_rays
 from ..sampling.kernels import INSIDE_TOLERANCE
 from . import residual as ph
 from .normal_equations_reduce import ROW_STRIDE, mat66d, vec6d
@@ -207,10 +208,6 @@ def normal_equations_rows_lens(depth: bool, occlusion: bool) -> FloatKernel:
     """:func:`normal_equations_rows` through a distorted lens (see the module docstring): its
     arguments, with ``dist`` (B,) and ``rays`` after ``K`` and ``model``, ``ray_stride`` after
     ``occlusion``. Made on first use."""
-    # (imported here, not at the top: defining the lens models' custom adjoints takes seconds,
-    # which users of the pinhole kernels never pay)
-    from ..geometry.lens import rays as lens_rays
-
     static_depth, static_occlusion = depth, occlusion
 
     @wp.kernel(module="unique", enable_backward=False)

@@ -1,4 +1,4 @@
-"""Camera models (gvnn_warp.cameras, kernels.lens) against OpenCV, float64 gradcheck (including the
+"""Camera models (gvnn_warp.cameras, kernels.geometry.lens) against OpenCV, float64 gradcheck (including the
 implicit-function gradient of the undistortion), the domain rule and bad inputs."""
 
 import math
@@ -340,7 +340,7 @@ def test_bad_inputs_raise_clear_errors():
 
 
 def test_lens_funcs_in_a_users_own_kernel_under_tape():
-    """The pure-Warp contract: a user's kernel calling kernels.lens.project, differentiated by
+    """The pure-Warp contract: a user's kernel calling kernels.geometry.lens.project, differentiated by
     wp.Tape, gives the torch op's values and gradients."""
     import warp as wp
     from gvnn_warp.kernels.core.kinds import vec8d

@@ -137,7 +137,7 @@ SCRIPT = textwrap.dedent(
         out.sum().backward()
 
     not_ops = {"get_num_threads", "set_num_threads", "info", "Camera"}  # (Camera: the models' base class)
-    public = {n for n in set(G.__all__) - set(G._SUBPACKAGES) - not_ops if callable(getattr(G, n))}  # (no constants)
+    public = {n for n in set(G.__all__) - set(G._STAR_MODULES) - not_ops if callable(getattr(G, n))}  # (no constants)
     assert seen == public, sorted(public ^ seen)
     print("ok", len(seen))
     """

@@ -1,4 +1,4 @@
-"""Per-pixel transformations, M-estimators and smoothness (gvnn_warp.perpixel, GitHub issue 3).
+"""Per-pixel transformations, M-estimators and smoothness (gvnn_warp.functional.perpixel, GitHub issue 3).
 
 Reference values are written independently here in plain torch (closed forms from the paper,
 ``grid_sample`` / ``affine_grid``, ``matrix_exp`` for rotations); gradients are checked with float64

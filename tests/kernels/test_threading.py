@@ -1,4 +1,4 @@
-"""The multi-core launch path (gvnn_warp.kernels.launch): results are bitwise identical for every
+"""The multi-core launch path (gvnn_warp.kernels.core.launch): results are bitwise identical for every
 thread count, forward and all gradients, including odd sizes and batch size 1 (where backward
 reductions are cut into fixed pieces with partial buffers). No timing assertions here; see
 benchmarks/ for speed."""
@@ -292,7 +292,7 @@ def test_env_var_in_subprocess(tmp_path, backend):
     import subprocess
     import sys
 
-    code = "import gvnn_warp.kernels.launch as L; print(L.get_num_threads())"
+    code = "import gvnn_warp.kernels.core.launch as L; print(L.get_num_threads())"
     env = dict(os.environ, **{L.ENV_NUM_THREADS: "3"})
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip().splitlines()[-1] == "3"
@@ -359,7 +359,7 @@ def _run(code, **env):
 
 @once
 def test_openmp_can_be_turned_off_by_env_var(backend):
-    code = "import torch, gvnn_warp as G; G.so3_exp(torch.zeros(1, 3)); print(G.kernels.launch.thread_backend())"
+    code = "import torch, gvnn_warp as G; G.so3_exp(torch.zeros(1, 3)); print(G.kernels.core.launch.thread_backend())"
     assert _run(code, GVNN_WARP_OPENMP="0") == "python"
 
 
@@ -512,7 +512,7 @@ _FIRST_USES = """if True:
 def test_first_uses_of_many_kernels_from_several_threads_at_once():
     # the first launch of a kernel loads its module and looks its entry points up in Warp's CPU
     # JIT; done by several threads at once this crashed the process (a segmentation fault: 3 runs
-    # of 4 before kernels.launch.wp_launch serialised first launches). In a fresh process, so
+    # of 4 before kernels.core.launch.wp_launch serialised first launches). In a fresh process, so
     # every kernel's first launch happens here
     import subprocess
     import sys
@@ -567,7 +567,7 @@ _LOADS_UNDER_THE_LOCK = """if True:
 def test_every_module_load_holds_the_first_launch_lock():
     # deterministic twin of the test above: in a fresh process, every module load and entry-point
     # lookup of Warp's CPU JIT (torch ops forward and backward, a lens camera, the aligner and its
-    # pyramids, the synthetic renderer) happens with kernels.launch's lock held
+    # pyramids, the synthetic renderer) happens with kernels.core.launch's lock held
     import subprocess
     import sys
     from pathlib import Path

@@ -1,5 +1,5 @@
-"""gvnn_warp.evaluation (evo metrics against closed forms), gvnn_warp.tracking (pose chaining, keyframes,
-failures reported) and `gvnn-warp track` end to end."""
+"""gvnn_warp.odometry.evaluation (evo metrics against closed forms), gvnn_warp.odometry.tracking (pose
+chaining, keyframes, failures reported) and `gvnn-warp track` end to end."""
 
 import json
 import re

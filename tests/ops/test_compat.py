@@ -1,5 +1,5 @@
-"""The torch and Warp internals gvnn_warp relies on, each behind one adapter (gvnn_warp/_compat.py,
-gvnn_warp/kernels/_compat.py): these tests fail loudly if an upgrade changes one. Also the thread
+"""The torch and Warp internals gvnn_warp relies on, each behind one adapter (gvnn_warp/ops/compat.py,
+gvnn_warp/kernels/core/compat.py): these tests fail loudly if an upgrade changes one. Also the thread
 backend's visibility (info(), the debug log) and the free-threaded fallback."""
 
 import ctypes
@@ -140,6 +140,24 @@ def test_warp_type_attributes():
     assert wcompat.scalars_per_element(L.mat34f) == 12 and wcompat.scalars_per_element(wp.float32) == 1
     assert wcompat.matrix_shape(L.mat34f) == (3, 4) and wcompat.matrix_shape(wp.vec2d) == (2,)
     assert wcompat.matrix_shape(wp.float32) is None
+
+
+def _twice(T):
+    @wp.func
+    def twice(x: T):
+        return x + x
+
+    return twice
+
+
+def test_add_function_overload():
+    # two wp.Functions of one name and module (defined by the same maker for two types): after the
+    # call, the first holds both signatures and Warp's module resolves the name to it
+    first, other = _twice(wp.float32), _twice(wp.float64)
+    wcompat.add_function_overload(first, other)
+    assert first.module.functions[first.key] is first
+    types = {tuple(f.input_types.values()) for f in first.user_overloads.values()}
+    assert {(wp.float32,), (wp.float64,)} <= types
 
 
 def test_gil_enabled(monkeypatch):

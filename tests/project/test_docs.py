@@ -22,7 +22,7 @@ def test_every_public_name_documented_with_shapes():
 
     text = (DOCS / "api.md").read_text()
     for name in gvnn_warp.__all__:
-        if name[0].isupper() or name in gvnn_warp._SUBPACKAGES:
+        if name[0].isupper() or name in gvnn_warp._STAR_MODULES:
             continue
         assert f"### `{name}(" in text or name == "MIN_DEPTH", name
     assert "(undocumented)" not in text
@@ -39,7 +39,7 @@ def test_top_level_names_are_the_fronts():
     for module in (functional, nn, cameras):
         for name in module.__all__:
             assert getattr(gvnn_warp, name) is getattr(module, name), name
-    extra = set(gvnn_warp.__all__) - set(front) - set(gvnn_warp._SUBPACKAGES)
+    extra = set(gvnn_warp.__all__) - set(front) - set(gvnn_warp._STAR_MODULES)
     assert extra == {"get_num_threads", "info", "set_num_threads"}
 
 

@@ -16,7 +16,7 @@ def test_ruff_clean():
 
 
 def test_launches_go_through_wp_launch():
-    # kernels.launch.wp_launch / ensure_loaded / load_module load modules under a lock (Warp's JIT
+    # kernels.core.launch.wp_launch / ensure_loaded / load_module load modules under a lock (Warp's JIT
     # crashed when threads loaded kernels at once): no other package module calls Warp's launch or
     # module loading itself, under any name
     import ast

@@ -94,7 +94,7 @@ from .constants import (
     UNDISTORT_TOL,
 )
 
-# the float64 building blocks under the names kernels knew them by before the lens models were split
+# the float64 building blocks under their earlier names (documented as stable for users' own kernels)
 _to64 = dispatch.to64
 _from64 = dispatch.from64
 _distort64 = dispatch.distort64

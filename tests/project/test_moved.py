@@ -1,0 +1,54 @@
+"""The module paths of earlier releases keep working (kernels/core/moved.py): each old path imports
+as its new module, or, where the old module's names now live in several, as a module that finds
+each of their public names; old names reach the same objects as the new paths."""
+
+import importlib
+import subprocess
+import sys
+
+import gvnn_warp.kernels as gk
+import pytest
+
+import gvnn_warp
+
+OLD = [(f"gvnn_warp.{old}", new, "gvnn_warp") for old, new in gvnn_warp._MOVED.items()] + [
+    (f"gvnn_warp.kernels.{old}", new, "gvnn_warp.kernels") for old, new in gk._MOVED.items()]
+
+
+@pytest.mark.parametrize("old, new, package", OLD, ids=[o for o, _, _ in OLD])
+def test_old_path_imports_as_its_new_modules(old, new, package):
+    module = importlib.import_module(old)
+    if isinstance(new, str):
+        assert module is importlib.import_module(f"{package}.{new}")
+        return
+    sources = [importlib.import_module(f"{package}.{s}") for s in new]
+    names = [n for source in sources for n in getattr(source, "__all__", ())]
+    for name in names:  # found in the first source that has it
+        assert getattr(module, name) is getattr(next(s for s in sources if hasattr(s, name)), name)
+    assert sorted(module.__all__) == sorted(names)  # what `from <old path> import *` binds
+
+
+def test_old_names_on_the_packages():
+    assert gvnn_warp.layers.SO3 is gvnn_warp.SO3  # an old module as an attribute
+    assert gvnn_warp.photometric.PhotometricLoss is gvnn_warp.PhotometricLoss
+    assert gk.lie.so3_exp is gk.geometry.lie.so3_exp
+    # the packages that took the place of modules of the same name answer with those modules' names
+    assert gk.photometric.KINDS is gk.photometric.residual.KINDS
+    assert gk.photometric.load8 is gk.core.lanes.load8
+    assert gk.perpixel.pixel_index is gk.perpixel.transforms.pixel_index
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        getattr(gk.photometric, "nothing")  # noqa: B009
+
+
+def test_star_import_binds_the_front_and_no_subpackage_named_like_a_user_name():
+    namespace = {}
+    exec("from gvnn_warp import *", namespace)
+    assert {"SO3", "warp_frame_depth", "PinholeCamera", "layers", "kernels"} <= set(namespace)
+    assert "nn" not in namespace and "vo" not in namespace  # `nn` would shadow torch.nn
+
+
+def test_submodule_of_a_replacing_package_loads_on_first_attribute_access():
+    # gk.photometric's __getattr__ serves the old module's names, but a submodule comes first
+    code = "import gvnn_warp.kernels as gk; print(gk.photometric.pipeline.__name__)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "gvnn_warp.kernels.photometric.pipeline"
