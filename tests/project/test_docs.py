@@ -104,7 +104,7 @@ def test_readme_shell_commands_are_valid():
                    if line.strip() and not line.startswith(("#", "set ", "cd "))]
     quick_start = [code for lang, code, _ in readme_blocks() if lang == "bash"][0].strip().splitlines()
     assert quick_start == ci_commands, (quick_start, ci_commands)
-    assert quick_start[1] == ".venv/bin/python -m pytest -q"
+    assert quick_start[1] == ".venv/bin/python -m pytest -q -n 2"
     assert "gvnn-warp render" in quick_start[0] and "gvnn-warp track" in quick_start[0]
     project = tomllib.loads((DOCS.parent / "pyproject.toml").read_text())["project"]
     torch_req = Requirement(project["optional-dependencies"]["torch"][0])
