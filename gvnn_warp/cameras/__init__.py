@@ -11,11 +11,7 @@ tolerance are in ``docs/conventions.md`` ("Camera models"); the pure-Warp functi
 ``gvnn_warp.kernels.geometry.lens``.
 """
 
-from . import base, fisheye, fused, pinhole, radtan, undistort
-from .base import *  # noqa: F403
-from .fisheye import *  # noqa: F403
-from .pinhole import *  # noqa: F403
-from .radtan import *  # noqa: F403
-from .undistort import *  # noqa: F403
+from .._exports import lazy_exports
 
-__all__ = [*base.__all__, *pinhole.__all__, *radtan.__all__, *fisheye.__all__, *undistort.__all__, *fused.__all__]
+# the public names are those of the modules (their __all__), each loaded on first use
+__getattr__, __dir__ = lazy_exports(__name__, ('base', 'pinhole', 'radtan', 'fisheye', 'undistort', 'fused'))

@@ -9,11 +9,7 @@ Mirrors :mod:`gvnn_warp.functional`:
 - :mod:`.photometric`: the fused photometric objective as a loss.
 """
 
-from . import camera, lie, perpixel, photometric, sampling
-from .camera import *  # noqa: F403
-from .lie import *  # noqa: F403
-from .perpixel import *  # noqa: F403
-from .photometric import *  # noqa: F403
-from .sampling import *  # noqa: F403
+from .._exports import lazy_exports
 
-__all__ = [*lie.__all__, *camera.__all__, *sampling.__all__, *perpixel.__all__, *photometric.__all__]
+# the public names are those of the modules (their __all__), each loaded on first use
+__getattr__, __dir__ = lazy_exports(__name__, ('lie', 'camera', 'sampling', 'perpixel', 'photometric'))

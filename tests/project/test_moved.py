@@ -52,3 +52,18 @@ def test_submodule_of_a_replacing_package_loads_on_first_attribute_access():
     code = "import gvnn_warp.kernels as gk; print(gk.photometric.pipeline.__name__)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
     assert out.stdout.strip() == "gvnn_warp.kernels.photometric.pipeline"
+
+
+def test_a_public_name_loads_only_its_own_module():
+    # the front's packages serve their modules' names lazily (gvnn_warp/_exports.py): the 3D spatial
+    # transformer does not load the per-pixel or photometric functions, nor their op registrations
+    code = """
+import sys
+import gvnn_warp as G
+G.warp_frame_depth
+others = ("functional.perpixel", "functional.photometric", "ops.perpixel", "ops.photometric", "nn.lie")
+loaded = [m for m in others if f"gvnn_warp.{m}" in sys.modules]
+print(loaded, "PhotometricLoss" in G.__all__, "warp_frame_depth" in dir(G.functional))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "[] True True", out.stdout
