@@ -6,7 +6,8 @@ frame or to keyframes (:mod:`.tracking`), trajectory metrics and figures compute
 does (:mod:`.sequence`: ``make_aligner``, ``track_sequence``).
 """
 
-from . import aligner
-from .aligner import *  # noqa: F403
+from .._exports import lazy_exports
 
-__all__ = list(aligner.__all__)
+# DirectAligner and Frame, loaded on first use: the aligner defines its kernels at import, which
+# `gvnn-warp --help` and the tracking loop's own module (KeyframePolicy) should not wait for
+__getattr__, __dir__ = lazy_exports(__name__, ("aligner",))

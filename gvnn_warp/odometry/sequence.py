@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from ..datasets.tum import TUMSequence, write_trajectory
-from .aligner import DirectAligner
 from .evaluation import ATE_ALIGNMENT, FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, plot_errors, plot_top_view
 from .tracking import KeyframePolicy, TrackResult, track
 
@@ -56,7 +55,7 @@ PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth sug
 
 
 def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
-                 depth_weight: float = 0.0, color: bool = False, dist=None) -> DirectAligner:
+                 depth_weight: float = 0.0, color: bool = False, dist=None):
     """The :class:`.DirectAligner` that ``gvnn-warp track`` uses for images of intrinsics ``K``
     (3, 3), pixels. ``levels``, ``iterations``: None for the aligner's defaults; ``robust``: the
     photometric penalty; ``depth_weight``: weight of the depth term (0: photometric only); ``color``:
@@ -69,6 +68,10 @@ def make_aligner(K, *, levels: int | None = None, iterations: int | None = None,
         kwargs["levels"] = levels
     if iterations is not None:
         kwargs["iterations"] = iterations
+    # (imported here: the aligner defines its kernels at import, which `gvnn-warp --help` and the
+    # other commands, importing this module through `gvnn-warp track`'s parser, should not wait for)
+    from .aligner import DirectAligner
+
     return DirectAligner(K, **kwargs)
 
 

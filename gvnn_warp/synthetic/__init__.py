@@ -20,42 +20,8 @@ Example::
     image, depth = render_rgbd(make_room_scene(seed=0), smooth_se3_trajectory(10, seed=0), K, 64, 48)
 """
 
-from .render import render_rgbd
-from .scene import (
-    BOX_CLEARANCE,
-    CAMERA_REGION_MAX,
-    CAMERA_REGION_MIN,
-    ROOM_MAX,
-    ROOM_MIN,
-    RoomScene,
-    make_room_scene,
-    surface_distance,
-)
-from .trajectories import (
-    default_intrinsics,
-    euler_to_rotation,
-    pose_error,
-    relative_pose,
-    rotation_angle_deg,
-    rotation_trajectory,
-    smooth_se3_trajectory,
-)
+from .._exports import lazy_exports
 
-__all__ = [
-    "BOX_CLEARANCE",
-    "CAMERA_REGION_MAX",
-    "CAMERA_REGION_MIN",
-    "ROOM_MAX",
-    "ROOM_MIN",
-    "RoomScene",
-    "default_intrinsics",
-    "euler_to_rotation",
-    "make_room_scene",
-    "pose_error",
-    "relative_pose",
-    "render_rgbd",
-    "rotation_angle_deg",
-    "rotation_trajectory",
-    "smooth_se3_trajectory",
-    "surface_distance",
-]
+# the names of the modules below (their __all__), loaded on first use: the renderer defines its
+# kernels at import, which `gvnn-warp --help` should not wait for
+__getattr__, __dir__ = lazy_exports(__name__, ("render", "scene", "trajectories"))
