@@ -3,7 +3,7 @@
 Usage::
 
     gvnn-warp vo --motion so3|se3 --out DIR [--data DIR [DIR ...] [--eval-data DIR ...]] [--gaps G,G,...]
-                 [--steps N] [--size WxH] [--seed S] [--resume]
+                 [--steps N] [--size WxH] [--seed S] [--resume] [--checkpoint-every N]
                  [--loss l1|l2|huber|cauchy|geman_mcclure|tukey] [--batch-size B] [--lr LR]
 
 Trains on frame pairs (k, k + g) for every gap g of ``--gaps``, in both directions. By default the
@@ -13,7 +13,7 @@ evaluated on trajectories of other seeds in the same room; with ``--data`` from 
 same way), resized to ``--size`` with the intrinsics scaled, evaluated on ``--eval-data`` (default:
 the last ``--data`` folder, held out).
 
-Writes ``DIR/checkpoint.pt`` (atomically, every 50 steps / 30 s, on Ctrl-C / SIGTERM and at the
+Writes ``DIR/checkpoint.pt`` (atomically, every 50 steps (``--checkpoint-every``) / 30 s, on Ctrl-C / SIGTERM and at the
 end; ``--resume`` continues from it), ``DIR/metrics.json`` (training loss per step, held-out
 rotation / translation errors and photometric residual of the identity and the trained network),
 ``DIR/training_curve.png`` and ``DIR/registration.png``.
@@ -125,6 +125,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="when predicting, average the pose over these exact symmetries of a pair: swap (the "
                         "pair reversed), mirror_x, mirror_y (both frames mirrored; only with the principal point "
                         "at the image centre) (default: swap,mirror_y for se3, none for so3)")
+    p.add_argument("--checkpoint-every", type=bounded_int(1, 10_000_000), default=None, metavar="N",
+                   help="write DIR/checkpoint.pt every N steps (default: 50; also every 30 s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -163,6 +165,7 @@ def _config(args: argparse.Namespace):
         symmetries=getattr(args, "symmetries", None),
         pose_weight=getattr(args, "pose_weight", None),
         pose_t_weight=getattr(args, "pose_t_weight", None),
+        checkpoint_every=getattr(args, "checkpoint_every", None),
         resume=bool(args.resume),
         progress=not getattr(args, "no_progress", False),
     )
