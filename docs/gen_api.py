@@ -17,11 +17,13 @@ SECTIONS = [
     ("Camera models: pinhole, radial-tangential, fisheye", "gvnn_warp.cameras"),
     ("Per-pixel transformations, M-estimators and smoothness", "gvnn_warp.functional.perpixel"),
     ("The fused photometric objective (direct RGB-D alignment)", "gvnn_warp.functional.photometric"),
+    ("Depth and motion without labels: the reprojection objective, smoothness", "gvnn_warp.functional.reprojection"),
     ("Layers of the global transformations (nn.Module)", "gvnn_warp.nn.lie"),
     ("Layers of the pinhole camera (nn.Module)", "gvnn_warp.nn.camera"),
     ("Sampling layers (nn.Module)", "gvnn_warp.nn.sampling"),
     ("Per-pixel layers (nn.Module)", "gvnn_warp.nn.perpixel"),
     ("The photometric loss layer (nn.Module)", "gvnn_warp.nn.photometric"),
+    ("The reprojection and smoothness layers (nn.Module)", "gvnn_warp.nn.reprojection"),
     ("Threads and diagnostics", "gvnn_warp", ["get_num_threads", "info", "set_num_threads"]),
     (
         "Pure Warp: the fused photometric objective on wp.arrays (from gvnn_warp.kernels, no torch)",

@@ -22,7 +22,7 @@ import importlib
 
 from .core.moved import moved
 
-_SUBPACKAGES = ("core", "geometry", "perpixel", "photometric", "pyramid", "robust", "sampling")
+_SUBPACKAGES = ("core", "geometry", "perpixel", "photometric", "pyramid", "reprojection", "robust", "sampling")
 # convenience names for pure-Warp users: name -> the module that defines it
 _NAMES = {
     **{n: "geometry.camera" for n in ("MIN_DEPTH", "pixel_ray", "project", "project_clamped", "unproject")},

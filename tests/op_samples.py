@@ -13,7 +13,7 @@ from gvnn_warp.kernels.robust import KINDS as ROBUST_CODES
 from refs import intrinsics
 
 import gvnn_warp as G
-from gvnn_warp.ops import geometry, perpixel, photometric, sampling  # noqa: F401  (their registrations fill OPS)
+from gvnn_warp.ops import geometry, perpixel, photometric, reprojection, sampling  # noqa: F401  (their registrations fill OPS)
 from gvnn_warp.ops.registry import OPS  # noqa: F401  (every registered op, for the tests)
 
 
@@ -99,4 +99,13 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "photometric_normal_equations_lens": (img, r(B, 1, H, W) + 1, r(B, C, H, W), r(B, 1, H, W) + 1, pose, K,
                                               radtan, rays, PHOTOMETRIC_CODES["huber"], 0.4, 1e-3, 2.0, lens.RADTAN,
                                               0),
+        # gvnn_warp.ops.reprojection (S = 2 sources; choice: -1 excluded, s reprojection, S + s identity)
+        "reprojection_choice": (img, r(B, 2, C, H, W), r(B, 2, C, H, W), (r(B, 2, H, W) > 0.2).to(f64),
+                                r(B, H, W) + 1 - 1.2 * (r(B, H, W) > 0.9), 2, C, H, W, 0.85, 1, 1e-3),
+        "reprojection_error": (img, r(B, 2, C, H, W), r(B, 2, C, H, W),
+                               torch.randint(-1, 4, (B, H, W), generator=g).to(torch.int32), 2, C, H, W, 0.85),
+        "per_item_mean": (r(B, hw), (r(B, hw) > 0.3).to(f64), hw),
+        "disparity_mean": (r(B, 1, H, W) + 0.1, hw),
+        "smoothness_rows": (r(B, 1, H, W), img, r(B) + 0.5, C, H, W),
+        "rows_total": (r(B, H), H),
     }

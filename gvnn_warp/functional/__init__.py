@@ -10,10 +10,11 @@ Conventions (pixel centres, (x, y) order, ``[omega, t]`` order, units, valid mas
 - :mod:`.camera`: the 3D grid generator, points moved by poses, projection;
 - :mod:`.sampling`: the bilinear sampler and the 3D spatial transformer;
 - :mod:`.perpixel`: per-pixel transformations, M-estimators, smoothness;
-- :mod:`.photometric`: the fused photometric objective of direct alignment.
+- :mod:`.photometric`: the fused photometric objective of direct alignment;
+- :mod:`.reprojection`: the self-supervised reprojection objective (Monodepth2) and smoothness.
 """
 
 from .._exports import lazy_exports
 
 # the public names are those of the modules (their __all__), each loaded on first use
-__getattr__, __dir__ = lazy_exports(__name__, ('lie', 'camera', 'sampling', 'perpixel', 'photometric'))
+__getattr__, __dir__ = lazy_exports(__name__, ('lie', 'camera', 'sampling', 'perpixel', 'photometric', 'reprojection'))

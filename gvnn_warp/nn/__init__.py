@@ -12,4 +12,4 @@ Mirrors :mod:`gvnn_warp.functional`:
 from .._exports import lazy_exports
 
 # the public names are those of the modules (their __all__), each loaded on first use
-__getattr__, __dir__ = lazy_exports(__name__, ('lie', 'camera', 'sampling', 'perpixel', 'photometric'))
+__getattr__, __dir__ = lazy_exports(__name__, ('lie', 'camera', 'sampling', 'perpixel', 'photometric', 'reprojection'))

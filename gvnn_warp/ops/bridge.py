@@ -165,7 +165,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
     diff_outputs = [o for o in outputs if o.differentiable]
 
     def out_dtype(o: Output, ref: torch.Tensor) -> torch.dtype:
-        return torch.bool if o.kind == "bool" else ref.dtype
+        return {"bool": torch.bool, "int32": torch.int32}.get(o.kind, ref.dtype)
 
     def output_shapes(args) -> list[tuple]:
         return [tuple(o.shape(*args)) for o in outputs]

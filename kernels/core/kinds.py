@@ -45,6 +45,7 @@ KINDS: dict[str, tuple[tuple[int, ...], dict]] = {
     "mat33": ((3, 3), {wp.float32: wp.mat33f, wp.float64: wp.mat33d}),
     "mat34": ((3, 4), {wp.float32: mat34f, wp.float64: mat34d}),
     "bool": ((), {wp.float32: wp.bool, wp.float64: wp.bool}),
+    "int32": ((), {wp.float32: wp.int32, wp.float64: wp.int32}),  # indices (never differentiable)
 }
 FLOAT_TYPES = (wp.float32, wp.float64)
 

@@ -17,7 +17,7 @@ def test_opcheck(name):
     of torch.compile that needs the fake and autograd registrations) of every op (the floating
     arguments of a differentiable one require grad)."""
     spec = OPS[name]
-    args = tuple(a.requires_grad_() if isinstance(a, torch.Tensor) and spec.differentiable else a
+    args = tuple(a.requires_grad_() if torch.is_tensor(a) and a.is_floating_point() and spec.differentiable else a
                  for a in op_samples()[name])
     torch.library.opcheck(spec.op, args)
 
