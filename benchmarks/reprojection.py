@@ -10,6 +10,12 @@ reference (``tests/functional/test_reprojection.py``): they follow the definitio
 
 from __future__ import annotations
 
+import argparse
+import json
+import subprocess
+import sys
+import time
+
 import torch
 import torch.nn.functional as F
 
@@ -79,3 +85,102 @@ def torch_edge_aware_smoothness(disp, img):
     gix = (img[:, :, :, :-1] - img[:, :, :, 1:]).abs().mean(1, keepdim=True)
     giy = (img[:, :, :-1, :] - img[:, :, 1:, :]).abs().mean(1, keepdim=True)
     return (gdx * torch.exp(-gix)).mean((1, 2, 3)) + (gdy * torch.exp(-giy)).mean((1, 2, 3))
+
+
+# ----------------------------------------------------------------------------- the benchmark
+
+
+def scene(B: int, S: int, C: int, H: int, W: int, dtype=torch.float32, seed: int = 0):
+    """Smooth random frames (low-frequency waves), depth 2-6 m, motions of ~1 deg / 3 cm, KITTI-like K."""
+    import gvnn_warp as G
+
+    g = torch.Generator().manual_seed(seed)
+    ys, xs = torch.meshgrid(torch.linspace(0, 1, H), torch.linspace(0, 1, W), indexing="ij")
+
+    def frames(*lead):
+        f = torch.rand(*lead, C, 1, 1, 4, generator=g)
+        return (0.5 + 0.25 * torch.sin(xs * (3 + 9 * f[..., 0]) + ys * (2 + 7 * f[..., 1]) + 6 * f[..., 2])
+                + 0.1 * torch.rand(*lead, C, H, W, generator=g)).to(dtype)
+
+    target, sources = frames(B), frames(B, S)
+    depth = (2 + 4 * torch.rand(B, 1, 1, 1, generator=g) * (1 - ys)).to(dtype).expand(B, 1, H, W).contiguous()
+    xi = (torch.rand(B * S, 6, generator=g) * 2 - 1) * torch.tensor([0.02] * 3 + [0.03] * 3)
+    poses = G.se3_to_matrix(xi.to(dtype)).reshape(B, S, 3, 4)
+    K = torch.tensor([[0.58 * W, 0, 0.5 * W], [0, 1.92 * H, 0.5 * H], [0, 0, 1]], dtype=dtype)
+    return target, sources, depth, poses, K
+
+
+def _step(impl: str, target, sources, depth, poses, K):
+    import gvnn_warp as G
+
+    d = depth.clone().requires_grad_()
+    p = poses.clone().requires_grad_()
+    fn = G.reprojection_loss if impl == "ours" else torch_reprojection_loss
+    fn(target, sources, d, p, K).sum().backward()
+
+
+def time_both(B, S, C, H, W, repeats):
+    """Medians (s) of forward+backward (gradients for depth and poses), ours and torch's,
+    interleaved in this process."""
+    args = scene(B, S, C, H, W)
+    times = {"ours": [], "torch": []}
+    for impl in times:  # warm-up (compiles or loads kernels)
+        _step(impl, *args)
+    for _ in range(repeats):
+        for impl in times:
+            t = time.perf_counter()
+            _step(impl, *args)
+            times[impl].append(time.perf_counter() - t)
+    return {k: sorted(v)[len(v) // 2] for k, v in times.items()}
+
+
+def peak_memory(impl, B, S, C, H, W, threads) -> int:
+    """Peak extra resident memory (bytes) of one forward+backward beyond its inputs, in a fresh
+    process: VmHWM reset once the inputs exist and the heap's free memory is returned to the system
+    (malloc_trim), as in benchmarks.memory."""
+    code = "\n".join([
+        f"import ctypes, torch, json; torch.set_num_threads({threads})",
+        "from benchmarks.reprojection import scene, _step",
+        "from benchmarks.memory import _rss_kb, _reset_peak",
+        f"_step({impl!r}, *scene(1, {S}, {C}, 16, 32))",
+        f"args = scene({B}, {S}, {C}, {H}, {W})",
+        "ctypes.CDLL('libc.so.6').malloc_trim(0)",
+        "base = _rss_kb('VmRSS'); assert _reset_peak()",
+        f"_step({impl!r}, *args)",
+        "print(json.dumps((_rss_kb('VmHWM') - base) * 1024))",
+    ])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return int(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--size", default="640x192", help="WxH (default: Monodepth2's KITTI size 640x192)")
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--sources", type=int, default=2)
+    p.add_argument("--channels", type=int, default=3)
+    p.add_argument("--repeats", type=int, default=7)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", default=None, help="also write the results here")
+    args = p.parse_args(argv)
+    W, H = (int(v) for v in args.size.split("x"))
+    torch.set_num_threads(args.threads)
+    B, S, C = args.batch, args.sources, args.channels
+    t = time_both(B, S, C, H, W, args.repeats)
+    mem = {impl: peak_memory(impl, B, S, C, H, W, args.threads) for impl in ("ours", "torch")}
+    result = {
+        "size": [B, S, C, H, W], "threads": args.threads, "ms": {k: 1000 * v for k, v in t.items()},
+        "time_ratio": t["ours"] / t["torch"], "peak_extra_bytes": mem, "memory_ratio": mem["ours"] / mem["torch"],
+    }
+    print(f"reprojection_loss fwd+bwd (depth, poses), B={B} S={S} C={C} {H}x{W}, {args.threads} threads: "
+          f"ours {1000 * t['ours']:.1f} ms, torch {1000 * t['torch']:.1f} ms, ratio {result['time_ratio']:.2f}; "
+          f"peak extra memory ours {mem['ours'] / 2**20:.0f} MiB, torch {mem['torch'] / 2**20:.0f} MiB, "
+          f"ratio {result['memory_ratio']:.2f}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

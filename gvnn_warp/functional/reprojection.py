@@ -105,18 +105,24 @@ def reprojection_loss(
     flat_sources = sources.reshape(B * S, C, H, W)
     flat_poses = poses34.reshape(B * S, 3, 4)
     warped, _ = warp_frame_depth(flat_sources, depth_s, flat_poses, cam, padding_mode="border", min_depth=min_depth)
-    with torch.no_grad():  # where each source sees the target's points: the warp of a constant 1
-        ones = torch.ones((B * S, 1, H, W), dtype=target.dtype)
-        front, _ = warp_frame_depth(ones, depth_s.detach(), flat_poses.detach(), _detached(cam),
-                                    padding_mode="border", min_depth=min_depth)
+    pinhole = isinstance(cam, Tensor) or cam.model == 0
+    with torch.no_grad():
+        if pinhole:  # the choice kernel tests the moved points' z itself, from pose and K
+            front = target.new_empty(0)
+            K_s = (cam if isinstance(cam, Tensor) else cam.K).detach().expand(B * S, 3, 3).contiguous()
+        else:  # through a lens: where each source sees the target's points is the warp of a constant 1
+            ones = torch.ones((B * S, 1, H, W), dtype=target.dtype)
+            front, _ = warp_frame_depth(ones, depth_s.detach(), flat_poses.detach(), _detached(cam),
+                                        padding_mode="border", min_depth=min_depth)
+            K_s = target.new_zeros(B * S, 3, 3)
     target_c = target.contiguous()
     sources_c = sources.contiguous()
     shape = (S, C, H, W, float(alpha))
-    choice = _ops.reprojection_choice(
+    choice, best, _ = _ops.reprojection_choice(
         target_c.detach(), warped.detach(), sources_c.detach(), front, depth.detach().contiguous(),
-        *shape, int(automask), min_depth,
+        flat_poses.detach().contiguous(), K_s, *shape, int(automask), min_depth, int(not pinhole),
     )
-    pe, weight = _ops.reprojection_error(target_c, warped, sources_c, choice, *shape)
+    pe, weight = _ops.reprojection_error_copy(target_c, warped, sources_c, choice, best, *shape)
     loss, _ = _ops.per_item_mean(pe.reshape(B, H * W), weight.reshape(B, H * W), H * W)
     if not return_maps:
         return loss

@@ -22,21 +22,31 @@ def _pixel_map(target, *_):
     return (target.shape[0], target.shape[2], target.shape[3])
 
 
-# target (B, C, H, W), warped (B, S, C, H, W), sources (B, S, C, H, W), front (B, S, H, W),
-# depth (B, H, W) -> choice (B, H, W) int32: the chosen candidate of every pixel (forward only)
+# target (B, C, H, W), warped (B, S, C, H, W), sources (B, S, C, H, W), front (B, S, H, W) or
+# empty, depth (B, H, W), pose (B*S, 3, 4), K (B*S, 3, 3) -> choice (B, H, W) int32: the chosen
+# candidate of every pixel, best (B, H, W) its error (0 where excluded), and a scratch (B, H, W)
+# (forward only; one thread per target row)
 reprojection_choice = warp_op(
-    "reprojection_choice", rk.reprojection_choice, ["target", "warped", "sources", "front", "depth"],
-    [*_SHAPE, Param("automask", "int"), Param("min_depth", "float")],
-    [Output("choice", "int32", _pixel_map, differentiable=False)], _pixels,
+    "reprojection_choice", rk.reprojection_choice, ["target", "warped", "sources", "front", "depth", "pose", "K"],
+    [*_SHAPE, Param("automask", "int"), Param("min_depth", "float"), Param("use_front", "int")],
+    [Output("choice", "int32", _pixel_map, differentiable=False),
+     Output("best", "scalar", _pixel_map, differentiable=False),
+     Output("scratch", "scalar", _pixel_map, differentiable=False)],
+    lambda target, *_: target.shape[0] * target.shape[2],
     function="reprojection_loss", layer="ReprojectionLoss",  # the choice of each pixel's candidate
     untested={"gradients": "its output is an index (not differentiable)"},
 )
 
-# target, warped, sources, choice -> pe (B, H, W) of the chosen candidates, weight (B, H, W) 1 / 0
+# target, warped, sources, choice, best -> pe (B, H, W) of the chosen candidates, weight (B, H, W) 1 / 0
+_ERROR = (["target", "warped", "sources", "choice", "best"], _SHAPE,
+          [Output("pe", "scalar", _pixel_map), Output("weight", "scalar", _pixel_map, differentiable=False)], _pixels)
 reprojection_error = warp_op(
-    "reprojection_error", rk.reprojection_error, ["target", "warped", "sources", "choice"], _SHAPE,
-    [Output("pe", "scalar", _pixel_map), Output("weight", "scalar", _pixel_map, differentiable=False)],
-    _pixels,
+    "reprojection_error", rk.reprojection_error, *_ERROR, function="reprojection_loss", layer="ReprojectionLoss",
+)
+# the same, its forward copying the choice kernel's values (``best``): what reprojection_loss calls
+reprojection_error_copy = warp_op(
+    "reprojection_error_copy", None, *_ERROR, backward_from=reprojection_error,
+    select=lambda *_: rk.reprojection_error_copy, array_kinds=rk.reprojection_error.array_kinds,
     function="reprojection_loss", layer="ReprojectionLoss",
 )
 

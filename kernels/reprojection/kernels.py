@@ -22,7 +22,8 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads
-from ..core.kinds import FloatKernel
+from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
+from ..geometry import camera, lie
 from ..photometric.error_rows import rows_mean
 from . import ssim
 
@@ -30,7 +31,7 @@ from . import ssim
 _GRAIN = 4096
 
 
-@wp.kernel(module="unique", enable_backward=False)
+@wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
 def _reprojection_choice(
     offset: int,
     target: wp.array(dtype=Any),
@@ -38,6 +39,8 @@ def _reprojection_choice(
     sources: wp.array(dtype=Any),
     front: wp.array(dtype=Any),
     depth: wp.array(dtype=Any),
+    pose: wp.array(dtype=Any),
+    K: wp.array(dtype=Any),
     S: int,
     C: int,
     H: int,
@@ -45,48 +48,75 @@ def _reprojection_choice(
     alpha: wp.float64,
     automask: int,
     min_depth: wp.float64,
+    use_front: int,
     choice: wp.array(dtype=Any),
+    best: wp.array(dtype=Any),
+    acc: wp.array(dtype=Any),
 ):
-    i = wp.tid() + offset
+    # Element r = one target row (flat (b, y)): every candidate's pe along the row (ssim.row_errors,
+    # into acc), then the running minimum into best and choice. Forward only. Whether source s sees
+    # the pixel's point: front[(b S + s) H W + p] > 0.5 with use_front (a lens camera: the warp of a
+    # constant 1), else the pinhole warp's own test, z > min_depth of the point moved by pose[b S + s]
+    # (computed as warp_frame_depth computes it, through geometry.camera.row_rays).
+    r = wp.tid() + offset
     hw = H * W
-    b = i // hw
-    p = i - b * hw
-    y = p // W
-    x = p - y * W
-    d = depth[i]
-    a = type(d)(alpha)
-    k = S - S - 1  # -1 as a run-time variable (Warp refuses to change a constant in a loop)
-    if d > type(d)(min_depth) and d < type(d)(1.0e30):  # (NaN fails both)
-        best = type(d)(1.0e30)
-        t0 = b * C * hw
+    b = r // H
+    y = r - b * H
+    row = r * W  # the row's first pixel, flat (b, y, x)
+    r0, r1, r2, x0, x1, x2 = ssim.window(0, y, H, W)
+    a = best.dtype(alpha)
+    t0 = b * C * hw
+    for x in range(W):
+        best[row + x] = best.dtype(1.0e30)
+        choice[row + x] = wp.int32(-1)
+    for s in range(S):
+        ssim.row_errors(target, warped, acc, t0, (b * S + s) * C * hw, C, hw, W, r0, r1, r2, row, a)
+        f0 = (b * S + s) * hw + y * W
+        Tbs = pose[b * S + s]
+        a0, ax = camera.row_rays(lie.pose_rotation(Tbs), K[b * S + s], best.dtype(y))
+        tz = Tbs[2, 3]
+        for x in range(W):
+            e = acc[row + x]
+            seen = False
+            if use_front != 0:
+                seen = front[f0 + x] > best.dtype(0.5)
+            else:
+                d = depth[row + x]
+                seen = (a0[2] + ax[2] * best.dtype(x)) * d + tz > best.dtype(min_depth)
+            if seen and e < best[row + x]:  # (a NaN error is never chosen)
+                best[row + x] = e
+                choice[row + x] = wp.int32(s)
+    if automask != 0:
         for s in range(S):
-            if front[(b * S + s) * hw + p] > type(d)(0.5):
-                e = ssim.candidate_error(target, warped, t0, (b * S + s) * C * hw, C, H, W, x, y, a)
-                if e < best:  # (a NaN error is never chosen)
-                    best = e
-                    k = s
-        if automask != 0:
-            for s in range(S):
-                e = ssim.candidate_error(target, sources, t0, (b * S + s) * C * hw, C, H, W, x, y, a)
-                if e < best:
-                    best = e
-                    k = S + s
-    choice[i] = wp.int32(k)  # (choice: int32, see the FloatKernel below)
+            ssim.row_errors(target, sources, acc, t0, (b * S + s) * C * hw, C, hw, W, r0, r1, r2, row, a)
+            for x in range(W):
+                e = acc[row + x]
+                if e < best[row + x]:
+                    best[row + x] = e
+                    choice[row + x] = wp.int32(S + s)
+    zmin = best.dtype(min_depth)
+    for x in range(W):
+        d = depth[row + x]
+        if not (d > zmin and d < best.dtype(1.0e30)):  # an invalid depth (NaN fails both): excluded
+            choice[row + x] = wp.int32(-1)
+        if choice[row + x] < 0:
+            best[row + x] = best.dtype(0.0)
 
 
 reprojection_choice = FloatKernel(
     _reprojection_choice, target="scalar", warped="scalar", sources="scalar", front="scalar", depth="scalar",
-    choice="int32",
-).set_parallel(scopes={}, forward=True, grain=_GRAIN)
+    pose="mat34", K="mat33", choice="int32", best="scalar", acc="scalar",
+).set_parallel(scopes={}, forward=True, grain=lambda a: max(1, _GRAIN // max(1, a["W"] * a["C"])))
 
 
-@wp.kernel(module="unique")
+@wp.kernel(module="unique", module_options=LANES_MODULE_OPTIONS)
 def _reprojection_error(
     offset: int,
     target: wp.array(dtype=Any),
     warped: wp.array(dtype=Any),
     sources: wp.array(dtype=Any),
     choice: wp.array(dtype=Any),
+    best: wp.array(dtype=Any),
     S: int,
     C: int,
     H: int,
@@ -95,8 +125,9 @@ def _reprojection_error(
     pe: wp.array(dtype=Any),
     weight: wp.array(dtype=Any),
 ):
-    # The channel terms are accumulated into pe[i] in place: a local sum carried through a loop
-    # whose trip count is known only at run time is not differentiated by Warp.
+    # (best, the choice kernel's value of the chosen candidate, is not read here: see
+    # reprojection_error_copy.) The channel terms are accumulated into pe[i] in place: a local sum
+    # carried through a loop whose trip count is known only at run time is not differentiated by Warp.
     i = wp.tid() + offset
     hw = H * W
     b = i // hw
@@ -107,22 +138,23 @@ def _reprojection_error(
     a = type(zero)(alpha)
     inv_c = type(zero)(1.0) / type(zero)(C)
     k = int(choice[i])
+    r0, r1, r2, x0, x1, x2 = ssim.window(x, y, H, W)
     pe[i] = zero
     weight[i] = wp.where(k >= 0, type(zero)(1.0), zero)
     t0 = b * C * hw
     if k >= 0 and k < S:
         c0 = (b * S + k) * C * hw
         for c in range(C):
-            pe[i] += inv_c * ssim.channel_error(target, warped, t0 + c * hw, c0 + c * hw, W, H, x, y, a)
+            pe[i] += inv_c * ssim.channel_error(target, warped, t0 + c * hw, c0 + c * hw, r0, r1, r2, x0, x1, x2, a)
     elif k >= S:
         c0 = (b * S + k - S) * C * hw
         for c in range(C):
-            pe[i] += inv_c * ssim.channel_error(target, sources, t0 + c * hw, c0 + c * hw, W, H, x, y, a)
+            pe[i] += inv_c * ssim.channel_error(target, sources, t0 + c * hw, c0 + c * hw, r0, r1, r2, x0, x1, x2, a)
 
 
 reprojection_error = FloatKernel(
-    _reprojection_error, target="scalar", warped="scalar", sources="scalar", choice="int32", pe="scalar",
-    weight="scalar",
+    _reprojection_error, target="scalar", warped="scalar", sources="scalar", choice="int32", best="scalar",
+    pe="scalar", weight="scalar",
 ).set_parallel(
     # a pixel's adjoint writes the 3x3 windows around it, in its own batch item's planes only
     segment=lambda a: a["H"] * a["W"],
@@ -130,6 +162,35 @@ reprojection_error = FloatKernel(
     forward=True,
     grain=_GRAIN,
 )
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def _reprojection_error_copy(
+    offset: int,
+    target: wp.array(dtype=Any),
+    warped: wp.array(dtype=Any),
+    sources: wp.array(dtype=Any),
+    choice: wp.array(dtype=Any),
+    best: wp.array(dtype=Any),
+    S: int,
+    C: int,
+    H: int,
+    W: int,
+    alpha: wp.float64,
+    pe: wp.array(dtype=Any),
+    weight: wp.array(dtype=Any),
+):
+    # The forward of reprojection_error from what the choice kernel computed already (its arguments;
+    # the same values up to the order of the window sums); the backward is reprojection_error's.
+    i = wp.tid() + offset
+    pe[i] = best[i]
+    weight[i] = wp.where(int(choice[i]) >= 0, best.dtype(1.0), best.dtype(0.0))
+
+
+reprojection_error_copy = FloatKernel(
+    _reprojection_error_copy, target="scalar", warped="scalar", sources="scalar", choice="int32", best="scalar",
+    pe="scalar", weight="scalar",
+).set_parallel(forward=True, grain=1 << 16)
 
 
 @wp.kernel(module="unique")
