@@ -41,7 +41,7 @@ from .kernels.core.moved import moved  # noqa: E402
 
 # the torch front, whose public names (their __all__) are gvnn_warp's, in the order they are searched
 _FRONT = ("functional", "nn", "cameras")
-_SUBPACKAGES = (*_FRONT, "cli", "datasets", "demos", "kernels", "odometry", "ops", "synthetic", "vo")
+_SUBPACKAGES = (*_FRONT, "cli", "datasets", "demos", "depth", "kernels", "odometry", "ops", "synthetic", "vo")
 
 # the module paths of earlier releases, kept importable (a tuple: the old module's names now live in several)
 _MOVED = {

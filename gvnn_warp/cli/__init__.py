@@ -47,7 +47,7 @@ __all__ = [
 # the table of commands: the modules gvnn_warp.cli.<name>, imported by build_parser (by name, not at
 # import time: ``python -m gvnn_warp.cli.vo`` must find its module not yet imported, and vo sets
 # OMP_WAIT_POLICY before anything imports torch)
-DEMOS = ("align", "flow", "vo", "render", "track")
+DEMOS = ("align", "flow", "vo", "render", "track", "depth")
 
 
 def build_parser() -> argparse.ArgumentParser:

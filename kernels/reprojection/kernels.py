@@ -334,3 +334,17 @@ def _rows_total(offset: int, row_sum: wp.array(dtype=Any), H: int, total: wp.arr
 rows_total = FloatKernel(_rows_total, row_sum="scalar", total="scalar").set_parallel(
     scopes={"row_sum": "element"}, forward=True, grain=1 << 30
 )
+
+
+@wp.kernel(module="unique")
+def _repeat(offset: int, src: wp.array(dtype=Any), n: int, S: int, out: wp.array(dtype=Any)):
+    # element i of (B, S, n): out[i] = src[b, :] (each item's n values once per source). Its
+    # adjoint adds the S copies' gradients into src: for the pure-Warp pipeline (one thread).
+    i = wp.tid() + offset
+    b = i // (S * n)
+    out[i] = src[b * n + i % n]
+
+
+repeat_scalar = FloatKernel(_repeat, src="scalar", out="scalar").set_parallel(forward=True)
+repeat_mat33 = FloatKernel(_repeat, src="mat33", out="mat33").set_parallel(forward=True)
+repeat_vec8 = FloatKernel(_repeat, src="vec8", out="vec8").set_parallel(forward=True)

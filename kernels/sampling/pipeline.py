@@ -82,7 +82,7 @@ def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
     vec3 = wp.types.vector(3, ft)
     rays = wp.zeros((B, H, W), dtype=vec3, device=K.device, requires_grad=K.requires_grad or dist.requires_grad)
     wp_launch(sampling_kernels.pixel_rays_lens()[ft], dim=B * H * W, inputs=[0, K, dist, H, W, m],
-              outputs=[rays.flatten()], device=K.device)
+              outputs=[rays.flatten()], device=K.device, record_tape=rays.requires_grad)
     return rays
 
 
@@ -138,6 +138,9 @@ def warp_frame_depth(
         inputs=inputs,
         outputs=[warped.flatten(), valid.flatten()],
         device=image.device,
+        # a launch with no gradient to pass is not recorded: a tape's backward would run its adjoint for
+        # nothing (and the lens kernels' hand-written adjoints crashed on arrays without gradients)
+        record_tape=requires_grad,
     )
     return warped, valid
 

@@ -247,3 +247,49 @@ def test_smoothness_bad_input():
         G.edge_aware_smoothness(torch.rand(2, 1, 4, 5), torch.rand(3, 3, 4, 5))
     with pytest.raises(ValueError, match="2x2"):
         G.edge_aware_smoothness(torch.rand(2, 1, 1, 5), torch.rand(2, 3, 1, 5))
+
+
+# ----------------------------------------------------------------------------- pure Warp
+
+
+@pytest.mark.parametrize("lens", [False, True])
+def test_pure_warp_pipeline_matches_the_torch_op_with_a_tape(lens):
+    import numpy as np
+    import warp as wp
+    from gvnn_warp.kernels.core.kinds import mat34d
+    from gvnn_warp.kernels.geometry import lens as lens_models
+    from gvnn_warp.kernels.reprojection.pipeline import reprojection_loss as warp_loss
+
+    target, sources, depth, poses, K = frames(seed=13)
+    B, S, C, H, W = sources.shape
+    Kb = K.expand(B, 3, 3).contiguous()
+    coeffs = [0.05, -0.02, 0.001, 0.002, 0.0]
+    camera = RadTanCamera(Kb, torch.tensor(coeffs, dtype=K.dtype)) if lens else Kb
+    leaves = [t.clone().requires_grad_() for t in (target, sources, depth, poses)]
+    loss = G.reprojection_loss(*leaves, camera)
+    (loss * torch.tensor([1.0, 2.0], dtype=loss.dtype)).sum().backward()
+
+    def arr(t, dtype=wp.float64):
+        return wp.array(t.detach().numpy(), dtype=dtype, requires_grad=True)
+
+    w = [arr(target), arr(sources.reshape(B * S, C, H, W)), arr(depth), arr(poses, mat34d), arr(Kb, wp.mat33d)]
+    extra = {}
+    if lens:
+        dist = np.stack([lens_models.pack_dist(lens_models.RADTAN, coeffs)] * B)
+        extra = {"dist": wp.array(dist, dtype=wp.types.vector(8, wp.float64)), "model": "radtan"}
+    tape = wp.Tape()
+    with tape:
+        wloss = warp_loss(*w, **extra)
+    tape.backward(grads={wloss: wp.array([1.0, 2.0], dtype=wp.float64)})
+    np.testing.assert_allclose(wloss.numpy(), loss.detach().numpy(), rtol=0, atol=1e-12)
+    for t, a in zip(leaves, w):
+        np.testing.assert_allclose(a.grad.numpy().reshape(t.shape), t.grad.numpy(), rtol=0, atol=1e-10)
+
+
+def test_pure_warp_pipeline_names_bad_arguments():
+    import warp as wp
+    from gvnn_warp.kernels.reprojection.pipeline import reprojection_loss as warp_loss
+
+    t = wp.zeros((1, 3, 4, 5), dtype=wp.float32)
+    with pytest.raises(ValueError, match="argument 'poses'"):
+        warp_loss(t, t, wp.zeros((1, 1, 4, 5), dtype=wp.float32), wp.zeros(1, dtype=wp.mat33f), wp.zeros(1, dtype=wp.mat33f))

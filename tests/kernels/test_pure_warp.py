@@ -152,3 +152,33 @@ def test_both_fronts_run_the_same_kernel():
     assert np.array_equal(wvalid.numpy(), valid.numpy())
     for a, t in zip(arrays, leaves):
         assert np.array_equal(a.grad.numpy().reshape(t.shape), t.grad.numpy())
+
+
+def test_lens_warp_on_a_tape_without_gradients_is_not_recorded():
+    """A distorted-camera warp whose inputs need no gradient, recorded beside one that does: the
+    tape's backward runs (it crashed when the first launch's adjoint was replayed) and is right."""
+    code = r"""
+import numpy as np, warp as wp
+from gvnn_warp.kernels.sampling.pipeline import warp_frame_depth
+from gvnn_warp.kernels.geometry import lens
+from gvnn_warp.kernels.core.kinds import mat34d
+B, C, H, W = 2, 1, 6, 7
+rng = np.random.default_rng(0)
+img = wp.array(rng.random((B, C, H, W)), dtype=wp.float64)
+dep = wp.array(rng.random((B, 1, H, W)) + 1, dtype=wp.float64)
+pose = wp.array(np.stack([np.eye(4)[:3]] * B), dtype=mat34d)
+K = wp.array(np.stack([[[10, 0, 3], [0, 10, 3], [0, 0, 1.0]]] * B), dtype=wp.mat33d)
+dist = wp.array(np.stack([lens.pack_dist(lens.RADTAN, [0.05, -0.02, 0.001, 0.002, 0])] * B),
+                dtype=wp.types.vector(8, wp.float64))
+img2 = wp.array(rng.random((B, C, H, W)), dtype=wp.float64, requires_grad=True)
+tape = wp.Tape()
+with tape:
+    plain, _ = warp_frame_depth(img, dep, pose, K, dist=dist, model="radtan")
+    warped, _ = warp_frame_depth(img2, dep, pose, K, dist=dist, model="radtan")
+assert not plain.requires_grad and len(tape.launches) >= 1
+tape.backward(grads={warped: wp.ones(warped.shape, dtype=wp.float64)})
+assert np.isfinite(img2.grad.numpy()).all() and img2.grad.numpy().sum() > 0
+print("ok")
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-2000:]

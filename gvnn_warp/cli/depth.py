@@ -1,0 +1,131 @@
+"""``gvnn-warp depth``: learn single-image depth and ego-motion from video without labels, and
+evaluate the depth.
+
+Usage::
+
+    gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--steps N]
+                          [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
+    gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
+
+``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
+them; TUM RGB-D downloads are read the same way, with the fr1/fr2 lens distortion), never their depth
+files, and trains a depth network and a pose network together on triplets (t - 1, t, t + 1) through
+the fused self-supervised objective (``gvnn_warp.reprojection_loss`` at four scales plus
+edge-aware smoothness: Monodepth2's). It writes ``OUT/checkpoint.pt`` (atomically, every minute, on
+Ctrl-C / SIGTERM and at the end; ``--resume`` continues from it), ``OUT/metrics.json`` (the loss per
+step) and ``OUT/training.png`` (a frame, its depth, the true depth if the folder has it, the
+auto-mask).
+
+``eval`` predicts every frame's depth and, where the folder has depth files, writes
+``OUT/metrics.json`` with abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3 (each image median-scaled: a
+monocular network has no scale) and ``OUT/depth.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+# Idle OpenMP threads sleep instead of spinning (see gvnn_warp.cli.vo); before torch is imported.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+from .args import bounded_int, description, image_size, output_dir, positive_float, positive_int, seed  # noqa: E402
+from .runner import command_main  # noqa: E402
+
+__all__ = ["add_parser", "run_eval", "run_train"]
+
+REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
+_SIZE = image_size(64, 1024)
+
+
+def _multiple_of_32(text: str) -> tuple[int, int]:
+    w, h = _SIZE(text)
+    if w % 32 or h % 32:
+        raise argparse.ArgumentTypeError(f"each side must be a multiple of 32 (the network halves it 5 times), "
+                                          f"got {text!r}")
+    return w, h
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("depth", help="learn depth and motion from video without labels, and evaluate it",
+                              description=description(__doc__))
+    sub = p.add_subparsers(dest="depth_command", required=True, metavar="{train,eval}")
+    t = sub.add_parser("train", help="train the depth and pose networks on TUM-format folders' colour frames")
+    t.add_argument("--data", type=Path, nargs="+", required=True, metavar="DIR", help="TUM-format folders")
+    t.add_argument("--out", type=output_dir, required=True, metavar="OUT",
+                   help="output folder (checkpoint, metrics.json, training.png; made if missing)")
+    t.add_argument("--size", type=_multiple_of_32, default=(128, 96), metavar="WxH",
+                   help="network input size, multiples of 32 (default: 128x96)")
+    t.add_argument("--minutes", type=positive_float, default=8.0, metavar="M", help="training time (default: 8)")
+    t.add_argument("--steps", type=positive_int, default=None, metavar="N", help="or stop after N steps")
+    t.add_argument("--batch-size", type=bounded_int(1, 1024), default=8, metavar="B", help="triplets per step "
+                   "(default: 8)")
+    t.add_argument("--lr", type=positive_float, default=2e-4, metavar="LR", help="Adam's step size (default: 2e-4)")
+    t.add_argument("--seed", type=seed, default=0, metavar="S", help="seed (default: 0)")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    t.set_defaults(func=run_train)
+    e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files")
+    e.add_argument("--checkpoint", type=Path, required=True, metavar="CKPT", help="OUT/checkpoint.pt of train")
+    e.add_argument("--data", type=Path, required=True, metavar="DIR", help="a TUM-format folder")
+    e.add_argument("--out", type=output_dir, required=True, metavar="OUT", help="output folder (metrics.json, "
+                   "depth.png)")
+    e.add_argument("--no-progress", action="store_true", help="no progress bar")
+    e.set_defaults(func=run_eval)
+    return p
+
+
+def _data_error(e: Exception) -> int:
+    print(f"gvnn-warp depth: error: {e}", file=sys.stderr)
+    return 1
+
+
+def run_train(args: argparse.Namespace) -> int:
+    # torch (through gvnn_warp.depth) only now: after gvnn_warp.cli checked it is installed
+    from ..datasets.errors import DatasetError
+    from ..depth.train import DepthConfig, train
+    from ..vo.checkpoint import CheckpointError
+
+    cfg = DepthConfig(data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size,
+                      minutes=args.minutes, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+                      resume=args.resume, progress=not args.no_progress)
+    try:
+        m = train(cfg)
+    except (DatasetError, CheckpointError) as e:
+        return _data_error(e)
+    if m["interrupted"]:
+        return 130
+    loss = m["train_loss"]
+    print(f"depth train: {m['steps']} steps in {m['train_seconds'] / 60:.1f} min on {m['triplets']} triplets, "
+          f"loss {loss[0]:.4f} -> {loss[-1]:.4f}; wrote {cfg.out}" if loss else f"depth train: no step; wrote {cfg.out}")
+    return 0
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from ..datasets.errors import DatasetError
+    from ..depth.evaluate import evaluate
+    from ..vo.checkpoint import CheckpointError
+
+    try:
+        m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
+    except (DatasetError, CheckpointError) as e:
+        return _data_error(e)
+    if m.get("abs_rel") is None:
+        print(f"depth eval: {m['frames']} frames predicted; {args.data} has no depth files to compare with; "
+              f"wrote {args.out}")
+    else:
+        print(f"depth eval ({m['images']} frames, median-scaled): abs_rel {m['abs_rel']:.3f}, sq_rel "
+              f"{m['sq_rel']:.3f}, rmse {m['rmse']:.3f} m, rmse_log {m['rmse_log']:.3f}, a1 {m['a1']:.3f}, "
+              f"a2 {m['a2']:.3f}, a3 {m['a3']:.3f}; wrote {args.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m gvnn_warp.cli.depth train ...``): the same as ``gvnn-warp depth ...``."""
+    return command_main(add_parser, REQUIRES, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""Video for the self-supervised depth networks: the colour frames of TUM-format folders
+(``gvnn_warp.datasets.tum.read_tum``: rendered by ``gvnn-warp render`` or recorded by a Kinect),
+resized to the network's size, as triplets (t - 1, t, t + 1) of one folder, with their camera. The
+depth files are read for evaluation and figures only (``with_depth``); training never sees them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from ..cameras import RadTanCamera
+from ..datasets.errors import DatasetError
+from ..datasets.tum import read_tum
+from ..vo.frontend import resize_frame, scale_intrinsics
+
+__all__ = ["Video", "read_video"]
+
+
+@dataclass
+class Video:
+    """Frames of one or more folders (see the module docstring).
+
+    Attributes:
+        images: (N, 3, H, W) float32 in [0, 1].
+        depths: (N, 1, H, W) float32 metres (0 = none), or None when not read.
+        targets: (T,) int64 indices into ``images`` of the frames whose neighbours t - 1 and t + 1
+            are in the same folder (the triplets' middles).
+        folder: (N,) int64, the folder of each frame; ``roots``: the folders.
+        K: (3, 3) float32 intrinsics at the network's size; ``dist``: (5,) float32 radial-tangential
+            coefficients (k1, k2, p1, p2, k3) of the images, or None (a pinhole).
+    """
+
+    images: Tensor
+    depths: Tensor | None
+    targets: Tensor
+    folder: Tensor
+    roots: list[Path]
+    K: Tensor
+    dist: Tensor | None
+
+    def camera(self):
+        """The camera for ``gvnn_warp.reprojection_loss``: K, or a ``RadTanCamera`` with distortion."""
+        return self.K if self.dist is None else RadTanCamera(self.K, self.dist)
+
+    def triplets(self, idx: Tensor) -> tuple[Tensor, Tensor]:
+        """target (B, 3, H, W) and sources (B, 2, 3, H, W) (frames t - 1, t + 1) of triplets ``idx``."""
+        t = self.targets[idx]
+        return self.images[t], torch.stack([self.images[t - 1], self.images[t + 1]], 1)
+
+
+def read_video(roots, size: tuple[int, int], *, with_depth: bool = False, max_frames: int | None = None,
+               progress: bool = False) -> Video:
+    """Read the first ``max_frames`` frames of every folder of ``roots`` at ``size`` = (W, H)
+    (colour: antialiased bilinear, depth: nearest; the intrinsics scaled to match). The folders
+    must share one camera once resized; DatasetError otherwise, or for a folder of fewer than 3
+    frames."""
+    images, depths, targets, folder = [], [], [], []
+    K = dist = None
+    n = 0
+    seqs = [read_tum(r) for r in roots]
+    bar = tqdm(total=sum(len(s) if max_frames is None else min(len(s), max_frames) for s in seqs),
+               desc="reading frames", unit="frame", disable=not progress, mininterval=0.5)
+    for k, seq in enumerate(seqs):
+        count = len(seq) if max_frames is None else min(len(seq), max_frames)
+        if count < 3:
+            raise DatasetError(f"{seq.root / 'rgb.txt'}: {count} frames; triplets need at least 3")
+        K_seq = scale_intrinsics(seq.K, (seq.width, seq.height), size)
+        d_seq = None if seq.dist is None else np.asarray(seq.dist, dtype=np.float64)
+        if K is None:
+            K, dist, first = K_seq, d_seq, seq.root
+        elif not np.allclose(K_seq, K, rtol=1e-4, atol=1e-3) or (d_seq is None) != (dist is None) or (
+            d_seq is not None and not np.allclose(d_seq, dist)
+        ):
+            raise DatasetError(f"{seq.root}: its camera (intrinsics, distortion) at {size[0]}x{size[1]} differs from "
+                               f"{first}'s (train on one camera)")
+        for i in range(count):
+            dep = seq.depth(i) if with_depth else np.zeros((1, seq.height, seq.width), np.float32)
+            img, dep = resize_frame(seq.image(i), dep, size)
+            images.append(img)
+            depths.append(dep)
+            bar.update()
+        targets.append(np.arange(n + 1, n + count - 1))
+        folder.append(np.full(count, k))
+        n += count
+    bar.close()
+    return Video(
+        images=torch.cat(images), depths=torch.cat(depths) if with_depth else None,
+        targets=torch.from_numpy(np.concatenate(targets)).long(), folder=torch.from_numpy(np.concatenate(folder)),
+        roots=[s.root for s in seqs], K=torch.from_numpy(K).float(),
+        dist=None if dist is None else torch.from_numpy(dist).float(),
+    )

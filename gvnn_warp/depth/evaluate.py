@@ -1,0 +1,100 @@
+"""Evaluation of a trained depth network against true depth: the standard metrics of the field
+(Eigen et al. 2014, with Monodepth2's names), each image's prediction scaled by the ratio of the
+medians of true and predicted depth over its valid pixels (monocular depth has no scale).
+
+For an image with valid true depth d* (finite, in [min_depth, max_depth]) and scaled prediction d
+(clamped to the same range), over its valid pixels: ``abs_rel`` = mean |d - d*| / d*, ``sq_rel`` =
+mean (d - d*)^2 / d*, ``rmse`` = sqrt(mean (d - d*)^2), ``rmse_log`` = sqrt(mean (log d - log d*)^2),
+``a1``, ``a2``, ``a3`` = the fraction with max(d / d*, d* / d) < 1.25, 1.25^2, 1.25^3. The reported
+values are means over the images; ``median_scale`` is the mean of the images' scales and
+``median_scale_spread`` their standard deviation over their mean.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from ..vo.checkpoint import atomic_write_text
+from .data import read_video
+from .train import load_checkpoint, load_depth_net
+
+__all__ = ["METRICS", "depth_metrics", "evaluate"]
+
+METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+
+
+def depth_metrics(pred: Tensor, true: Tensor, min_depth: float, max_depth: float) -> dict | None:
+    """The metrics of one image (see the module docstring) and its ``scale``; None when it has no
+    valid true depth. ``pred`` and ``true``: same shape, metres."""
+    valid = torch.isfinite(true) & (true >= min_depth) & (true <= max_depth)
+    if not valid.any():
+        return None
+    t = true[valid].double()
+    p = pred[valid].double()
+    scale = float(t.median() / p.median())
+    p = (p * scale).clamp(min_depth, max_depth)
+    ratio = torch.maximum(p / t, t / p)
+    return {
+        "abs_rel": float(((p - t).abs() / t).mean()),
+        "sq_rel": float(((p - t) ** 2 / t).mean()),
+        "rmse": float(((p - t) ** 2).mean().sqrt()),
+        "rmse_log": float(((p.log() - t.log()) ** 2).mean().sqrt()),
+        "a1": float((ratio < 1.25).double().mean()),
+        "a2": float((ratio < 1.25**2).double().mean()),
+        "a3": float((ratio < 1.25**3).double().mean()),
+        "scale": scale,
+    }
+
+
+def summarise(per_image: list[dict]) -> dict:
+    """Means over images of :func:`depth_metrics`' results, with ``median_scale`` and its spread."""
+    n = len(per_image)
+    out = {k: sum(m[k] for m in per_image) / n for k in METRICS}
+    scales = torch.tensor([m["scale"] for m in per_image], dtype=torch.float64)
+    out["median_scale"] = float(scales.mean())
+    out["median_scale_spread"] = float(scales.std(unbiased=False) / scales.mean())
+    out["images"] = n
+    return out
+
+
+def evaluate(checkpoint: str | Path, data: str | Path, out: str | Path, *, progress: bool = True,
+             batch_size: int = 16) -> dict:
+    """Predict the depth of every frame of folder ``data`` at the network's size and, where the
+    folder has depth files, write ``OUT/metrics.json`` (see the module docstring; ``None`` values
+    without true depth) and ``OUT/depth.png`` (a frame, its depth, the true depth, the error)."""
+    ck = load_checkpoint(checkpoint)
+    net = load_depth_net(ck)
+    c = ck["config"]
+    size = tuple(c["size"])
+    video = read_video([data], size, with_depth=True, progress=progress)
+    preds = []
+    with torch.no_grad():
+        for i in tqdm(range(0, video.images.shape[0], batch_size), desc="depth eval", unit="batch",
+                      disable=not progress, mininterval=0.5):
+            preds.append(net.depth(video.images[i:i + batch_size]))
+    pred = torch.cat(preds)
+    per_image = [m for m in (depth_metrics(pred[i], video.depths[i], c["min_depth"], c["max_depth"])
+                             for i in range(pred.shape[0])) if m is not None]
+    metrics = summarise(per_image) if per_image else {k: None for k in (*METRICS, "median_scale")}
+    metrics.update(frames=int(pred.shape[0]), checkpoint=str(checkpoint), data=str(data), size=list(size),
+                   train_steps=ck["step"])
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
+    from .plots import depth_panel  # (matplotlib is slow to import: only for the figure)
+
+    i = pred.shape[0] // 2
+    true = video.depths[i, 0]
+    err = None
+    if (true > 0).any() and per_image:
+        scale = float(true[true > 0].median() / pred[i, 0][true > 0].median())
+        err = torch.where(true > 0, (pred[i, 0] * scale - true).abs() / true.clamp(min=1e-6), torch.nan)
+    depth_panel(video.images[i], pred[i, 0], true if (true > 0).any() else None, err, out / "depth.png",
+                title=f"{Path(data).name}, frame {i}", last_title="|error| / true depth (median-scaled)",
+                last_cmap="viridis")
+    return metrics

@@ -1,0 +1,232 @@
+"""Training the depth and pose networks on video through the fused self-supervised objective.
+
+Per step, a batch of triplets (t - 1, t, t + 1): the depth network's four disparities of frame t,
+each upsampled to full resolution and made depth (``disp_to_depth``), and the pose network's motion
+of t into each neighbour, give :func:`gvnn_warp.reprojection_loss` at every scale, plus
+``smoothness`` x :func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the
+mean over the scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``).
+``OUT/checkpoint.pt`` is written atomically every ``checkpoint_seconds``, on Ctrl-C / SIGTERM and at
+the end (loadable with ``torch.load(..., weights_only=True)``); ``resume`` continues from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+from tqdm import tqdm
+
+from ..datasets.tum import read_tum
+from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
+from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
+from ..vo.frontend import resize_frame
+from .data import Video, read_video
+from .model import DepthNet, PoseNet, disp_to_depth
+
+__all__ = ["CHECKPOINT_FORMAT", "DepthConfig", "load_checkpoint", "load_depth_net", "self_supervised_loss", "train"]
+
+CHECKPOINT_FORMAT = "gvnn_warp.depth/1"
+
+
+@dataclass
+class DepthConfig:
+    """Settings of :func:`train` (the command line's options)."""
+
+    data: tuple[str, ...]
+    out: str
+    size: tuple[int, int] = (128, 96)  # (W, H), multiples of 32
+    minutes: float = 8.0  # training time (the figure and checkpoint come after)
+    steps: int | None = None  # or stop after this many steps
+    batch_size: int = 8
+    lr: float = 2e-4
+    seed: int = 0
+    min_depth: float = 0.1  # metres: the networks' depth range
+    max_depth: float = 10.0
+    smoothness: float = 1e-3
+    alpha: float = 0.85
+    widths: tuple[int, ...] = (16, 32, 64, 128, 256)
+    max_frames: int | None = None  # per folder
+    checkpoint_seconds: float = 60.0
+    resume: bool = False
+    progress: bool = True
+
+
+# settings a resumed run must share with its checkpoint
+_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames")
+
+
+def self_supervised_loss(depth_net: DepthNet, pose_net: PoseNet, target: Tensor, sources: Tensor, camera,
+                         cfg: DepthConfig, return_maps: bool = False):
+    """The objective of one batch (see the module docstring): a scalar, and with ``return_maps``
+    the full-resolution depth and the maps of ``reprojection_loss`` at scale 0."""
+    B, S = sources.shape[:2]
+    H, W = target.shape[-2:]
+    poses = torch.stack([pose_net(target, sources[:, s]) for s in range(S)], 1)
+    disps = depth_net(target)
+    total = target.new_zeros(())
+    maps = depth0 = None
+    for scale, disp in enumerate(disps):
+        up = disp if scale == 0 else F.interpolate(disp, size=(H, W), mode="bilinear", align_corners=False)
+        depth = disp_to_depth(up, cfg.min_depth, cfg.max_depth)
+        if scale == 0 and return_maps:
+            rep, maps = reprojection_loss(target, sources, depth, poses, camera, alpha=cfg.alpha, return_maps=True)
+            depth0 = depth.detach()
+        else:
+            rep = reprojection_loss(target, sources, depth, poses, camera, alpha=cfg.alpha)
+        image = target if scale == 0 else F.interpolate(target, size=disp.shape[-2:], mode="bilinear",
+                                                        align_corners=False, antialias=True)
+        smooth = edge_aware_smoothness(disp, image)
+        total = total + rep.mean() + cfg.smoothness * smooth.mean() / 2**scale
+    total = total / len(disps)
+    return (total, depth0, maps) if return_maps else total
+
+
+def _networks(cfg: DepthConfig) -> tuple[DepthNet, PoseNet]:
+    return DepthNet(cfg.widths, cfg.min_depth, cfg.max_depth), PoseNet(cfg.widths)
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    """A checkpoint of :func:`train` (``torch.load`` with ``weights_only=True``); CheckpointError,
+    one line naming the file, for anything else."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path}: no such file" if not path.exists() else f"{path}: not a file")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # unpickling errors, or not a torch file at all
+        raise CheckpointError(f"checkpoint {path}: not a checkpoint this version can load safely "
+                              f"({type(e).__name__})") from None
+    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+        found = ck.get("format") if isinstance(ck, dict) else None
+        raise CheckpointError(f"checkpoint {path}: format {found!r}, not a depth checkpoint ({CHECKPOINT_FORMAT!r}, "
+                              "written by gvnn-warp depth train)")
+    return ck
+
+
+def load_depth_net(ck: dict) -> DepthNet:
+    """The trained depth network of a checkpoint (:func:`load_checkpoint`), in eval mode."""
+    c = ck["config"]
+    net = DepthNet(tuple(c["widths"]), c["min_depth"], c["max_depth"])
+    net.load_state_dict(ck["depth_net"])
+    return net.eval()
+
+
+def _resume(cfg: DepthConfig, path: Path) -> dict | None:
+    if not (cfg.resume and path.exists()):
+        return None
+    ck = load_checkpoint(path)
+    want = _config_dict(cfg)
+    for key in _SAME_ON_RESUME:
+        if ck["config"].get(key) != want[key]:
+            raise CheckpointError(f"{path}: the run has {key}={ck['config'].get(key)!r}, this one {want[key]!r}; "
+                                  "resume with the same settings or start a new run in another directory")
+    return ck
+
+
+def _config_dict(cfg: DepthConfig) -> dict:
+    d = dataclasses.asdict(cfg)
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def train(cfg: DepthConfig) -> dict:
+    """Train (see the module docstring); returns the metrics written to ``OUT/metrics.json``:
+    ``steps``, ``train_loss`` (per step), ``train_seconds``, ``interrupted``."""
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    ck_path = out / "checkpoint.pt"
+    ck = _resume(cfg, ck_path)
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    video = read_video(list(cfg.data), cfg.size, max_frames=cfg.max_frames, progress=cfg.progress)
+    camera = video.camera()
+    depth_net, pose_net = _networks(cfg)
+    params = [*depth_net.parameters(), *pose_net.parameters()]
+    opt = torch.optim.Adam(params, lr=cfg.lr)
+    step, history, elapsed = 0, [], 0.0
+    if ck is not None:
+        depth_net.load_state_dict(ck["depth_net"])
+        pose_net.load_state_dict(ck["pose_net"])
+        opt.load_state_dict(ck["optimizer"])
+        step, history, elapsed = ck["step"], list(ck["train_loss"]), ck["train_seconds"]
+        set_rng_state(ck["rng"])
+
+    def save(seconds: float) -> None:
+        atomic_save({"format": CHECKPOINT_FORMAT, "config": _config_dict(cfg), "step": step, "train_loss": history,
+                     "train_seconds": seconds, "depth_net": depth_net.state_dict(), "pose_net": pose_net.state_dict(),
+                     "optimizer": opt.state_dict(), "rng": rng_state(), "K": video.K,
+                     "dist": video.dist if video.dist is not None else torch.zeros(0)}, ck_path)
+
+    stop = {"flag": False}
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM,)}
+    signal.signal(signal.SIGTERM, lambda *_: stop.update(flag=True))
+    budget = 60.0 * cfg.minutes
+    bar = tqdm(desc="depth train", unit="step", initial=step, total=cfg.steps, disable=not cfg.progress,
+               mininterval=0.5)
+    t0 = last_ck = time.perf_counter()
+    interrupted = False
+    try:
+        depth_net.train()
+        pose_net.train()
+        while not stop["flag"]:
+            now = time.perf_counter()
+            if elapsed + now - t0 >= budget or (cfg.steps is not None and step >= cfg.steps):
+                break
+            idx = torch.randint(len(video.targets), (cfg.batch_size,))
+            target, sources = video.triplets(idx)
+            loss = self_supervised_loss(depth_net, pose_net, target, sources, camera, cfg)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            history.append(float(loss.detach()))
+            bar.update()
+            bar.set_postfix(loss=f"{history[-1]:.4f}", refresh=False)
+            if time.perf_counter() - last_ck >= cfg.checkpoint_seconds:
+                save(elapsed + time.perf_counter() - t0)
+                last_ck = time.perf_counter()
+        interrupted = stop["flag"]
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        bar.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        seconds = elapsed + time.perf_counter() - t0
+        save(seconds)
+    metrics = {"steps": step, "train_loss": history, "train_seconds": seconds, "interrupted": interrupted,
+               "frames": int(video.images.shape[0]), "triplets": int(video.targets.numel()),
+               "size": list(cfg.size), "config": _config_dict(cfg)}
+    atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
+    if not interrupted:
+        _training_figure(depth_net, pose_net, video, camera, cfg, out / "training.png")
+    return metrics
+
+
+def _first_depth(video: Video, size: tuple[int, int]) -> Tensor | None:
+    """The true depth (1, 1, H, W) of the first triplet's target, if its folder has depth files."""
+    seq = read_tum(video.roots[0])
+    try:
+        _, dep = resize_frame(seq.image(1), seq.depth(1), size)
+    except (OSError, ValueError):
+        return None
+    return dep if (dep > 0).any() else None
+
+
+def _training_figure(depth_net, pose_net, video: Video, camera, cfg: DepthConfig, path: Path) -> None:
+    from .plots import depth_panel  # (matplotlib is slow to import: only for the figure)
+
+    depth_net.eval()
+    pose_net.eval()
+    with torch.no_grad():
+        target, sources = video.triplets(torch.zeros(1, dtype=torch.long))
+        _, depth, maps = self_supervised_loss(depth_net, pose_net, target, sources, camera, cfg, return_maps=True)
+    depth_panel(target[0], depth[0, 0], _first_depth(video, cfg.size), maps["automask"][0, 0], path,
+                title=f"depth after training ({video.roots[0].name}, frame 1)")

@@ -1,0 +1,132 @@
+"""gvnn_warp.depth: the depth metrics against closed forms, the networks' shapes and ranges, the
+video triplets, and short runs of training, resuming and evaluation (the command line included)."""
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from gvnn_warp.cli import main
+from gvnn_warp.depth.data import read_video
+from gvnn_warp.depth.evaluate import depth_metrics, summarise
+from gvnn_warp.depth.model import DepthNet, PoseNet, disp_to_depth
+from gvnn_warp.depth.train import DepthConfig, load_checkpoint, train
+
+
+def test_metrics_are_scale_free_and_match_closed_forms():
+    g = torch.Generator().manual_seed(0)
+    true = 1 + 4 * torch.rand(1, 20, 30, generator=g, dtype=torch.float64)
+    m = depth_metrics(0.25 * true, true, 0.1, 10.0)  # a scaled copy: perfect after median scaling
+    assert m["scale"] == pytest.approx(4.0)
+    for k in ("abs_rel", "sq_rel", "rmse", "rmse_log"):
+        assert m[k] == pytest.approx(0.0, abs=1e-12)
+    assert m["a1"] == m["a2"] == m["a3"] == 1.0
+    # half the pixels 1.5x too deep, half exact (same median): closed forms
+    true = torch.full((1, 4, 4), 2.0, dtype=torch.float64)
+    pred = true.clone()
+    pred[..., :2, :] *= 1.5
+    pred[0, 0, 0] = 2.0  # keeps the median at 2 (9 exact of 16)
+    m = depth_metrics(pred, true, 0.1, 10.0)
+    n_off = 7
+    assert m["scale"] == pytest.approx(1.0)
+    assert m["abs_rel"] == pytest.approx(n_off * 0.5 / 16)
+    assert m["sq_rel"] == pytest.approx(n_off * 1.0**2 / 2.0 / 16)
+    assert m["rmse"] == pytest.approx(math.sqrt(n_off * 1.0 / 16))
+    assert m["rmse_log"] == pytest.approx(math.sqrt(n_off * math.log(1.5) ** 2 / 16))
+    assert m["a1"] == pytest.approx(9 / 16) and m["a2"] == 1.0
+
+
+def test_metrics_ignore_invalid_true_depth_and_summarise():
+    true = torch.tensor([[0.0, float("nan"), 2.0, 4.0, 50.0]])
+    pred = torch.tensor([[7.0, 7.0, 1.0, 2.0, 7.0]])
+    m = depth_metrics(pred, true, 0.1, 10.0)  # only 2.0 and 4.0 count: pred is half of them
+    assert m["scale"] == pytest.approx(2.0) and m["abs_rel"] == pytest.approx(0.0)
+    assert depth_metrics(pred, torch.zeros_like(true), 0.1, 10.0) is None
+    s = summarise([m, {**m, "scale": 4.0}])
+    assert s["median_scale"] == pytest.approx(3.0) and s["median_scale_spread"] == pytest.approx(1 / 3)
+
+
+def test_networks_shapes_and_ranges():
+    net = DepthNet((4, 8, 8, 8, 8), min_depth=0.5, max_depth=20.0)
+    disps = net(torch.rand(2, 3, 64, 96))
+    assert [tuple(d.shape) for d in disps] == [(2, 1, 64 >> s, 96 >> s) for s in range(4)]
+    depth = net.depth(torch.rand(1, 3, 64, 96))
+    assert depth.min() >= 0.5 and depth.max() <= 20.0
+    assert disp_to_depth(torch.tensor([0.0, 1.0]), 0.5, 20.0).tolist() == pytest.approx([20.0, 0.5])
+    pose = PoseNet((4, 8, 8, 8, 8))(torch.rand(2, 3, 64, 96), torch.rand(2, 3, 64, 96))
+    assert pose.shape == (2, 3, 4)
+    torch.testing.assert_close(pose[:, :, :3] @ pose[:, :, :3].transpose(1, 2), torch.eye(3).expand(2, 3, 3))
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("depth_tum")
+    out = []
+    for s in (5, 6):
+        assert main(["render", "--out", str(root / f"seq{s}"), "--frames", "5", "--size", "96x64", "--seed", str(s),
+                     "--no-progress"]) == 0
+        out.append(root / f"seq{s}")
+    return out
+
+
+def test_video_triplets_stay_inside_one_folder(folders):
+    v = read_video(folders, (64, 64))
+    assert v.images.shape == (10, 3, 64, 64) and v.depths is None
+    assert v.targets.tolist() == [1, 2, 3, 6, 7, 8]
+    target, sources = v.triplets(torch.tensor([3]))
+    torch.testing.assert_close(target, v.images[6:7])
+    torch.testing.assert_close(sources[0], v.images[[5, 7]])
+    assert v.camera() is v.K  # rendered frames: a pinhole
+
+
+def _cfg(folders, out, **kw):
+    return DepthConfig(data=tuple(map(str, folders)), out=str(out), size=(64, 64), steps=2, batch_size=2,
+                       widths=(4, 8, 8, 8, 8), progress=False, **kw)
+
+
+def test_train_resume_and_eval(folders, tmp_path):
+    out = tmp_path / "run"
+    m = train(_cfg(folders, out))
+    assert m["steps"] == 2 and len(m["train_loss"]) == 2 and all(math.isfinite(x) for x in m["train_loss"])
+    ck = torch.load(out / "checkpoint.pt", weights_only=True)
+    assert ck["step"] == 2 and (out / "training.png").stat().st_size > 0
+    m2 = train(DepthConfig(**{**_cfg(folders, out).__dict__, "steps": 3, "resume": True}))
+    assert m2["steps"] == 3 and m2["train_loss"][:2] == m["train_loss"]
+    with pytest.raises(ValueError, match="size"):
+        train(DepthConfig(**{**_cfg(folders, out).__dict__, "size": (96, 64), "resume": True}))
+    ev = tmp_path / "ev"
+    assert main(["depth", "eval", "--checkpoint", str(out / "checkpoint.pt"), "--data", str(folders[1]), "--out",
+                 str(ev), "--no-progress"]) == 0
+    metrics = json.loads((ev / "metrics.json").read_text())
+    assert 0 < metrics["abs_rel"] < 10 and 0 <= metrics["a1"] <= 1 and metrics["images"] == 5
+    assert (ev / "depth.png").stat().st_size > 0
+
+
+def test_cli_data_errors_are_one_line(folders, tmp_path, capsys):
+    bad = tmp_path / "bad.pt"
+    torch.save({"format": "something else"}, bad)
+    assert main(["depth", "eval", "--checkpoint", str(bad), "--data", str(folders[0]), "--out", str(tmp_path / "e"),
+                 "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and "usage" not in err[0]
+    assert main(["depth", "train", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "t"),
+                 "--steps", "1", "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing" in err[0]
+
+
+def test_cli_rejects_sizes_the_network_cannot_take(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["depth", "train", "--data", "x", "--out", "y", "--size", "100x96"])
+    assert e.value.code == 2 and "multiple of 32" in capsys.readouterr().err
+
+
+def test_load_checkpoint_refuses_other_files(tmp_path):
+    p = tmp_path / "x.pt"
+    p.write_text("not a checkpoint")
+    with pytest.raises(ValueError, match="x.pt"):
+        load_checkpoint(p)
+    with pytest.raises(ValueError, match="no such file"):
+        load_checkpoint(Path(tmp_path / "none.pt"))
