@@ -98,8 +98,9 @@ def run_train(args: argparse.Namespace) -> int:
     if m["interrupted"]:
         return 130
     loss = m["train_loss"]
+    change = f"loss {loss[0]:.4f} -> {loss[-1]:.4f}" if loss else "no step"
     print(f"depth train: {m['steps']} steps in {m['train_seconds'] / 60:.1f} min on {m['triplets']} triplets, "
-          f"loss {loss[0]:.4f} -> {loss[-1]:.4f}; wrote {cfg.out}" if loss else f"depth train: no step; wrote {cfg.out}")
+          f"{change}; wrote {cfg.out}")
     return 0
 
 

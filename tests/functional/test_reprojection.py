@@ -292,4 +292,5 @@ def test_pure_warp_pipeline_names_bad_arguments():
 
     t = wp.zeros((1, 3, 4, 5), dtype=wp.float32)
     with pytest.raises(ValueError, match="argument 'poses'"):
-        warp_loss(t, t, wp.zeros((1, 1, 4, 5), dtype=wp.float32), wp.zeros(1, dtype=wp.mat33f), wp.zeros(1, dtype=wp.mat33f))
+        K = wp.zeros(1, dtype=wp.mat33f)
+        warp_loss(t, t, wp.zeros((1, 1, 4, 5), dtype=wp.float32), K, K)
