@@ -153,7 +153,7 @@ def peak_memory(impl, B, S, C, H, W, threads) -> int:
     return int(json.loads(out.stdout.strip().splitlines()[-1]))
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", default="640x192", help="WxH (default: Monodepth2's KITTI size 640x192)")
     p.add_argument("--batch", type=int, default=4)
@@ -162,7 +162,11 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", default=None, help="also write the results here")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     W, H = (int(v) for v in args.size.split("x"))
     torch.set_num_threads(args.threads)
     B, S, C = args.batch, args.sources, args.channels

@@ -3,8 +3,8 @@ evaluate the depth.
 
 Usage::
 
-    gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--steps N]
-                          [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
+    gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G]
+                          [--steps N] [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
@@ -38,6 +38,7 @@ __all__ = ["add_parser", "run_eval", "run_train"]
 
 REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 _SIZE = image_size(64, 1024)
+_DEFAULT_GAP = 1  # DepthConfig's (not imported here: that would import torch for --help)
 
 
 def _multiple_of_32(text: str) -> tuple[int, int]:
@@ -59,6 +60,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--size", type=_multiple_of_32, default=(128, 96), metavar="WxH",
                    help="network input size, multiples of 32 (default: 128x96)")
     t.add_argument("--minutes", type=positive_float, default=8.0, metavar="M", help="training time (default: 8)")
+    t.add_argument("--gap", type=bounded_int(1, 100), default=None, metavar="G",
+                   help="a triplet is frames (t - G, t, t + G): a wider baseline, more parallax (default: "
+                        f"{_DEFAULT_GAP})")
     t.add_argument("--steps", type=positive_int, default=None, metavar="N", help="or stop after N steps")
     t.add_argument("--batch-size", type=bounded_int(1, 1024), default=8, metavar="B", help="triplets per step "
                    "(default: 8)")
@@ -88,9 +92,11 @@ def run_train(args: argparse.Namespace) -> int:
     from ..depth.train import DepthConfig, train
     from ..vo.checkpoint import CheckpointError
 
-    cfg = DepthConfig(data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size,
-                      minutes=args.minutes, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-                      resume=args.resume, progress=not args.no_progress)
+    cfg = DepthConfig(
+        data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
+        gap=args.gap or _DEFAULT_GAP, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+        resume=args.resume, progress=not args.no_progress,
+    )
     try:
         m = train(cfg)
     except (DatasetError, CheckpointError) as e:

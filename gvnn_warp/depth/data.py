@@ -29,8 +29,9 @@ class Video:
     Attributes:
         images: (N, 3, H, W) float32 in [0, 1].
         depths: (N, 1, H, W) float32 metres (0 = none), or None when not read.
-        targets: (T,) int64 indices into ``images`` of the frames whose neighbours t - 1 and t + 1
-            are in the same folder (the triplets' middles).
+        targets: (T,) int64 indices into ``images`` of the frames t whose neighbours t - gap and
+            t + gap are in the same folder (the triplets' middles).
+        gap: frames between a triplet's target and its sources.
         folder: (N,) int64, the folder of each frame; ``roots``: the folders.
         K: (3, 3) float32 intrinsics at the network's size; ``dist``: (5,) float32 radial-tangential
             coefficients (k1, k2, p1, p2, k3) of the images, or None (a pinhole).
@@ -39,6 +40,7 @@ class Video:
     images: Tensor
     depths: Tensor | None
     targets: Tensor
+    gap: int
     folder: Tensor
     roots: list[Path]
     K: Tensor
@@ -49,17 +51,17 @@ class Video:
         return self.K if self.dist is None else RadTanCamera(self.K, self.dist)
 
     def triplets(self, idx: Tensor) -> tuple[Tensor, Tensor]:
-        """target (B, 3, H, W) and sources (B, 2, 3, H, W) (frames t - 1, t + 1) of triplets ``idx``."""
+        """target (B, 3, H, W) and sources (B, 2, 3, H, W) (frames t - gap, t + gap) of triplets ``idx``."""
         t = self.targets[idx]
-        return self.images[t], torch.stack([self.images[t - 1], self.images[t + 1]], 1)
+        return self.images[t], torch.stack([self.images[t - self.gap], self.images[t + self.gap]], 1)
 
 
-def read_video(roots, size: tuple[int, int], *, with_depth: bool = False, max_frames: int | None = None,
-               progress: bool = False) -> Video:
+def read_video(roots, size: tuple[int, int], *, gap: int = 1, with_depth: bool = False,
+               max_frames: int | None = None, progress: bool = False) -> Video:
     """Read the first ``max_frames`` frames of every folder of ``roots`` at ``size`` = (W, H)
-    (colour: antialiased bilinear, depth: nearest; the intrinsics scaled to match). The folders
-    must share one camera once resized; DatasetError otherwise, or for a folder of fewer than 3
-    frames."""
+    (colour: antialiased bilinear, depth: nearest; the intrinsics scaled to match), as triplets
+    (t - gap, t, t + gap). The folders must share one camera once resized; DatasetError
+    otherwise, or for a folder of fewer than 2 gap + 1 frames."""
     images, depths, targets, folder = [], [], [], []
     K = dist = None
     n = 0
@@ -68,8 +70,9 @@ def read_video(roots, size: tuple[int, int], *, with_depth: bool = False, max_fr
                desc="reading frames", unit="frame", disable=not progress, mininterval=0.5)
     for k, seq in enumerate(seqs):
         count = len(seq) if max_frames is None else min(len(seq), max_frames)
-        if count < 3:
-            raise DatasetError(f"{seq.root / 'rgb.txt'}: {count} frames; triplets need at least 3")
+        if count < 2 * gap + 1:
+            raise DatasetError(f"{seq.root / 'rgb.txt'}: {count} frames; triplets {gap} frames apart need at least "
+                               f"{2 * gap + 1}")
         K_seq = scale_intrinsics(seq.K, (seq.width, seq.height), size)
         d_seq = None if seq.dist is None else np.asarray(seq.dist, dtype=np.float64)
         if K is None:
@@ -85,13 +88,14 @@ def read_video(roots, size: tuple[int, int], *, with_depth: bool = False, max_fr
             images.append(img)
             depths.append(dep)
             bar.update()
-        targets.append(np.arange(n + 1, n + count - 1))
+        targets.append(np.arange(n + gap, n + count - gap))
         folder.append(np.full(count, k))
         n += count
     bar.close()
     return Video(
         images=torch.cat(images), depths=torch.cat(depths) if with_depth else None,
-        targets=torch.from_numpy(np.concatenate(targets)).long(), folder=torch.from_numpy(np.concatenate(folder)),
+        targets=torch.from_numpy(np.concatenate(targets)).long(), gap=gap,
+        folder=torch.from_numpy(np.concatenate(folder)),
         roots=[s.root for s in seqs], K=torch.from_numpy(K).float(),
         dist=None if dist is None else torch.from_numpy(dist).float(),
     )

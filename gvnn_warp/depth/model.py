@@ -86,7 +86,10 @@ class PoseNet(nn.Module):
         self.encoder = nn.Sequential(*(_block(c[i], c[i + 1], 2) for i in range(len(widths))))
         self.head = nn.Conv2d(widths[-1], 6, 1)
 
-    def forward(self, first: Tensor, second: Tensor) -> Tensor:
+    def xi(self, first: Tensor, second: Tensor) -> Tensor:
+        """(B, 6) [omega, t] of the motion (see the class docstring)."""
         x = self.encoder((torch.cat([first, second], 1) - MEAN) / STD)
-        xi = 0.01 * self.head(x).mean((2, 3))
-        return se3_to_matrix(xi)
+        return 0.01 * self.head(x).mean((2, 3))
+
+    def forward(self, first: Tensor, second: Tensor) -> Tensor:
+        return se3_to_matrix(self.xi(first, second))

@@ -25,9 +25,11 @@ from torch import Tensor
 from tqdm import tqdm
 
 from ..datasets.tum import read_tum
+from ..functional.lie import se3_to_matrix
 from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
 from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
 from ..vo.frontend import resize_frame
+from ..vo.pose import invert_pose
 from .data import Video, read_video
 from .model import DepthNet, PoseNet, disp_to_depth
 
@@ -44,6 +46,7 @@ class DepthConfig:
     out: str
     size: tuple[int, int] = (128, 96)  # (W, H), multiples of 32
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
+    gap: int = 1  # a triplet is frames (t - gap, t, t + gap)
     steps: int | None = None  # or stop after this many steps
     batch_size: int = 8
     lr: float = 2e-4
@@ -60,16 +63,21 @@ class DepthConfig:
 
 
 # settings a resumed run must share with its checkpoint
-_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames")
+_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames", "gap")
 
 
 def self_supervised_loss(depth_net: DepthNet, pose_net: PoseNet, target: Tensor, sources: Tensor, camera,
                          cfg: DepthConfig, return_maps: bool = False):
     """The objective of one batch (see the module docstring): a scalar, and with ``return_maps``
-    the full-resolution depth and the maps of ``reprojection_loss`` at scale 0."""
+    the full-resolution depth and the maps of ``reprojection_loss`` at scale 0. ``sources``: the
+    frames (t - gap, t + gap) of ``target`` t."""
     B, S = sources.shape[:2]
     H, W = target.shape[-2:]
-    poses = torch.stack([pose_net(target, sources[:, s]) for s in range(S)], 1)
+    # the pose network always sees a pair in time order (Monodepth2's): target -> a later source, and
+    # an earlier source -> target, inverted (sources are (t - gap, t + gap))
+    later = se3_to_matrix(pose_net.xi(target, sources[:, 1]))
+    earlier = se3_to_matrix(invert_pose(pose_net.xi(sources[:, 0], target)))
+    poses = torch.stack([earlier, later], 1)
     disps = depth_net(target)
     total = target.new_zeros(())
     maps = depth0 = None
@@ -145,7 +153,7 @@ def train(cfg: DepthConfig) -> dict:
     ck = _resume(cfg, ck_path)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    video = read_video(list(cfg.data), cfg.size, max_frames=cfg.max_frames, progress=cfg.progress)
+    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames, progress=cfg.progress)
     camera = video.camera()
     depth_net, pose_net = _networks(cfg)
     params = [*depth_net.parameters(), *pose_net.parameters()]

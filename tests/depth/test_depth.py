@@ -81,6 +81,18 @@ def test_video_triplets_stay_inside_one_folder(folders):
     assert v.camera() is v.K  # rendered frames: a pinhole
 
 
+def test_wider_triplets_and_cli_defaults(folders):
+    from gvnn_warp.cli import depth as cli_depth
+
+    v = read_video(folders, (64, 64), gap=2)
+    assert v.targets.tolist() == [2, 7]
+    target, sources = v.triplets(torch.tensor([1]))
+    torch.testing.assert_close(sources[0], v.images[[5, 9]])
+    with pytest.raises(ValueError, match="at least 7"):
+        read_video(folders, (64, 64), gap=3)
+    assert cli_depth._DEFAULT_GAP == DepthConfig.gap
+
+
 def _cfg(folders, out, **kw):
     return DepthConfig(data=tuple(map(str, folders)), out=str(out), size=(64, 64), steps=2, batch_size=2,
                        widths=(4, 8, 8, 8, 8), progress=False, **kw)

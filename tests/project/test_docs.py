@@ -48,7 +48,7 @@ def test_top_level_names_are_the_fronts():
 README = DOCS.parent / "README.md"
 # the pages whose Python blocks are run and whose shell blocks are checked: the README and the guides
 # of docs/ (datasets.md and vo_checkpoint.md show calls on files the reader has, api.md is generated)
-PAGES = (README, *(DOCS / f"{name}.md" for name in ("install", "layers", "cameras", "odometry", "vo", "cli",
+PAGES = (README, *(DOCS / f"{name}.md" for name in ("install", "layers", "cameras", "odometry", "vo", "depth", "cli",
                                                      "performance", "architecture")))
 
 
@@ -78,11 +78,14 @@ def test_readme_python_blocks_run():
 
 
 def _commands(code: str) -> list[list[str]]:
+    import re
     import shlex
 
     out = []
     for line in code.splitlines():
         line = line.split(" #")[0].strip()
+        if loop := re.fullmatch(r"for (\w+) in [^;]+; do (.+); done", line):  # the loop's command, var = 1
+            line = loop.group(2).replace("$" + loop.group(1), "1")
         if line and not line.startswith("#"):
             out += [shlex.split(part) for part in line.split("&&")]
     return out
@@ -132,6 +135,10 @@ def test_readme_shell_commands_are_valid():
                 from benchmarks.run import build_parser
 
                 build_parser().parse_args(cmd[3:])
+            elif prog == "python" and cmd[1:3] == ["-m", "benchmarks.reprojection"]:
+                from benchmarks.reprojection import build_parser as reprojection_parser
+
+                reprojection_parser().parse_args(cmd[3:])
             elif prog == "pip" and cmd[1] == "install":
                 for arg in cmd[2:]:
                     if arg.startswith("torch=="):
