@@ -4,7 +4,8 @@ evaluate the depth.
 Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G]
-                          [--steps N] [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
+                          [--pose direct|network] [--steps N] [--batch-size B] [--lr LR] [--seed S]
+                          [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
@@ -39,6 +40,7 @@ __all__ = ["add_parser", "run_eval", "run_train"]
 REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 _SIZE = image_size(64, 1024)
 _DEFAULT_GAP = 1  # DepthConfig's (not imported here: that would import torch for --help)
+_POSES = ("direct", "network")  # gvnn_warp.depth.train.POSES, the default first (a test checks they agree)
 
 
 def _multiple_of_32(text: str) -> tuple[int, int]:
@@ -63,6 +65,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--gap", type=bounded_int(1, 100), default=None, metavar="G",
                    help="a triplet is frames (t - G, t, t + G): a wider baseline, more parallax (default: "
                         f"{_DEFAULT_GAP})")
+    t.add_argument("--pose", choices=_POSES, default=_POSES[0],
+                   help="where each triplet's poses come from: direct (the direct aligner on the predicted depth, "
+                        "no gradient) or network (a pose network trained with the depth network, Monodepth2's)")
     t.add_argument("--steps", type=positive_int, default=None, metavar="N", help="or stop after N steps")
     t.add_argument("--batch-size", type=bounded_int(1, 1024), default=8, metavar="B", help="triplets per step "
                    "(default: 8)")
@@ -94,8 +99,8 @@ def run_train(args: argparse.Namespace) -> int:
 
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
-        gap=args.gap or _DEFAULT_GAP, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-        resume=args.resume, progress=not args.no_progress,
+        gap=args.gap or _DEFAULT_GAP, pose=args.pose, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+        seed=args.seed, resume=args.resume, progress=not args.no_progress,
     )
     try:
         m = train(cfg)

@@ -27,13 +27,15 @@ from tqdm import tqdm
 from ..datasets.tum import read_tum
 from ..functional.lie import se3_to_matrix
 from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
+from ..odometry.aligner import DirectAligner
 from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
 from .data import Video, read_video
 from .model import DepthNet, PoseNet, disp_to_depth
 
-__all__ = ["CHECKPOINT_FORMAT", "DepthConfig", "load_checkpoint", "load_depth_net", "self_supervised_loss", "train"]
+__all__ = ["CHECKPOINT_FORMAT", "POSES", "DepthConfig", "direct_poses", "load_checkpoint", "load_depth_net",
+           "network_poses", "self_supervised_loss", "train"]
 
 CHECKPOINT_FORMAT = "gvnn_warp.depth/1"
 
@@ -47,6 +49,7 @@ class DepthConfig:
     size: tuple[int, int] = (128, 96)  # (W, H), multiples of 32
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
     gap: int = 1  # a triplet is frames (t - gap, t, t + gap)
+    pose: str = "direct"  # "direct": DirectAligner on the predicted depth; "network": PoseNet (Monodepth2)
     steps: int | None = None  # or stop after this many steps
     batch_size: int = 8
     lr: float = 2e-4
@@ -63,22 +66,48 @@ class DepthConfig:
 
 
 # settings a resumed run must share with its checkpoint
-_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames", "gap")
+_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames", "gap", "pose")
 
 
-def self_supervised_loss(depth_net: DepthNet, pose_net: PoseNet, target: Tensor, sources: Tensor, camera,
-                         cfg: DepthConfig, return_maps: bool = False):
+POSES = ("direct", "network")
+
+
+def network_poses(pose_net: PoseNet):
+    """Poses from the pose network, which always sees a pair in time order (Monodepth2's): target ->
+    the later source, and the earlier source -> target, inverted. Differentiable."""
+
+    def poses(target: Tensor, sources: Tensor, depth: Tensor) -> Tensor:
+        later = se3_to_matrix(pose_net.xi(target, sources[:, 1]))
+        earlier = se3_to_matrix(invert_pose(pose_net.xi(sources[:, 0], target)))
+        return torch.stack([earlier, later], 1)
+
+    return poses
+
+
+def direct_poses(aligner: DirectAligner):
+    """Poses from direct alignment of each source to the target through the predicted depth
+    (``DirectAligner``, coarse to fine, from the identity): no labels, no gradient. The rotation
+    needs no depth; the translation follows the depth's scale, which it so keeps consistent."""
+
+    def poses(target: Tensor, sources: Tensor, depth: Tensor) -> Tensor:
+        out = []
+        for s in range(sources.shape[1]):
+            T, _ = aligner.align(target, depth, sources[:, s])
+            out.append(torch.as_tensor(T)[:, :3].to(target.dtype))
+        return torch.stack(out, 1)
+
+    return poses
+
+
+def self_supervised_loss(depth_net: DepthNet, poser, target: Tensor, sources: Tensor, camera, cfg: DepthConfig,
+                         return_maps: bool = False):
     """The objective of one batch (see the module docstring): a scalar, and with ``return_maps``
     the full-resolution depth and the maps of ``reprojection_loss`` at scale 0. ``sources``: the
-    frames (t - gap, t + gap) of ``target`` t."""
-    B, S = sources.shape[:2]
+    frames (t - gap, t + gap) of ``target`` t; ``poser(target, sources, depth)``: their poses
+    (:func:`network_poses`, :func:`direct_poses`), given the predicted depth (detached)."""
     H, W = target.shape[-2:]
-    # the pose network always sees a pair in time order (Monodepth2's): target -> a later source, and
-    # an earlier source -> target, inverted (sources are (t - gap, t + gap))
-    later = se3_to_matrix(pose_net.xi(target, sources[:, 1]))
-    earlier = se3_to_matrix(invert_pose(pose_net.xi(sources[:, 0], target)))
-    poses = torch.stack([earlier, later], 1)
     disps = depth_net(target)
+    poses = poser(target, sources, disp_to_depth(disps[0], cfg.min_depth, cfg.max_depth).detach())
     total = target.new_zeros(())
     maps = depth0 = None
     for scale, disp in enumerate(disps):
@@ -156,7 +185,13 @@ def train(cfg: DepthConfig) -> dict:
     video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames, progress=cfg.progress)
     camera = video.camera()
     depth_net, pose_net = _networks(cfg)
-    params = [*depth_net.parameters(), *pose_net.parameters()]
+    if cfg.pose == "network":
+        poser = network_poses(pose_net)
+        params = [*depth_net.parameters(), *pose_net.parameters()]
+    else:
+        poser = direct_poses(DirectAligner(video.camera() if video.dist is not None else video.K.double().numpy(),
+                                           levels=3))
+        params = list(depth_net.parameters())
     opt = torch.optim.Adam(params, lr=cfg.lr)
     step, history, elapsed = 0, [], 0.0
     if ck is not None:
@@ -189,7 +224,7 @@ def train(cfg: DepthConfig) -> dict:
                 break
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
             target, sources = video.triplets(idx)
-            loss = self_supervised_loss(depth_net, pose_net, target, sources, camera, cfg)
+            loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -214,7 +249,7 @@ def train(cfg: DepthConfig) -> dict:
                "size": list(cfg.size), "config": _config_dict(cfg)}
     atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
     if not interrupted:
-        _training_figure(depth_net, pose_net, video, camera, cfg, out / "training.png")
+        _training_figure(depth_net, poser, video, camera, cfg, out / "training.png")
     return metrics
 
 
@@ -228,13 +263,12 @@ def _first_depth(video: Video, size: tuple[int, int]) -> Tensor | None:
     return dep if (dep > 0).any() else None
 
 
-def _training_figure(depth_net, pose_net, video: Video, camera, cfg: DepthConfig, path: Path) -> None:
+def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, path: Path) -> None:
     from .plots import depth_panel  # (matplotlib is slow to import: only for the figure)
 
     depth_net.eval()
-    pose_net.eval()
     with torch.no_grad():
         target, sources = video.triplets(torch.zeros(1, dtype=torch.long))
-        _, depth, maps = self_supervised_loss(depth_net, pose_net, target, sources, camera, cfg, return_maps=True)
+        _, depth, maps = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, return_maps=True)
     depth_panel(target[0], depth[0, 0], _first_depth(video, cfg.size), maps["automask"][0, 0], path,
                 title=f"depth after training ({video.roots[0].name}, frame 1)")

@@ -12,7 +12,7 @@ from gvnn_warp.cli import main
 from gvnn_warp.depth.data import read_video
 from gvnn_warp.depth.evaluate import depth_metrics, summarise
 from gvnn_warp.depth.model import DepthNet, PoseNet, disp_to_depth
-from gvnn_warp.depth.train import DepthConfig, load_checkpoint, train
+from gvnn_warp.depth.train import POSES, DepthConfig, load_checkpoint, train
 
 
 def test_metrics_are_scale_free_and_match_closed_forms():
@@ -91,11 +91,18 @@ def test_wider_triplets_and_cli_defaults(folders):
     with pytest.raises(ValueError, match="at least 7"):
         read_video(folders, (64, 64), gap=3)
     assert cli_depth._DEFAULT_GAP == DepthConfig.gap
+    assert cli_depth._POSES == POSES and POSES[0] == DepthConfig.pose
 
 
 def _cfg(folders, out, **kw):
     return DepthConfig(data=tuple(map(str, folders)), out=str(out), size=(64, 64), steps=2, batch_size=2,
                        widths=(4, 8, 8, 8, 8), progress=False, **kw)
+
+
+@pytest.mark.parametrize("pose", POSES)
+def test_both_pose_sources_train(folders, tmp_path, pose):
+    m = train(DepthConfig(**{**_cfg(folders, tmp_path / pose).__dict__, "steps": 1, "pose": pose}))
+    assert m["steps"] == 1 and math.isfinite(m["train_loss"][0])
 
 
 def test_train_resume_and_eval(folders, tmp_path):
