@@ -5,7 +5,7 @@ Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G]
                           [--pose direct|network] [--steps N] [--batch-size B] [--lr LR] [--seed S]
-                          [--resume] [--no-progress]
+                          [--supervised] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
@@ -39,7 +39,7 @@ __all__ = ["add_parser", "run_eval", "run_train"]
 
 REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 _SIZE = image_size(64, 1024)
-_DEFAULT_GAP = 1  # DepthConfig's (not imported here: that would import torch for --help)
+_DEFAULT_GAP = 3  # DepthConfig's (not imported here: that would import torch for --help)
 _POSES = ("direct", "network")  # gvnn_warp.depth.train.POSES, the default first (a test checks they agree)
 
 
@@ -68,10 +68,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--pose", choices=_POSES, default=_POSES[0],
                    help="where each triplet's poses come from: direct (the direct aligner on the predicted depth, "
                         "no gradient) or network (a pose network trained with the depth network, Monodepth2's)")
+    t.add_argument("--supervised", action="store_true",
+                   help="train on the folders' depth files instead (scale-invariant log loss): the upper bound "
+                        "to compare the self-supervised network with")
     t.add_argument("--steps", type=positive_int, default=None, metavar="N", help="or stop after N steps")
     t.add_argument("--batch-size", type=bounded_int(1, 1024), default=8, metavar="B", help="triplets per step "
                    "(default: 8)")
-    t.add_argument("--lr", type=positive_float, default=2e-4, metavar="LR", help="Adam's step size (default: 2e-4)")
+    t.add_argument("--lr", type=positive_float, default=5e-4, metavar="LR", help="Adam's step size (default: 5e-4)")
     t.add_argument("--seed", type=seed, default=0, metavar="S", help="seed (default: 0)")
     t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -100,7 +103,7 @@ def run_train(args: argparse.Namespace) -> int:
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
         gap=args.gap or _DEFAULT_GAP, pose=args.pose, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-        seed=args.seed, resume=args.resume, progress=not args.no_progress,
+        seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )
     try:
         m = train(cfg)

@@ -1,10 +1,12 @@
-"""Training the depth and pose networks on video through the fused self-supervised objective.
+"""Training the depth network on video through the fused self-supervised objective.
 
-Per step, a batch of triplets (t - 1, t, t + 1): the depth network's four disparities of frame t,
-each upsampled to full resolution and made depth (``disp_to_depth``), and the pose network's motion
-of t into each neighbour, give :func:`gvnn_warp.reprojection_loss` at every scale, plus
-``smoothness`` x :func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the
-mean over the scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``).
+Per step, a batch of triplets (t - gap, t, t + gap): the depth network's four disparities of frame
+t, each upsampled to full resolution and made depth (``disp_to_depth``; divided by its mean per
+frame with ``normalize``), and the motion of t into each neighbour (``pose``: "direct", the direct
+aligner through the predicted depth; "network", a pose network trained with it) give
+:func:`gvnn_warp.reprojection_loss` at every scale, plus ``smoothness`` x
+:func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the mean over the
+scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``).
 ``OUT/checkpoint.pt`` is written atomically every ``checkpoint_seconds``, on Ctrl-C / SIGTERM and at
 the end (loadable with ``torch.load(..., weights_only=True)``); ``resume`` continues from it.
 """
@@ -48,17 +50,24 @@ class DepthConfig:
     out: str
     size: tuple[int, int] = (128, 96)  # (W, H), multiples of 32
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
-    gap: int = 1  # a triplet is frames (t - gap, t, t + gap)
+    gap: int = 3  # a triplet is frames (t - gap, t, t + gap)
     pose: str = "direct"  # "direct": DirectAligner on the predicted depth; "network": PoseNet (Monodepth2)
+    # the warp uses each item's depth over its mean (Wang et al. 2018, who pair a depth network with
+    # direct alignment): monocular depth has no scale, and without this the depth drifts to the far
+    # end of its range, where parallax, and so the depth's gradient, vanishes
+    normalize: bool = True
+    # train on the folders' true depth instead (a scale-invariant log loss): the supervised upper
+    # bound to compare the self-supervised network with, not a way to learn without labels
+    supervised: bool = False
     steps: int | None = None  # or stop after this many steps
     batch_size: int = 8
-    lr: float = 2e-4
+    lr: float = 5e-4
     seed: int = 0
     min_depth: float = 0.1  # metres: the networks' depth range
     max_depth: float = 10.0
     smoothness: float = 1e-3
     alpha: float = 0.85
-    widths: tuple[int, ...] = (16, 32, 64, 128, 256)
+    widths: tuple[int, ...] = (8, 16, 32, 64, 128)  # half of (16, ..., 256): 0.30 s a step, not 0.53
     max_frames: int | None = None  # per folder
     checkpoint_seconds: float = 60.0
     resume: bool = False
@@ -66,7 +75,8 @@ class DepthConfig:
 
 
 # settings a resumed run must share with its checkpoint
-_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames", "gap", "pose")
+_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames", "gap", "pose", "normalize",
+                   "supervised")
 
 
 POSES = ("direct", "network")
@@ -107,12 +117,17 @@ def self_supervised_loss(depth_net: DepthNet, poser, target: Tensor, sources: Te
     (:func:`network_poses`, :func:`direct_poses`), given the predicted depth (detached)."""
     H, W = target.shape[-2:]
     disps = depth_net(target)
-    poses = poser(target, sources, disp_to_depth(disps[0], cfg.min_depth, cfg.max_depth).detach())
-    total = target.new_zeros(())
-    maps = depth0 = None
+    depths = []
     for scale, disp in enumerate(disps):
         up = disp if scale == 0 else F.interpolate(disp, size=(H, W), mode="bilinear", align_corners=False)
         depth = disp_to_depth(up, cfg.min_depth, cfg.max_depth)
+        if cfg.normalize:  # each item's depth divided by its mean (differentiably): see DepthConfig.normalize
+            depth = depth / depth.mean((1, 2, 3), keepdim=True)
+        depths.append(depth)
+    poses = poser(target, sources, depths[0].detach())
+    total = target.new_zeros(())
+    maps = depth0 = None
+    for scale, (disp, depth) in enumerate(zip(disps, depths)):
         if scale == 0 and return_maps:
             rep, maps = reprojection_loss(target, sources, depth, poses, camera, alpha=cfg.alpha, return_maps=True)
             depth0 = depth.detach()
@@ -124,6 +139,23 @@ def self_supervised_loss(depth_net: DepthNet, poser, target: Tensor, sources: Te
         total = total + rep.mean() + cfg.smoothness * smooth.mean() / 2**scale
     total = total / len(disps)
     return (total, depth0, maps) if return_maps else total
+
+
+def supervised_loss(depth_net: DepthNet, target: Tensor, true_depth: Tensor, cfg: DepthConfig) -> Tensor:
+    """The scale-invariant log error (Eigen et al. 2014, lambda = 1: the monocular scale is free) of
+    every scale's depth against the true depth (B, 1, H, W), over its valid pixels."""
+    H, W = target.shape[-2:]
+    valid = (true_depth > cfg.min_depth) & (true_depth < cfg.max_depth)
+    log_true = torch.where(valid, true_depth, torch.ones_like(true_depth)).log()
+    n = valid.sum((1, 2, 3)).clamp(min=1)
+    total = target.new_zeros(())
+    disps = depth_net(target)
+    for disp in disps:
+        up = F.interpolate(disp, size=(H, W), mode="bilinear", align_corners=False) if disp.shape[-1] != W else disp
+        diff = torch.where(valid, disp_to_depth(up, cfg.min_depth, cfg.max_depth).log() - log_true, 0)
+        mean = diff.sum((1, 2, 3)) / n
+        total = total + ((diff - mean.view(-1, 1, 1, 1)).abs() * valid).sum((1, 2, 3)).div(n).mean()
+    return total / len(disps)
 
 
 def _networks(cfg: DepthConfig) -> tuple[DepthNet, PoseNet]:
@@ -182,7 +214,8 @@ def train(cfg: DepthConfig) -> dict:
     ck = _resume(cfg, ck_path)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames, progress=cfg.progress)
+    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames, progress=cfg.progress,
+                       with_depth=cfg.supervised)
     camera = video.camera()
     depth_net, pose_net = _networks(cfg)
     if cfg.pose == "network":
@@ -224,7 +257,10 @@ def train(cfg: DepthConfig) -> dict:
                 break
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
             target, sources = video.triplets(idx)
-            loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg)
+            if cfg.supervised:
+                loss = supervised_loss(depth_net, target, video.depths[video.targets[idx]], cfg)
+            else:
+                loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -92,16 +92,19 @@ def test_wider_triplets_and_cli_defaults(folders):
         read_video(folders, (64, 64), gap=3)
     assert cli_depth._DEFAULT_GAP == DepthConfig.gap
     assert cli_depth._POSES == POSES and POSES[0] == DepthConfig.pose
+    parsed = cli_depth.add_parser(__import__("argparse").ArgumentParser().add_subparsers()).parse_args(
+        ["train", "--data", "x", "--out", "y"])
+    assert parsed.lr == DepthConfig.lr and parsed.minutes == DepthConfig.minutes and parsed.size == DepthConfig.size
 
 
 def _cfg(folders, out, **kw):
-    return DepthConfig(data=tuple(map(str, folders)), out=str(out), size=(64, 64), steps=2, batch_size=2,
+    return DepthConfig(data=tuple(map(str, folders)), out=str(out), size=(64, 64), steps=2, batch_size=2, gap=1,
                        widths=(4, 8, 8, 8, 8), progress=False, **kw)
 
 
-@pytest.mark.parametrize("pose", POSES)
-def test_both_pose_sources_train(folders, tmp_path, pose):
-    m = train(DepthConfig(**{**_cfg(folders, tmp_path / pose).__dict__, "steps": 1, "pose": pose}))
+@pytest.mark.parametrize("options", [{"pose": p} for p in POSES] + [{"supervised": True}])
+def test_every_pose_source_and_the_supervised_bound_train(folders, tmp_path, options):
+    m = train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "steps": 1, **options}))
     assert m["steps"] == 1 and math.isfinite(m["train_loss"][0])
 
 
