@@ -35,7 +35,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from .args import bounded_int, description, image_size, output_dir, positive_float, positive_int, seed  # noqa: E402
 from .runner import command_main  # noqa: E402
 
-__all__ = ["add_parser", "run_eval", "run_train"]
+__all__ = ["add_parser", "run", "run_eval", "run_train"]
 
 REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 _SIZE = image_size(64, 1024)
@@ -78,15 +78,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--seed", type=seed, default=0, metavar="S", help="seed (default: 0)")
     t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
-    t.set_defaults(func=run_train)
+    t.set_defaults(func=run)
     e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files")
     e.add_argument("--checkpoint", type=Path, required=True, metavar="CKPT", help="OUT/checkpoint.pt of train")
     e.add_argument("--data", type=Path, required=True, metavar="DIR", help="a TUM-format folder")
     e.add_argument("--out", type=output_dir, required=True, metavar="OUT", help="output folder (metrics.json, "
                    "depth.png)")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
-    e.set_defaults(func=run_eval)
+    e.set_defaults(func=run)
     return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """``gvnn-warp depth train|eval``: the subcommand's run."""
+    return run_train(args) if args.depth_command == "train" else run_eval(args)
 
 
 def _data_error(e: Exception) -> int:

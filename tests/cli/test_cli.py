@@ -236,10 +236,10 @@ def test_help_is_plain_text_with_defaults_and_descriptions():
             assert "default" in help_line, (name, action.dest, help_line)
 
 
-def test_readme_torchrun_line_is_the_help_one():
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+def test_docs_torchrun_line_is_the_help_one():
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "vo.md").read_text()
     line = "torchrun --standalone --nproc_per_node=2 -m gvnn_warp.cli.vo"
-    assert line in readme
+    assert line in guide
     _, commands = _subparsers()
     assert line in commands["vo"].format_help().replace("\n", " ")
 
@@ -255,7 +255,8 @@ def test_vo_loss_choices_match_the_losses():
 
 
 _VALID = {"align": ["--out", "{out}"], "flow": ["--out", "{out}"], "vo": ["--motion", "so3", "--out", "{out}"],
-          "render": ["--out", "{out}"], "track": ["{out}/sequence", "--out", "{out}"]}
+          "render": ["--out", "{out}"], "track": ["{out}/sequence", "--out", "{out}"],
+          "depth": ["train", "--data", "{out}/sequence", "--out", "{out}"]}
 
 
 def _requires(command):

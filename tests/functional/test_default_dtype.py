@@ -111,6 +111,13 @@ SCRIPT = textwrap.dedent(
             "AffineGridGenerator": (lambda th: G.AffineGridGenerator()(th, (B, C, H, W)), r(B, 2, 3)),
             "RobustLoss": (G.RobustLoss("huber"), r(B, 1, H, W)),
             "SmoothnessLoss": (G.SmoothnessLoss(), r(B, 2, H, W)),
+            # the self-supervised objective (2 sources)
+            "reprojection_loss": (G.reprojection_loss, image, torch.stack([image, image.flip(-1)], 1), depth,
+                                  torch.stack([pose, pose], 1), K),
+            "edge_aware_smoothness": (G.edge_aware_smoothness, r(B, 1, H, W, lo=0.1, hi=1), image),
+            "ReprojectionLoss": (G.ReprojectionLoss(), image, torch.stack([image, image.flip(-1)], 1), depth,
+                                 torch.stack([pose, pose], 1), K),
+            "EdgeAwareSmoothness": (G.EdgeAwareSmoothness(), r(B, 1, H, W, lo=0.1, hi=1), image),
         }
         for name, (fn, *args) in cases.items():
             check(name, fn, *args, dtype=dt)
