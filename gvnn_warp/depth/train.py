@@ -59,6 +59,7 @@ class DepthConfig:
     # train on the folders' true depth instead (a scale-invariant log loss): the supervised upper
     # bound to compare the self-supervised network with, not a way to learn without labels
     supervised: bool = False
+    flip: bool = True  # mirror half the triplets (pinhole cameras with a centred principal point only)
     steps: int | None = None  # or stop after this many steps
     batch_size: int = 8
     lr: float = 5e-4
@@ -217,6 +218,8 @@ def train(cfg: DepthConfig) -> dict:
     video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames, progress=cfg.progress,
                        with_depth=cfg.supervised)
     camera = video.camera()
+    # a mirrored frame is a frame of the same camera only if its principal point is centred
+    flip = cfg.flip and video.dist is None and abs(float(video.K[0, 2]) - (cfg.size[0] - 1) / 2) < 1e-3
     depth_net, pose_net = _networks(cfg)
     if cfg.pose == "network":
         poser = network_poses(pose_net)
@@ -257,6 +260,10 @@ def train(cfg: DepthConfig) -> dict:
                 break
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
             target, sources = video.triplets(idx)
+            if flip:  # half the triplets mirrored left-right (Monodepth2's augmentation)
+                mirror = (torch.rand(cfg.batch_size) < 0.5).view(-1, 1, 1, 1)
+                target = torch.where(mirror, target.flip(-1), target)
+                sources = torch.where(mirror.unsqueeze(1), sources.flip(-1), sources)
             if cfg.supervised:
                 loss = supervised_loss(depth_net, target, video.depths[video.targets[idx]], cfg)
             else:

@@ -102,7 +102,7 @@ def _cfg(folders, out, **kw):
                        widths=(4, 8, 8, 8, 8), progress=False, **kw)
 
 
-@pytest.mark.parametrize("options", [{"pose": p} for p in POSES] + [{"supervised": True}])
+@pytest.mark.parametrize("options", [{"pose": p} for p in POSES] + [{"supervised": True}, {"flip": True}])
 def test_every_pose_source_and_the_supervised_bound_train(folders, tmp_path, options):
     m = train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "steps": 1, **options}))
     assert m["steps"] == 1 and math.isfinite(m["train_loss"][0])

@@ -147,6 +147,9 @@ def test_camera_objects_and_lens_models():
     # batched K (one per item) equals the shared one
     torch.testing.assert_close(G.reprojection_loss(target, sources, depth, poses, K.expand(2, 3, 3)), plain)
     dist = torch.tensor([0.05, -0.02, 0.001, 0.002, 0.0], dtype=K.dtype, requires_grad=True)
+    shared = G.reprojection_loss(target, sources, depth, poses, RadTanCamera(K, dist))
+    batched = RadTanCamera(K.expand(2, 3, 3), dist.expand(2, 5))  # one camera per item, repeated per source
+    torch.testing.assert_close(G.reprojection_loss(target, sources, depth, poses, batched), shared)
     k = K.clone().requires_grad_()
     loss = G.reprojection_loss(target, sources, depth, poses, RadTanCamera(k, dist))
     assert not torch.allclose(loss, plain)
