@@ -63,7 +63,7 @@ def _reprojection_choice(
     b = r // H
     y = r - b * H
     row = r * W  # the row's first pixel, flat (b, y, x)
-    r0, r1, r2, x0, x1, x2 = ssim.window(0, y, H, W)
+    r0, r1, r2, _, _, _ = ssim.window(0, y, H, W)  # (the rows; the columns slide in row_errors)
     a = best.dtype(alpha)
     t0 = b * C * hw
     for x in range(W):
@@ -181,7 +181,8 @@ def _reprojection_error_copy(
     weight: wp.array(dtype=Any),
 ):
     # The forward of reprojection_error from what the choice kernel computed already (its arguments;
-    # the same values up to the order of the window sums); the backward is reprojection_error's.
+    # bitwise the same values: ssim.window_sums adds the columns as ssim.row_errors slides them); the
+    # backward is reprojection_error's.
     i = wp.tid() + offset
     pe[i] = best[i]
     weight[i] = wp.where(int(choice[i]) >= 0, best.dtype(1.0), best.dtype(0.0))

@@ -172,6 +172,20 @@ def _channel_error(T):
 
 
 @wp.func
+def column(target: wp.array(dtype=Any), cand: wp.array(dtype=Any), t: int, c: int, r0: int, r1: int, r2: int):
+    """Sums over the window's three rows of one column: (x, y, x^2, y^2, x y) for target element
+    ``t`` and candidate element ``c`` (the column's offsets in their planes) plus the row offsets."""
+    a0 = target[t + r0]
+    a1 = target[t + r1]
+    a2 = target[t + r2]
+    b0 = cand[c + r0]
+    b1 = cand[c + r1]
+    b2 = cand[c + r2]
+    return (a0 + a1 + a2, b0 + b1 + b2, a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2,
+            a0 * b0 + a1 * b1 + a2 * b2)
+
+
+@wp.func
 def window_sums(
     target: wp.array(dtype=Any),
     cand: wp.array(dtype=Any),
@@ -185,67 +199,15 @@ def window_sums(
     x2: int,
 ):
     """Sums of (x, y, x^2, y^2, x y) over the 3x3 window (rows r0..r2, columns x0..x2) of the
-    target plane at ``t0`` and the candidate plane at ``c0``."""
-    z = target[t0] * type(target[t0])(0.0)
-    sx = z
-    sy = z
-    sxx = z
-    syy = z
-    sxy = z
-    for dy in range(3):
-        row = tap(dy, r0, r1, r2)
-        for dx in range(3):
-            k = row + tap(dx, x0, x1, x2)
-            a = target[t0 + k]
-            b = cand[c0 + k]
-            sx += a
-            sy += b
-            sxx += a * a
-            syy += b * b
-            sxy += a * b
-    return sx, sy, sxx, syy, sxy
+    target plane at ``t0`` and the candidate plane at ``c0``: the three columns' sums
+    (:func:`column`), added as :func:`row_errors` adds them."""
+    lx, ly, lxx, lyy, lxy = column(target, cand, t0 + x0, c0 + x0, r0, r1, r2)
+    mx, my, mxx, myy, mxy = column(target, cand, t0 + x1, c0 + x1, r0, r1, r2)
+    rx, ry, rxx, ryy, rxy = column(target, cand, t0 + x2, c0 + x2, r0, r1, r2)
+    return lx + mx + rx, ly + my + ry, lxx + mxx + rxx, lyy + myy + ryy, lxy + mxy + rxy
 
 
 channel_error = float_overloads(_channel_error)
-
-
-@wp.func
-def candidate_error(
-    target: wp.array(dtype=Any),
-    cand: wp.array(dtype=Any),
-    t0: int,
-    c0: int,
-    C: int,
-    hw: int,
-    r0: int,
-    r1: int,
-    r2: int,
-    x0: int,
-    x1: int,
-    x2: int,
-    alpha: Any,
-):
-    """pe of one candidate at a pixel (mean over the C channels, planes ``hw`` apart); forward
-    only (a dynamic loop carrying a local sum: the differentiated kernel accumulates into its
-    output instead)."""
-    e = type(alpha)(0.0)
-    for c in range(C):
-        e += channel_error(target, cand, t0 + c * hw, c0 + c * hw, r0, r1, r2, x0, x1, x2, alpha)
-    return e / type(alpha)(C)
-
-
-@wp.func
-def column(target: wp.array(dtype=Any), cand: wp.array(dtype=Any), t: int, c: int, r0: int, r1: int, r2: int):
-    """Sums over the window's three rows of one column: (x, y, x^2, y^2, x y) for target element
-    ``t`` and candidate element ``c`` (the column's offsets in their planes) plus the row offsets."""
-    a0 = target[t + r0]
-    a1 = target[t + r1]
-    a2 = target[t + r2]
-    b0 = cand[c + r0]
-    b1 = cand[c + r1]
-    b2 = cand[c + r2]
-    return (a0 + a1 + a2, b0 + b1 + b2, a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2,
-            a0 * b0 + a1 * b1 + a2 * b2)
 
 
 @wp.func

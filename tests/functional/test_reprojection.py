@@ -157,6 +157,22 @@ def test_camera_objects_and_lens_models():
     assert torch.isfinite(dist.grad).all() and dist.grad.abs().sum() > 0 and k.grad.abs().sum() > 0
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_chosen_error_recomputed_equals_the_choice_pass(dtype):
+    """reprojection_loss takes each pixel's error from the row pass that chose it; the kernel whose
+    adjoint gives the gradients recomputes it per pixel: bitwise the same value."""
+    from gvnn_warp.ops import reprojection as R
+
+    target, sources, depth, poses, K = frames(dtype=dtype, seed=14)
+    B, S, C, H, W = sources.shape
+    warped = sources.flip(-1).contiguous()  # any images
+    args = (target, warped, sources, target.new_empty(0), depth[:, 0].contiguous(), poses.reshape(B * S, 3, 4),
+            K.expand(B * S, 3, 3).contiguous(), S, C, H, W, 0.85, 1, 1e-3, 0)
+    choice, best, _ = R.reprojection_choice(*args)
+    pe, _ = R.reprojection_error(target, warped, sources, choice, best, S, C, H, W, 0.85)
+    assert torch.equal(pe, best) and (choice >= S).any() and (choice < S).any()
+
+
 def test_deterministic_for_any_thread_count():
     target, sources, depth, poses, K = frames(B=2, H=64, W=96, seed=10, dtype=torch.float32)
     results = []
