@@ -78,8 +78,8 @@ def evaluate(checkpoint: str | Path, data: str | Path, out: str | Path, *, progr
                       disable=not progress, mininterval=0.5):
             preds.append(net.depth(video.images[i:i + batch_size]))
     pred = torch.cat(preds)
-    per_image = [m for m in (depth_metrics(pred[i], video.depths[i], c["min_depth"], c["max_depth"])
-                             for i in range(pred.shape[0])) if m is not None]
+    every = [depth_metrics(pred[i], video.depths[i], c["min_depth"], c["max_depth"]) for i in range(pred.shape[0])]
+    per_image = [m for m in every if m is not None]
     metrics = summarise(per_image) if per_image else {k: None for k in (*METRICS, "median_scale")}
     metrics.update(frames=int(pred.shape[0]), checkpoint=str(checkpoint), data=str(data), size=list(size),
                    train_steps=ck["step"])
@@ -91,9 +91,8 @@ def evaluate(checkpoint: str | Path, data: str | Path, out: str | Path, *, progr
     i = pred.shape[0] // 2
     true = video.depths[i, 0]
     err = None
-    if (true > 0).any() and per_image:
-        scale = float(true[true > 0].median() / pred[i, 0][true > 0].median())
-        err = torch.where(true > 0, (pred[i, 0] * scale - true).abs() / true.clamp(min=1e-6), torch.nan)
+    if every[i] is not None:  # the error of the prediction scaled as the metrics scaled it
+        err = torch.where(true > 0, (pred[i, 0] * every[i]["scale"] - true).abs() / true.clamp(min=1e-6), torch.nan)
     depth_panel(video.images[i], pred[i, 0], true if (true > 0).any() else None, err, out / "depth.png",
                 title=f"{Path(data).name}, frame {i}", last_title="|error| / true depth (median-scaled)",
                 last_cmap="viridis")

@@ -296,11 +296,11 @@ def train(cfg: DepthConfig) -> dict:
     return metrics
 
 
-def _first_depth(video: Video, size: tuple[int, int]) -> Tensor | None:
-    """The true depth (1, 1, H, W) of the first triplet's target, if its folder has depth files."""
+def _true_depth(video: Video, frame: int, size: tuple[int, int]) -> Tensor | None:
+    """The true depth (1, 1, H, W) of frame ``frame`` of the first folder, if it has depth files."""
     seq = read_tum(video.roots[0])
     try:
-        _, dep = resize_frame(seq.image(1), seq.depth(1), size)
+        _, dep = resize_frame(seq.image(frame), seq.depth(frame), size)
     except (OSError, ValueError):
         return None
     return dep if (dep > 0).any() else None
@@ -313,5 +313,6 @@ def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, p
     with torch.no_grad():
         target, sources = video.triplets(torch.zeros(1, dtype=torch.long))
         _, depth, maps = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, return_maps=True)
-    depth_panel(target[0], depth[0, 0], _first_depth(video, cfg.size), maps["automask"][0, 0], path,
-                title=f"depth after training ({video.roots[0].name}, frame 1)")
+    frame = int(video.targets[0])  # the first triplet's target: frame `gap` of the first folder
+    depth_panel(target[0], depth[0, 0], _true_depth(video, frame, cfg.size), maps["automask"][0, 0], path,
+                title=f"depth after training ({video.roots[0].name}, frame {frame})")
