@@ -3,6 +3,7 @@
 Usage::
 
     gvnn-warp track DIR --out OUT [--overwrite] [--method direct|vo|vo+direct [--checkpoint CKPT]]
+                    [--depth sensor|predicted --checkpoint CKPT]
                     [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
                     [--max-frames N] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
                     [--keyframe-valid F]] [--init identity|velocity] [--levels L] [--robust KIND]
@@ -16,7 +17,11 @@ intrinsics have one (the fr1/fr2 presets, nine numbers in ``--intrinsics`` or in
 or, with ``--method vo``, by the network of a ``gvnn-warp vo``
 checkpoint (``--checkpoint``; frames are resized to the network's size and the intrinsics scaled),
 or with ``--method vo+direct`` by the direct aligner starting from the network's estimate (instead
-of the identity or ``--init``) - and writes:
+of the identity or ``--init``) - and writes the results below. With ``--depth predicted`` the
+depth files are not read: each frame's depth is predicted from its colour by the network of a
+``gvnn-warp depth train`` checkpoint (``--checkpoint``; ``gvnn_warp.depth.predict``, one scale for
+the sequence, the first frame's median depth 1 m), monocular direct odometry with learned depth; the
+ATE and RPE are then those of the estimate after a similarity alignment (``evo_ape -as``). It writes:
 
 - ``OUT/trajectory.txt``: the estimate in the TUM format (``timestamp tx ty tz qx qy qz qw``,
   ``T_world_cam``), one pose per frame, starting at the ground truth's first pose (identity
@@ -55,6 +60,7 @@ REQUIRES = ("evo", "matplotlib", "tqdm")
 ROBUST = ("huber", "l2", "cauchy", "geman_mcclure", "tukey")  # DirectAligner's
 PRESETS = ("fr1", "fr2", "fr3", "icl")
 METHODS = ("direct", "vo", "vo+direct")
+DEPTHS = ("sensor", "predicted")
 MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
 MAX_ITERATIONS = 1000
 
@@ -85,7 +91,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="direct: the direct aligner; vo: the trained network of --checkpoint alone; vo+direct: the "
                         "direct aligner starting from the network's estimate")
     p.add_argument("--checkpoint", type=Path, default=None, metavar="CKPT",
-                   help="checkpoint.pt of gvnn-warp vo (needed by --method vo and vo+direct; default: none)")
+                   help="checkpoint.pt of gvnn-warp vo (needed by --method vo and vo+direct) or, with --depth "
+                        "predicted, of gvnn-warp depth train (default: none)")
+    p.add_argument("--depth", choices=DEPTHS, default="sensor",
+                   help="sensor: the folder's depth files; predicted: each frame's depth predicted from its colour "
+                        "by the depth network of --checkpoint (the ATE is then similarity-aligned)")
     p.add_argument("--intrinsics", type=intrinsics_arg, default=None, metavar="PRESET|FX,FY,CX,CY[,K1,K2,P1,P2,K3]",
                    help="fr1, fr2, fr3, icl (published 640x480 values; fr1, fr2 with their radial-tangential "
                         "distortion) or fx,fy,cx,cy[,k1,k2,p1,p2,k3] (default: DIR/intrinsics.txt, "
@@ -177,10 +187,20 @@ def check(args: argparse.Namespace):
 
 
 def check_method(args: argparse.Namespace):
-    """--method and --checkpoint (raises UsageError before any work); returns the network and its
-    checkpoint entry ``network`` for --method vo / vo+direct, else None."""
+    """--method, --depth and --checkpoint (raises UsageError before any work); returns the network
+    and its checkpoint entry ``network`` for --method vo / vo+direct, else None."""
     method = getattr(args, "method", "direct")
     ckpt = getattr(args, "checkpoint", None)
+    if getattr(args, "depth", "sensor") == "predicted":
+        if method != "direct":
+            raise UsageError(f"--depth predicted tracks with --method direct only (this run is --method {method})")
+        if ckpt is None:
+            raise UsageError("--depth predicted needs --checkpoint CKPT (the checkpoint.pt written by gvnn-warp "
+                             "depth train)")
+        if args.depth_weight:
+            raise UsageError("--depth-weight needs the sensor's depth (the predicted depth would be compared with "
+                             "itself); leave it at 0 with --depth predicted")
+        return None
     if method == "direct":
         if ckpt is not None:
             raise UsageError("--checkpoint is used by --method vo and vo+direct only (this run is --method direct)")
@@ -211,6 +231,17 @@ def run(args: argparse.Namespace) -> int:
         net, spec = network
         aligner = NetworkAligner(net, seq.K, (seq.width, seq.height), refine=spec.get("refine", 0), direct=aligner,
                                  symmetries=tuple(spec.get("symmetries", ())))
+    predictor = None
+    if getattr(args, "depth", "sensor") == "predicted":
+        if missing_packages(("torch",)):
+            raise UsageError(f"--depth predicted needs {INSTALL_HINTS['torch']}")
+        from ..depth.predict import DepthPredictor  # torch: only for a network (see check_method)
+        from ..vo.checkpoint import CheckpointError
+
+        try:
+            predictor = DepthPredictor(args.checkpoint)
+        except CheckpointError as e:
+            raise UsageError(str(e)) from None
     policy = None
     if args.keyframes:  # the options given, else the policy's defaults
         given = {field: getattr(args, option, None) for option, field in KEYFRAME_OPTIONS.items()}
@@ -220,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
             seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
             checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
             levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
-            max_difference=args.max_difference, progress=not args.no_progress,
+            max_difference=args.max_difference, predictor=predictor, progress=not args.no_progress,
         )
     except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
         print(f"gvnn-warp track: error: {e}", file=sys.stderr)

@@ -5,6 +5,8 @@
   truth's camera centres do not determine that alignment (rotation-only or straight-line motion:
   evo refuses a degenerate Umeyama problem), the estimate's first pose is aligned to the ground
   truth's instead (``evo_ape --align_origin``); ``TrajectoryMetrics.ate_alignment`` says which.
+  With ``correct_scale`` (a monocular estimate, whose scale is arbitrary) the alignment is a
+  similarity, Sim(3) (``evo_ape -as``), and the RPE is that of the scaled estimate (``evo_rpe -as``).
 - RPE: ``evo``'s RPE over consecutive 1-frame steps (``evo_rpe ... --delta 1 --delta_unit f``),
   translation part (metres) and rotation angle (degrees), RMSE; per pair
   ``E = inv(inv(Q_i) Q_j) inv(P_i) P_j`` with ground truth Q and estimate P.
@@ -21,6 +23,7 @@ import numpy as np
 __all__ = [
     "ATE_ALIGNMENT",
     "ATE_ALIGNMENT_ORIGIN",
+    "ATE_ALIGNMENT_SIM3",
     "FAIL_ROT_DEG",
     "FAIL_TRANS_M",
     "TrajectoryMetrics",
@@ -33,6 +36,7 @@ __all__ = [
 FAIL_TRANS_M = 0.01
 FAIL_ROT_DEG = 0.25
 ATE_ALIGNMENT = "SE(3) Umeyama (evo_ape -a: rotation and translation, no scale)"
+ATE_ALIGNMENT_SIM3 = "Sim(3) Umeyama (evo_ape -as: rotation, translation and scale)"
 ATE_ALIGNMENT_ORIGIN = ("first pose (evo_ape --align_origin; the positions of the ground truth or of the estimate are "
                         "degenerate for Umeyama)")
 
@@ -55,8 +59,9 @@ class TrajectoryMetrics:
 
     Attributes:
         ate_rmse_m, rpe_trans_rmse_m, rpe_rot_rmse_deg: the RMSEs (see the module docstring).
-        ate_alignment: how the estimate was aligned for the ATE (``ATE_ALIGNMENT`` or
-            ``ATE_ALIGNMENT_ORIGIN``).
+        ate_alignment: how the estimate was aligned for the ATE (``ATE_ALIGNMENT``,
+            ``ATE_ALIGNMENT_SIM3`` or ``ATE_ALIGNMENT_ORIGIN``).
+        scale: the scale of the similarity alignment (1.0 without ``correct_scale``).
         frames: frame indices (into the estimate) that had ground truth.
         pair_frames: (P, 2) frame indices of the consecutive RPE pairs.
         rpe_trans_m, rpe_rot_deg: (P,) per-pair errors.
@@ -75,6 +80,7 @@ class TrajectoryMetrics:
     ape_trans_m: np.ndarray
     aligned: np.ndarray
     ground_truth: np.ndarray
+    scale: float = 1.0
 
     @property
     def failed(self) -> np.ndarray:
@@ -87,6 +93,8 @@ def evaluate_trajectory(
     poses: np.ndarray,
     gt_poses: np.ndarray,
     gt_valid: np.ndarray | None = None,
+    *,
+    correct_scale: bool = False,
 ) -> TrajectoryMetrics:
     """ATE and 1-frame RPE of an estimated trajectory against ground truth at the same frames, by ``evo``.
 
@@ -97,6 +105,8 @@ def evaluate_trajectory(
             ``TUMSequence.gt_poses``).
         gt_valid: (N,) bool, frames that have ground truth (default: all). Frames without it are
             left out; RPE pairs are then consecutive frames *with* ground truth.
+        correct_scale: align with a similarity (the estimate's scale is free; see the module
+            docstring).
     """
     # evo on first use: it imports scipy (about a second), which pose_error and the figures do not need
     from evo.core import metrics, sync
@@ -117,21 +127,23 @@ def evaluate_trajectory(
     if ref.num_poses != frames.size:
         raise RuntimeError("evaluate_trajectory: evo dropped frames while associating identical timestamps")
 
-    rpe_t = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames)
-    rpe_t.process_data((ref, est))
-    rpe_r = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, delta=1, delta_unit=metrics.Unit.frames)
-    rpe_r.process_data((ref, est))
-
     aligned = PoseTrajectory3D(poses_se3=list(poses[frames]), timestamps=timestamps[frames])
+    scale = 1.0
     try:
-        aligned.align(ref, correct_scale=False)
-        alignment = ATE_ALIGNMENT
+        rotation, translation, scale = aligned.align(ref, correct_scale=correct_scale)
+        alignment = ATE_ALIGNMENT_SIM3 if correct_scale else ATE_ALIGNMENT
     except GeometryException:  # degenerate positions: rotation-only or collinear motion
         aligned = PoseTrajectory3D(poses_se3=list(poses[frames]), timestamps=timestamps[frames])
         aligned.align_origin(ref)
         alignment = ATE_ALIGNMENT_ORIGIN
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, aligned))
+    # the RPE does not change under a rigid alignment, but does under a scale (evo_rpe -as scales first)
+    moved = aligned if correct_scale else est
+    rpe_t = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames)
+    rpe_t.process_data((ref, moved))
+    rpe_r = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, delta=1, delta_unit=metrics.Unit.frames)
+    rpe_r.process_data((ref, moved))
 
     pair_frames = np.stack([frames[:-1], frames[1:]], axis=1)
     return TrajectoryMetrics(
@@ -146,6 +158,7 @@ def evaluate_trajectory(
         ape_trans_m=np.asarray(ape.error, dtype=np.float64),
         aligned=np.stack(aligned.poses_se3),
         ground_truth=np.stack(ref.poses_se3),
+        scale=float(scale),
     )
 
 

@@ -37,7 +37,15 @@ from pathlib import Path
 import numpy as np
 
 from ..datasets.tum import TUMSequence, write_trajectory
-from .evaluation import ATE_ALIGNMENT, FAIL_ROT_DEG, FAIL_TRANS_M, evaluate_trajectory, plot_errors, plot_top_view
+from .evaluation import (
+    ATE_ALIGNMENT,
+    ATE_ALIGNMENT_SIM3,
+    FAIL_ROT_DEG,
+    FAIL_TRANS_M,
+    evaluate_trajectory,
+    plot_errors,
+    plot_top_view,
+)
 from .tracking import KeyframePolicy, TrackResult, track
 
 __all__ = [
@@ -88,7 +96,7 @@ class SequenceReport:
 def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str = "direct",
                    checkpoint: Path | None = None, color: bool = False, keyframes: KeyframePolicy | None = None,
                    init: str = "identity", levels: int | None = None, iterations: int | None = None,
-                   robust: str = "huber", depth_weight: float = 0.0, max_difference: float = 0.02,
+                   robust: str = "huber", depth_weight: float = 0.0, max_difference: float = 0.02, predictor=None,
                    progress: bool = True) -> SequenceReport:
     """Track the first ``n`` (>= 2) frames of ``seq`` with ``aligner`` and write the results into the
     folder ``out`` (see the module docstring); returns them (:class:`SequenceReport`).
@@ -101,13 +109,21 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
     initial guess; ``progress``: a tqdm bar. ``method``, ``checkpoint``, ``levels``, ``iterations``,
     ``robust`` and ``depth_weight`` describe the aligner, as recorded in ``metrics.json``'s
     ``settings``; ``max_difference`` (s) is the ground-truth matching the sequence was read with, for
-    the summary's notes.
+    the summary's notes. ``predictor``: ``image (3, H, W) RGB -> depth (1, H, W)`` (e.g.
+    ``gvnn_warp.depth.predict.DepthPredictor``) to track from colour alone, each frame's depth
+    predicted in place of the sensor's; the estimate's scale is then free and the ATE and RPE are
+    those of the estimate after a similarity alignment (``evo_ape -as``).
     """
     gray = not color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
     has_gt = seq.gt_poses is not None and int(seq.gt_valid[:n].sum()) >= 2
     start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
-    result = track(lambda i: (seq.image(i, gray=gray), seq.depth(i)), n, aligner, start_pose=start,
-                   keyframes=keyframes, init=init, progress=progress)
+
+    def read_frame(i: int):
+        if predictor is None:
+            return seq.image(i, gray=gray), seq.depth(i)
+        return seq.image(i, gray=gray), predictor(seq.image(i))
+
+    result = track(read_frame, n, aligner, start_pose=start, keyframes=keyframes, init=init, progress=progress)
 
     stamps = seq.timestamps[:n]
     # only now, with the run done: make out, and remove the earlier run's files, so that a run that
@@ -132,7 +148,9 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                      "init": init if method == "direct" else "network",
                      "levels": levels or "auto", "iterations": iterations, "robust": robust,
                      "depth_weight": depth_weight,
-                     "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale},
+                     "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale,
+                     "depth": "sensor" if predictor is None else "predicted",
+                     "depth_checkpoint": str(getattr(predictor, "checkpoint", "")) or None},
         "ms_per_pair": result.ms_per_pair,
         "ms_per_pair_note": "alignment incl. the live frame's pyramid; file reading excluded",
         "keyframes": len(result.keyframes) if keyframes else None,
@@ -142,7 +160,8 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         "ground_truth": has_gt,
     }
     K = seq.K
-    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method})"),
+    depth_text = "" if predictor is None else ", depth predicted"
+    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method}{depth_text})"),
             ("intrinsics", f"fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
                            f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
                            f"({seq.intrinsics_source})"),
@@ -151,7 +170,7 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                                                            else ""))]
     if keyframes:
         rows.append(("keyframes", str(len(result.keyframes))))
-    depth0 = seq.depth(0)
+    depth0 = seq.depth(0) if predictor is None else np.zeros(0)  # (a predicted depth's scale is set, not read)
     depth0 = depth0[np.isfinite(depth0) & (depth0 > 0)]
     median0 = metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
     if median0 is not None and not PLAUSIBLE_DEPTH_M[0] <= median0 <= PLAUSIBLE_DEPTH_M[1]:
@@ -162,12 +181,14 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
                                 f"the depth images and --depth-scale ({seq.depth_scale:g} units per metre)"))
     if has_gt:
-        m = evaluate_trajectory(stamps, result.poses, seq.gt_poses[:n], seq.gt_valid[:n])
+        m = evaluate_trajectory(stamps, result.poses, seq.gt_poses[:n], seq.gt_valid[:n],
+                                correct_scale=predictor is not None)
         failed = m.pair_frames[m.failed]
         metrics.update({
             "evaluated_frames": int(m.frames.size),
             "ate_rmse_m": m.ate_rmse_m,
             "ate_alignment": m.ate_alignment,
+            "alignment_scale": m.scale,
             "rpe_trans_rmse_m": m.rpe_trans_rmse_m,
             "rpe_rot_rmse_deg": m.rpe_rot_rmse_deg,
             "rpe_delta": "1 frame (consecutive pairs)",
@@ -176,9 +197,12 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             "failure_threshold": {"trans_m": FAIL_TRANS_M, "rot_deg": FAIL_ROT_DEG},
             "metrics_by": "evo",
         })
-        aligned_by = "SE(3)-aligned" if m.ate_alignment == ATE_ALIGNMENT else "first pose aligned"
+        aligned_by = {ATE_ALIGNMENT: "SE(3)-aligned",
+                      ATE_ALIGNMENT_SIM3: f"Sim(3)-aligned, scale {m.scale:.3g}, as evo_ape -as"}.get(
+                          m.ate_alignment, "first pose aligned")
+        scaled = "" if predictor is None else " (scaled estimate)"
         rows += [("ATE RMSE", f"{100 * m.ate_rmse_m:.2f} cm ({aligned_by})"),
-                 ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame"),
+                 ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame{scaled}"),
                  ("RPE rot RMSE", f"{m.rpe_rot_rmse_deg:.4f} deg per frame"),
                  ("failed pairs", f"{failed.shape[0]} of {m.pair_frames.shape[0]} (> 1 cm or > 0.25 deg)")]
         if m.frames.size < n:

@@ -5,14 +5,18 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from gvnn_warp.cli import main
+from gvnn_warp.datasets.tum import read_tum
 from gvnn_warp.depth.data import read_video
 from gvnn_warp.depth.evaluate import depth_metrics, summarise
 from gvnn_warp.depth.model import DepthNet, PoseNet, disp_to_depth
-from gvnn_warp.depth.train import POSES, DepthConfig, load_checkpoint, train
+from gvnn_warp.depth.predict import DepthPredictor
+from gvnn_warp.depth.train import POSES, DepthConfig, load_checkpoint, load_depth_net, train
+from gvnn_warp.vo.frontend import resize_frame
 
 
 def test_metrics_are_scale_free_and_match_closed_forms():
@@ -124,6 +128,37 @@ def test_train_resume_and_eval(folders, tmp_path):
     metrics = json.loads((ev / "metrics.json").read_text())
     assert 0 < metrics["abs_rel"] < 10 and 0 <= metrics["a1"] <= 1 and metrics["images"] == 5
     assert (ev / "depth.png").stat().st_size > 0
+
+
+def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, capsys):
+    out = tmp_path / "run"
+    train(_cfg(folders, out))
+    seq = read_tum(folders[0])
+    predict = DepthPredictor(out / "checkpoint.pt", first_median=2.0)
+    first = predict(seq.image(0))
+    assert first.shape == (1, 64, 96) and first.dtype == np.float32 and np.median(first) == pytest.approx(2.0)
+    # later frames keep the first frame's scale: the network's own depth, resized, times that scale
+    net = load_depth_net(load_checkpoint(out / "checkpoint.pt"))
+    small, _ = resize_frame(torch.from_numpy(seq.image(3)), torch.zeros(1, 64, 96), (64, 64))
+    with torch.no_grad():
+        raw = torch.nn.functional.interpolate(net.depth(small), size=(64, 96), mode="bilinear")[0].numpy()
+    np.testing.assert_allclose(predict(seq.image(3)), raw * predict.scale, rtol=1e-6)
+    with pytest.raises(ValueError, match="first_median"):
+        DepthPredictor(out / "checkpoint.pt", first_median=0.0)
+
+    track = tmp_path / "track"
+    assert main(["track", str(folders[0]), "--out", str(track), "--depth", "predicted", "--checkpoint",
+                 str(out / "checkpoint.pt"), "--no-progress"]) == 0
+    metrics = json.loads((track / "metrics.json").read_text())
+    assert metrics["settings"]["depth"] == "predicted" and metrics["ate_alignment"].startswith("Sim(3)")
+    assert math.isfinite(metrics["ate_rmse_m"]) and metrics["alignment_scale"] > 0
+    assert "Sim(3)-aligned" in capsys.readouterr().out
+    for argv, message in ((["--method", "vo"], "--method direct only"), ([], "needs --checkpoint"),
+                          (["--depth-weight", "1"], "--depth-weight")):
+        ck = [] if message == "needs --checkpoint" else ["--checkpoint", str(out / "checkpoint.pt")]
+        with pytest.raises(SystemExit) as e:
+            main(["track", str(folders[0]), "--out", str(tmp_path / "t2"), "--depth", "predicted", *ck, *argv])
+        assert e.value.code == 2 and message in capsys.readouterr().err
 
 
 def test_cli_data_errors_are_one_line(folders, tmp_path, capsys):

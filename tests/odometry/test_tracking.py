@@ -13,6 +13,7 @@ from gvnn_warp.datasets.tum import read_trajectory, read_tum
 from gvnn_warp.odometry.evaluation import (
     ATE_ALIGNMENT,
     ATE_ALIGNMENT_ORIGIN,
+    ATE_ALIGNMENT_SIM3,
     FAIL_ROT_DEG,
     FAIL_TRANS_M,
     evaluate_trajectory,
@@ -43,6 +44,22 @@ def test_rigidly_moved_estimate_has_zero_ate_and_rpe():
     m = evaluate_trajectory(np.arange(12) / 30, A @ gt, gt)
     assert m.ate_rmse_m < 1e-9 and m.rpe_trans_rmse_m < 1e-9 and m.rpe_rot_rmse_deg < 1e-5
     np.testing.assert_allclose(m.aligned, gt, atol=1e-9)
+
+
+def test_scaled_estimate_is_exact_after_a_similarity_alignment_only():
+    # a monocular estimate: the truth moved rigidly and scaled by 3; Sim(3) (evo_ape -as) undoes it,
+    # and its RPE is that of the scaled estimate; SE(3) cannot undo the scale
+    gt = _circle_trajectory(12)
+    A = np.eye(4)
+    A[:3, :3] = Rotation.from_rotvec([0.3, -1.0, 2.0]).as_matrix()
+    A[:3, 3] = [5.0, -2.0, 1.0]
+    est = A @ gt
+    est[:, :3, 3] *= 3.0
+    m = evaluate_trajectory(np.arange(12) / 30, est, gt, correct_scale=True)
+    assert m.ate_alignment == ATE_ALIGNMENT_SIM3 and m.scale == pytest.approx(1 / 3, rel=1e-9)
+    assert m.ate_rmse_m < 1e-9 and m.rpe_trans_rmse_m < 1e-9 and m.rpe_rot_rmse_deg < 1e-5
+    rigid = evaluate_trajectory(np.arange(12) / 30, est, gt)
+    assert rigid.scale == 1.0 and rigid.ate_rmse_m > 0.1 and rigid.rpe_trans_rmse_m > 0.1
 
 
 @pytest.mark.parametrize("eps", [0.004, 0.006])
