@@ -5,7 +5,7 @@ Usage::
     gvnn-warp track DIR --out OUT [--overwrite] [--method direct|vo|vo+direct [--checkpoint CKPT]]
                     [--depth sensor|predicted --checkpoint CKPT]
                     [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
-                    [--max-frames N] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
+                    [--max-frames N] [--gt-interpolate] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
                     [--keyframe-valid F]] [--init identity|velocity] [--levels L] [--robust KIND]
                     [--depth-weight W] [--color]
 
@@ -29,7 +29,10 @@ ATE and RPE are then those of the estimate after a similarity alignment (``evo_a
 - ``OUT/metrics.json``: ``frames``, ``ms_per_pair`` (alignment incl. pyramids; file reading
   excluded), ``unconverged_pairs`` / ``unconverged_frames`` and, with ground truth, ``ate_rmse_m``
   (SE(3) Umeyama-aligned, as ``evo_ape -a``), ``rpe_trans_rmse_m`` and ``rpe_rot_rmse_deg``
-  (1-frame steps, as ``evo_rpe``), ``failed_pairs`` (RPE above 1 cm or 0.25 deg) - all by evo;
+  (1-frame steps, as ``evo_rpe``), ``failed_pairs`` (RPE above 1 cm or 0.25 deg) - all by evo,
+  each frame's ground truth the pose of nearest stamp (``--gt-interpolate``: interpolated at the
+  frame's stamp) - and ``rpe_trans_m_per_s``, ``rpe_rot_deg_per_s`` (the drift over 1-second
+  steps, as TUM's ``evaluate_rpe.py --fixed_delta --delta 1 --delta_unit s``);
 - ``OUT/trajectory.png`` (top view, estimate vs truth) and, with ground truth, ``OUT/errors.png``
   (per-frame translation and rotation error).
 
@@ -106,6 +109,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="track only the first N frames (default: all)")
     p.add_argument("--max-difference", type=finite_float(0, 1, "s", above_minimum=True), default=0.02, metavar="SEC",
                    help="seconds: colour/depth association and ground-truth matching")
+    p.add_argument("--gt-interpolate", action="store_true",
+                   help="evaluate against the ground truth interpolated at each frame's stamp (default: the pose of "
+                        "nearest stamp, as evo and TUM's scripts associate)")
     p.add_argument("--keyframes", action="store_true",
                    help="align to a keyframe, replaced when the thresholds below are passed (default: previous frame)")
     # (defaults None: given without --keyframes they are refused; the policy's defaults in the help)
@@ -251,7 +257,8 @@ def run(args: argparse.Namespace) -> int:
             seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
             checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
             levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
-            max_difference=args.max_difference, predictor=predictor, progress=not args.no_progress,
+            max_difference=args.max_difference, predictor=predictor,
+            interpolate_gt=getattr(args, "gt_interpolate", False), progress=not args.no_progress,
         )
     except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
         print(f"gvnn-warp track: error: {e}", file=sys.stderr)

@@ -36,8 +36,8 @@ from ..vo.pose import invert_pose
 from .data import Video, read_video
 from .model import DepthNet, PoseNet, disp_to_depth
 
-__all__ = ["CHECKPOINT_FORMAT", "POSES", "DepthConfig", "direct_poses", "load_checkpoint", "load_depth_net",
-           "network_poses", "self_supervised_loss", "train"]
+__all__ = ["CHECKPOINT_FORMAT", "POSES", "DepthConfig", "colour_jitter", "direct_poses", "load_checkpoint",
+           "load_depth_net", "network_poses", "self_supervised_loss", "train"]
 
 CHECKPOINT_FORMAT = "gvnn_warp.depth/1"
 
@@ -60,6 +60,9 @@ class DepthConfig:
     # bound to compare the self-supervised network with, not a way to learn without labels
     supervised: bool = False
     flip: bool = True  # mirror half the triplets (pinhole cameras with a centred principal point only)
+    # the depth network sees each target with random brightness, contrast and saturation (+-20%;
+    # Monodepth2's colour augmentation, without hue); the objective compares the frames as recorded
+    jitter: bool = True
     steps: int | None = None  # or stop after this many steps
     batch_size: int = 8
     lr: float = 5e-4
@@ -110,14 +113,30 @@ def direct_poses(aligner: DirectAligner):
     return poses
 
 
+def colour_jitter(image: Tensor, amount: float = 0.2) -> Tensor:
+    """(B, 3, H, W) in [0, 1] with each item's brightness, contrast and saturation scaled by its own
+    random factor in [1 - amount, 1 + amount] (torch's global generator), clamped to [0, 1]."""
+    B = image.shape[0]
+
+    def factor() -> Tensor:
+        return (1 + amount * (2 * torch.rand(B, 1, 1, 1) - 1)).to(image.dtype)
+
+    x = image * factor()
+    mean = x.mean((1, 2, 3), keepdim=True)
+    x = (x - mean) * factor() + mean
+    grey = (0.299 * x[:, :1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3])
+    return ((x - grey) * factor() + grey).clamp(0, 1)
+
+
 def self_supervised_loss(depth_net: DepthNet, poser, target: Tensor, sources: Tensor, camera, cfg: DepthConfig,
-                         return_maps: bool = False):
+                         return_maps: bool = False, depth_input: Tensor | None = None):
     """The objective of one batch (see the module docstring): a scalar, and with ``return_maps``
     the full-resolution depth and the maps of ``reprojection_loss`` at scale 0. ``sources``: the
     frames (t - gap, t + gap) of ``target`` t; ``poser(target, sources, depth)``: their poses
-    (:func:`network_poses`, :func:`direct_poses`), given the predicted depth (detached)."""
+    (:func:`network_poses`, :func:`direct_poses`), given the predicted depth (detached);
+    ``depth_input``: what the depth network sees instead of ``target`` (e.g. :func:`colour_jitter`'s)."""
     H, W = target.shape[-2:]
-    disps = depth_net(target)
+    disps = depth_net(target if depth_input is None else depth_input)
     depths = []
     for scale, disp in enumerate(disps):
         up = disp if scale == 0 else F.interpolate(disp, size=(H, W), mode="bilinear", align_corners=False)
@@ -142,7 +161,8 @@ def self_supervised_loss(depth_net: DepthNet, poser, target: Tensor, sources: Te
     return (total, depth0, maps) if return_maps else total
 
 
-def supervised_loss(depth_net: DepthNet, target: Tensor, true_depth: Tensor, cfg: DepthConfig) -> Tensor:
+def supervised_loss(depth_net: DepthNet, target: Tensor, true_depth: Tensor, cfg: DepthConfig,
+                    depth_input: Tensor | None = None) -> Tensor:
     """The scale-invariant log error (Eigen et al. 2014, lambda = 1: the monocular scale is free) of
     every scale's depth against the true depth (B, 1, H, W), over its valid pixels."""
     H, W = target.shape[-2:]
@@ -150,7 +170,7 @@ def supervised_loss(depth_net: DepthNet, target: Tensor, true_depth: Tensor, cfg
     log_true = torch.where(valid, true_depth, torch.ones_like(true_depth)).log()
     n = valid.sum((1, 2, 3)).clamp(min=1)
     total = target.new_zeros(())
-    disps = depth_net(target)
+    disps = depth_net(target if depth_input is None else depth_input)
     for disp in disps:
         up = F.interpolate(disp, size=(H, W), mode="bilinear", align_corners=False) if disp.shape[-1] != W else disp
         diff = torch.where(valid, disp_to_depth(up, cfg.min_depth, cfg.max_depth).log() - log_true, 0)
@@ -264,10 +284,14 @@ def train(cfg: DepthConfig) -> dict:
                 mirror = (torch.rand(cfg.batch_size) < 0.5).view(-1, 1, 1, 1)
                 target = torch.where(mirror, target.flip(-1), target)
                 sources = torch.where(mirror.unsqueeze(1), sources.flip(-1), sources)
+            seen = colour_jitter(target) if cfg.jitter else None
             if cfg.supervised:
-                loss = supervised_loss(depth_net, target, video.depths[video.targets[idx]], cfg)
+                depths = video.depths[video.targets[idx]]
+                if flip:
+                    depths = torch.where(mirror, depths.flip(-1), depths)
+                loss = supervised_loss(depth_net, target, depths, cfg, depth_input=seen)
             else:
-                loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg)
+                loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, depth_input=seen)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -11,6 +11,13 @@
   translation part (metres) and rotation angle (degrees), RMSE; per pair
   ``E = inv(inv(Q_i) Q_j) inv(P_i) P_j`` with ground truth Q and estimate P.
 - A pair *fails* when its RPE exceeds ``FAIL_TRANS_M`` (1 cm) or ``FAIL_ROT_DEG`` (0.25 deg).
+- Ground truth at the frames: :func:`nearest_groundtruth` takes, for each frame, the ground-truth
+  pose with the nearest stamp (within a maximum difference), as evo's tools and TUM's scripts
+  associate a trajectory file with ``groundtruth.txt``, so the numbers are those they print for the
+  files written; ``TUMSequence.gt_poses`` (interpolated at the frames' stamps) is the alternative.
+- RPE per second: :func:`rpe_per_second`, the drift over 1-second steps as TUM's
+  ``evaluate_rpe.py --fixed_delta --delta 1 --delta_unit s`` defines it (evo has no time delta). On
+  real data the per-frame RPE is dominated by the motion capture's own noise; this is not.
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ __all__ = [
     "FAIL_TRANS_M",
     "TrajectoryMetrics",
     "evaluate_trajectory",
+    "nearest_groundtruth",
+    "rpe_per_second",
     "pose_error",
     "plot_errors",
     "plot_top_view",
@@ -160,6 +169,72 @@ def evaluate_trajectory(
         ground_truth=np.stack(ref.poses_se3),
         scale=float(scale),
     )
+
+
+def nearest_groundtruth(timestamps: np.ndarray, gt_timestamps: np.ndarray, gt_poses: np.ndarray,
+                        max_difference: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ground truth at the frames by nearest stamp, as ``evo_ape``/``evo_rpe`` associate
+    (``evo.core.sync``: each stamp of the shorter trajectory takes the nearest stamp of the other,
+    within ``max_difference`` s). Returns (poses (N, 4, 4), NaN where none; valid (N,) bool) for the
+    frames' ``timestamps`` (N,) and the ground truth's ``gt_timestamps`` (M,), ``gt_poses`` (M, 4, 4)."""
+    from evo.core.sync import matching_time_indices
+
+    timestamps = np.asarray(timestamps, dtype=np.float64)
+    gt_timestamps = np.asarray(gt_timestamps, dtype=np.float64)
+    poses = np.full((timestamps.size, 4, 4), np.nan)
+    valid = np.zeros(timestamps.size, bool)
+    if timestamps.size <= gt_timestamps.size:  # evo matches the shorter trajectory's stamps
+        frames, rows = matching_time_indices(timestamps, gt_timestamps, max_difference)
+    else:
+        rows, frames = matching_time_indices(gt_timestamps, timestamps, max_difference)
+    frames, rows = np.asarray(frames, np.int64), np.asarray(rows, np.int64)
+    poses[frames] = np.asarray(gt_poses, dtype=np.float64)[rows]
+    valid[frames] = True
+    return poses, valid
+
+
+def rpe_per_second(timestamps: np.ndarray, poses: np.ndarray, gt_timestamps: np.ndarray, gt_poses: np.ndarray,
+                   delta: float = 1.0, scale: float = 1.0) -> tuple[float, float, int] | None:
+    """Translational (m) and rotational (deg) RMSE of the relative pose error over steps of
+    ``delta`` seconds, and the number of steps, as TUM's ``evaluate_rpe.py --fixed_delta --delta
+    <delta> --delta_unit s [--scale <scale>]`` computes them; None if no step has ground truth.
+
+    The definition (written from that script): for each estimate stamp t_i, its partner j is the
+    estimate stamp nearest to t_i + delta, and the step is kept unless j is the last estimate (the
+    script's rule: a step running off the end is dropped). Each end takes the ground-truth pose of
+    nearest stamp, and the step is skipped if that stamp is more than twice the ground truth's median
+    interval away. The error of a step is ``inv(A) B`` with ``A = inv(E_j) E_i`` (its translation
+    multiplied by ``scale``) and ``B = inv(G_j) G_i`` for estimate poses E and ground-truth poses G
+    (the script's ``ominus``): its translation norm and rotation angle.
+    """
+    t = np.asarray(timestamps, dtype=np.float64)
+    E = np.asarray(poses, dtype=np.float64)
+    gt_t = np.asarray(gt_timestamps, dtype=np.float64)
+    G = np.asarray(gt_poses, dtype=np.float64)
+    if t.size < 2 or gt_t.size < 2:
+        return None
+
+    def nearest(stamps: np.ndarray, query: np.ndarray) -> np.ndarray:
+        k = np.clip(np.searchsorted(stamps, query), 1, stamps.size - 1)
+        return np.where(np.abs(stamps[k - 1] - query) <= np.abs(stamps[k] - query), k - 1, k)
+
+    i = np.arange(t.size)
+    j = nearest(t, t + delta)
+    keep = j != t.size - 1
+    i, j = i[keep], j[keep]
+    gi, gj = nearest(gt_t, t[i]), nearest(gt_t, t[j])
+    limit = 2.0 * float(np.median(np.diff(gt_t)))
+    near = (np.abs(gt_t[gi] - t[i]) <= limit) & (np.abs(gt_t[gj] - t[j]) <= limit)
+    i, j, gi, gj = i[near], j[near], gi[near], gj[near]
+    if i.size == 0:
+        return None
+    rel_est = np.linalg.inv(E[j]) @ E[i]
+    rel_est[:, :3, 3] *= scale
+    err = np.linalg.inv(rel_est) @ (np.linalg.inv(G[gj]) @ G[gi])
+    trans = np.linalg.norm(err[:, :3, 3], axis=1)
+    cos = np.clip((np.trace(err[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    rot = np.degrees(np.arccos(cos))
+    return float(np.sqrt(np.mean(trans**2))), float(np.sqrt(np.mean(rot**2))), int(i.size)
 
 
 def _top_view_axes(positions: np.ndarray) -> tuple[int, int]:

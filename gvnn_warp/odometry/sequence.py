@@ -43,8 +43,10 @@ from .evaluation import (
     FAIL_ROT_DEG,
     FAIL_TRANS_M,
     evaluate_trajectory,
+    nearest_groundtruth,
     plot_errors,
     plot_top_view,
+    rpe_per_second,
 )
 from .tracking import KeyframePolicy, TrackResult, track
 
@@ -57,6 +59,8 @@ __all__ = [
     "track_sequence",
 ]
 
+GT_NEAREST = "pose of nearest stamp (as evo and TUM's scripts associate)"
+GT_INTERPOLATED = "interpolated at the frames' stamps (--gt-interpolate)"
 RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png")  # what track_sequence writes
 LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the summary warns (depth scale, images)
 PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth suggests a wrong depth scale
@@ -97,6 +101,7 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                    checkpoint: Path | None = None, color: bool = False, keyframes: KeyframePolicy | None = None,
                    init: str = "identity", levels: int | None = None, iterations: int | None = None,
                    robust: str = "huber", depth_weight: float = 0.0, max_difference: float = 0.02, predictor=None,
+                   interpolate_gt: bool = False,
                    progress: bool = True) -> SequenceReport:
     """Track the first ``n`` (>= 2) frames of ``seq`` with ``aligner`` and write the results into the
     folder ``out`` (see the module docstring); returns them (:class:`SequenceReport`).
@@ -112,11 +117,20 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
     the summary's notes. ``predictor``: ``image (3, H, W) RGB -> depth (1, H, W)`` (e.g.
     ``gvnn_warp.depth.predict.DepthPredictor``) to track from colour alone, each frame's depth
     predicted in place of the sensor's; the estimate's scale is then free and the ATE and RPE are
-    those of the estimate after a similarity alignment (``evo_ape -as``).
+    those of the estimate after a similarity alignment (``evo_ape -as``). The ground truth of each
+    frame is the pose of nearest stamp in ``groundtruth.txt`` (as evo and TUM's scripts associate),
+    or with ``interpolate_gt`` the sequence's interpolation at the frame's stamp.
     """
     gray = not color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
-    has_gt = seq.gt_poses is not None and int(seq.gt_valid[:n].sum()) >= 2
-    start = seq.gt_poses[0] if has_gt and seq.gt_valid[0] else np.eye(4)
+    gt_poses = gt_valid = None
+    if seq.gt_poses is not None:
+        if interpolate_gt:
+            gt_poses, gt_valid = seq.gt_poses[:n], seq.gt_valid[:n]
+        else:
+            gt_poses, gt_valid = nearest_groundtruth(seq.timestamps[:n], seq.gt_timestamps, seq.gt_raw_poses,
+                                                     max_difference)
+    has_gt = gt_poses is not None and int(gt_valid.sum()) >= 2
+    start = gt_poses[0] if has_gt and gt_valid[0] else np.eye(4)
 
     def read_frame(i: int):
         if predictor is None:
@@ -181,8 +195,8 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
                                 f"the depth images and --depth-scale ({seq.depth_scale:g} units per metre)"))
     if has_gt:
-        m = evaluate_trajectory(stamps, result.poses, seq.gt_poses[:n], seq.gt_valid[:n],
-                                correct_scale=predictor is not None)
+        m = evaluate_trajectory(stamps, result.poses, gt_poses, gt_valid, correct_scale=predictor is not None)
+        per_second = rpe_per_second(stamps, result.poses, seq.gt_timestamps, seq.gt_raw_poses, scale=m.scale)
         failed = m.pair_frames[m.failed]
         metrics.update({
             "evaluated_frames": int(m.frames.size),
@@ -192,6 +206,11 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             "rpe_trans_rmse_m": m.rpe_trans_rmse_m,
             "rpe_rot_rmse_deg": m.rpe_rot_rmse_deg,
             "rpe_delta": "1 frame (consecutive pairs)",
+            "rpe_trans_m_per_s": per_second[0] if per_second else None,
+            "rpe_rot_deg_per_s": per_second[1] if per_second else None,
+            "rpe_per_second_steps": per_second[2] if per_second else 0,
+            "rpe_per_second_definition": "evaluate_rpe.py --fixed_delta --delta 1 --delta_unit s (TUM RGB-D), RMSE",
+            "gt_association": GT_INTERPOLATED if interpolate_gt else GT_NEAREST,
             "failed_pairs": int(failed.shape[0]),
             "failed_pair_frames": failed.tolist(),
             "failure_threshold": {"trans_m": FAIL_TRANS_M, "rot_deg": FAIL_ROT_DEG},
@@ -204,8 +223,12 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         rows += [("ATE RMSE", f"{100 * m.ate_rmse_m:.2f} cm ({aligned_by})"),
                  ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame{scaled}"),
                  ("RPE rot RMSE", f"{m.rpe_rot_rmse_deg:.4f} deg per frame"),
+                 ("RPE per second", "none (the sequence is shorter than 1 s)" if per_second is None else
+                  f"{100 * per_second[0]:.3f} cm/s, {per_second[1]:.4f} deg/s ({per_second[2]} steps of 1 s, "
+                  "as TUM's evaluate_rpe.py)"),
+                 ("ground truth", GT_INTERPOLATED if interpolate_gt else GT_NEAREST),
                  ("failed pairs", f"{failed.shape[0]} of {m.pair_frames.shape[0]} (> 1 cm or > 0.25 deg)")]
-        if m.frames.size < n:
+        if m.frames.size < n:  # (frames without a ground-truth pose)
             rows.append(("evaluated frames", f"{m.frames.size} of {n} (the others have no ground-truth pose within "
                                              f"--max-difference {max_difference:g} s)"))
         plot_top_view(out / "trajectory.png", m.aligned, m.ground_truth,
@@ -216,7 +239,7 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         if seq.gt_poses is None:
             why = "none (no groundtruth.txt): no ATE/RPE"
         else:
-            why = (f"none usable: {int(seq.gt_valid[:n].sum())} of the {n} frames have a pose in groundtruth.txt "
+            why = (f"none usable: {int(gt_valid.sum())} of the {n} frames have a pose in groundtruth.txt "
                    f"within --max-difference {max_difference:g} s (2 needed): no ATE/RPE")
         rows.append(("ground truth", why))
         metrics["ground_truth_note"] = why

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from gvnn_warp.datasets.tum import read_trajectory, read_tum
+from gvnn_warp.datasets.tum import read_trajectory, read_tum, write_trajectory
 from gvnn_warp.odometry.evaluation import (
     ATE_ALIGNMENT,
     ATE_ALIGNMENT_ORIGIN,
@@ -17,7 +17,9 @@ from gvnn_warp.odometry.evaluation import (
     FAIL_ROT_DEG,
     FAIL_TRANS_M,
     evaluate_trajectory,
+    nearest_groundtruth,
     pose_error,
+    rpe_per_second,
 )
 from gvnn_warp.odometry.tracking import KeyframePolicy, Tracker, track
 from gvnn_warp.synthetic import relative_pose
@@ -104,6 +106,58 @@ def test_rotation_error_per_step_and_missing_ground_truth():
     np.testing.assert_allclose(m.rpe_rot_deg[1], np.degrees(theta[3] - theta[1]), atol=1e-6)
     with pytest.raises(ValueError, match="at least 2 frames with ground truth"):
         evaluate_trajectory(np.arange(n) / 30, est, gt, np.eye(1, n, dtype=bool)[0])
+
+
+def _constant_motion(stamps, velocity, yaw_deg_per_s):
+    T = np.tile(np.eye(4), (stamps.size, 1, 1))
+    T[:, :3, 3] = np.outer(stamps - stamps[0], velocity)
+    T[:, :3, :3] = Rotation.from_euler("z", np.radians(yaw_deg_per_s) * (stamps - stamps[0])[:, None]).as_matrix()
+    return T
+
+
+def test_rpe_per_second_follows_tums_definition():
+    # frames at 10 Hz for 5 s, ground truth at 100 Hz stamped 4 ms late; the estimate moves 20% too
+    # fast along x and turns 0.5 deg/s too fast about z (the axis of the yaw), so every 1 s step is
+    # off by exactly 2 cm and 0.5 deg; steps whose partner is the last frame are dropped (TUM's rule):
+    # i = 0..39 are kept (t_i + 1 s is frame i + 10 <= 49)
+    t = 100.0 + np.arange(51) / 10
+    gt_t = 100.004 + np.arange(501) / 100
+    v, w = np.array([0.1, 0.0, 0.0]), 10.0
+    est = _constant_motion(t, 1.2 * v, 0.0)
+    trans, rot, steps = rpe_per_second(t, est, gt_t, _constant_motion(gt_t, v, 0.0))
+    assert steps == 40 and trans == pytest.approx(0.02, rel=1e-6) and rot < 1e-6
+    assert rpe_per_second(t, est, gt_t, _constant_motion(gt_t, v, 0.0), scale=1 / 1.2)[0] < 1e-9
+    # a rotation-only estimate: the angle error per step; the 4 ms stamp offset of the ground truth
+    # is a 0.04 deg slip of a 10 deg/s motion, seen as the ground truth's (as in the script)
+    trans, rot, steps = rpe_per_second(t, _constant_motion(t, 0 * v, w + 0.5), gt_t, _constant_motion(gt_t, 0 * v, w))
+    assert rot == pytest.approx(0.5, abs=1e-6) and trans < 1e-9
+    # a hole in the ground truth: steps with an end more than two intervals from a sample are skipped
+    hole = (gt_t < 101.5) | (gt_t > 102.5)
+    _, _, with_hole = rpe_per_second(t, est, gt_t[hole], _constant_motion(gt_t, v, 0.0)[hole])
+    ends = np.stack([t[:40], t[10:50]], 1)
+    kept = ~(((ends > 101.5 + 0.02) & (ends < 102.5 - 0.02)).any(1))
+    assert with_hole == int(kept.sum()) < 40
+    assert rpe_per_second(t[:1], est[:1], gt_t, _constant_motion(gt_t, v, 0.0)) is None
+
+
+def test_nearest_groundtruth_is_evos_association():
+    from evo.core import sync
+    from evo.core.trajectory import PoseTrajectory3D
+
+    rng = np.random.default_rng(0)
+    t = 5.0 + np.arange(30) / 30 + rng.uniform(-0.003, 0.003, 30)
+    gt_t = 5.004 + np.arange(80) / 100  # ends at 5.794 s: the last frames have none within 10 ms
+    gt = _constant_motion(gt_t, np.array([0.3, -0.1, 0.05]), 20.0)
+    poses, valid = nearest_groundtruth(t, gt_t, gt, 0.01)
+    ref = PoseTrajectory3D(poses_se3=list(gt), timestamps=gt_t)
+    est = PoseTrajectory3D(poses_se3=list(_constant_motion(t, np.zeros(3), 0.0)), timestamps=t)
+    ref, est = sync.associate_trajectories(ref, est, max_diff=0.01)
+    frames = np.searchsorted(t, est.timestamps)
+    np.testing.assert_array_equal(np.flatnonzero(valid), frames)
+    np.testing.assert_array_equal(poses[frames], np.stack(ref.poses_se3))
+    within = np.abs(t[:, None] - gt_t[None]).min(1) <= 0.01
+    np.testing.assert_array_equal(valid, within)
+    assert np.isnan(poses[~valid]).all() and 4 <= (~valid).sum() <= 6
 
 
 def test_pose_error_closed_form():
@@ -301,6 +355,47 @@ def test_track_cli_writes_files_and_reports_failures(tmp_path, monkeypatch, caps
     np.testing.assert_allclose(poses[:4], gt[:4], atol=1e-8)  # starts at the ground truth's first pose
     for png in ("trajectory.png", "errors.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_track_cli_metrics_are_evos_for_the_files_it_wrote(tmp_path, monkeypatch, capsys):
+    # ground truth stamped 4 ms after each frame: the metrics are evo's for trajectory.txt against
+    # groundtruth.txt (nearest stamps); --gt-interpolate evaluates against interpolated poses instead
+    from evo.core import metrics as evo_metrics
+    from evo.core import sync
+    from evo.tools import file_interface
+
+    from gvnn_warp.cli import main
+    from gvnn_warp.cli import track as track_cli
+
+    data = _render(tmp_path, frames=40)
+    seq = read_tum(data)
+    write_trajectory(data / "groundtruth.txt", seq.timestamps + 0.004, seq.gt_poses)
+    gt = seq.gt_poses
+    monkeypatch.setattr(track_cli, "make_aligner", lambda K, **kw: TrueMotion(
+        gt, perturb={(i, i + 1): _shift(0.004 * (-1) ** i) for i in range(0, 39, 3)}))
+    results = {}
+    for extra in ([], ["--gt-interpolate"]):
+        out = tmp_path / f"out{len(extra)}"
+        assert main(["track", str(data), "--out", str(out), "--no-progress", *extra]) == 0
+        results[len(extra)] = json.loads((out / "metrics.json").read_text())
+    m = results[0]
+    ref = file_interface.read_tum_trajectory_file(str(data / "groundtruth.txt"))
+    est = file_interface.read_tum_trajectory_file(str(tmp_path / "out0" / "trajectory.txt"))
+    ref, est = sync.associate_trajectories(ref, est, max_diff=0.02)
+    for relation, key in ((evo_metrics.PoseRelation.translation_part, "rpe_trans_rmse_m"),
+                          (evo_metrics.PoseRelation.rotation_angle_deg, "rpe_rot_rmse_deg")):
+        rpe = evo_metrics.RPE(relation, delta=1, delta_unit=evo_metrics.Unit.frames)
+        rpe.process_data((ref, est))
+        assert m[key] == pytest.approx(rpe.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-5, abs=1e-9)
+    est.align(ref)
+    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    assert m["ate_rmse_m"] == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-5)
+    assert "nearest" in m["gt_association"] and "interpolated" in results[1]["gt_association"]
+    assert results[1]["rpe_rot_rmse_deg"] != pytest.approx(m["rpe_rot_rmse_deg"], rel=1e-3)
+    # the per-second RPE: 40 frames at 30 Hz, steps of 30 frames from frames 0..8 (9 is the last's)
+    assert m["rpe_per_second_steps"] == 9 and m["rpe_trans_m_per_s"] > 0 and m["rpe_rot_deg_per_s"] >= 0
+    assert "cm/s" in capsys.readouterr().out
 
 
 def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
