@@ -94,26 +94,16 @@ def run(args: argparse.Namespace) -> int:
     return run_train(args) if args.depth_command == "train" else run_eval(args)
 
 
-def _data_error(e: Exception) -> int:
-    print(f"gvnn-warp depth: error: {e}", file=sys.stderr)
-    return 1
-
-
 def run_train(args: argparse.Namespace) -> int:
     # torch (through gvnn_warp.depth) only now: after gvnn_warp.cli checked it is installed
-    from ..datasets.errors import DatasetError
     from ..depth.train import DepthConfig, train
-    from ..vo.checkpoint import CheckpointError
 
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
         gap=args.gap or _DEFAULT_GAP, pose=args.pose, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
         seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )
-    try:
-        m = train(cfg)
-    except (DatasetError, CheckpointError) as e:
-        return _data_error(e)
+    m = train(cfg)  # (a folder or checkpoint that cannot be used: one line, status 1, by the runner)
     if m["interrupted"]:
         return 130
     loss = m["train_loss"]
@@ -124,14 +114,9 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from ..datasets.errors import DatasetError
     from ..depth.evaluate import evaluate
-    from ..vo.checkpoint import CheckpointError
 
-    try:
-        m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
-    except (DatasetError, CheckpointError) as e:
-        return _data_error(e)
+    m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
     if m.get("abs_rel") is None:
         print(f"depth eval: {m['frames']} frames predicted; {args.data} has no depth files to compare with; "
               f"wrote {args.out}")

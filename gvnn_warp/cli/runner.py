@@ -1,8 +1,9 @@
 """How every ``gvnn-warp`` command runs, shared by the package's ``main`` and by each command run on
 its own (``python -m gvnn_warp.cli.<command>``): the packages a command needs are checked before it
 starts, a bad combination of arguments (``UsageError``) is one line after the usage line (status 2), a
-file the command cannot make, read or write is one line (status 1), and Ctrl-C ends it with one line
-and status 130.
+file the command cannot make, read, write or use (``OSError``, ``gvnn_warp.errors.InputError``: a
+missing or 8-bit depth PNG, an empty list, a checkpoint of another format) is one line without the
+usage text (status 1), and Ctrl-C ends it with one line and status 130.
 
 Imports no command module (the package ``gvnn_warp.cli`` holds the table of commands).
 """
@@ -21,6 +22,7 @@ from collections.abc import Callable, Iterable
 import warp as wp
 
 from .. import _warp_setup
+from ..errors import InputError
 from .args import HelpFormatter, UsageError, plain_text
 
 __all__ = [
@@ -129,7 +131,8 @@ def _clear_unhandled_interrupt() -> bool:
 def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requires: Iterable[str] = ()) -> int:
     """Run ``args.func(args)``: the packages in ``requires`` are checked first (one line, status 1,
     if one is missing); a ``UsageError`` is printed after the usage line (status 2); an OSError
-    naming a file (one the command cannot make, read or write) is one line, status 1; Ctrl-C ends
+    naming a file (one the command cannot make, read or write) and an ``InputError`` (a file it
+    cannot use) are one line, status 1; Ctrl-C ends
     the command with one line and status 130."""
     missing = missing_packages(requires)
     if missing:
@@ -143,6 +146,9 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
             return args.func(args)
     except UsageError as e:
         parser.error(str(e))
+    except InputError as e:  # a file that cannot be used (a data error, not the arguments'): one line
+        print(f"{parser.prog}: error: {e}", file=sys.stderr)
+        return 1
     except OSError as e:
         if e.filename is None:  # not about a file: a bug or the system's, with its traceback
             raise

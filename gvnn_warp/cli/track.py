@@ -175,15 +175,13 @@ def check(args: argparse.Namespace):
     if existing and not getattr(args, "overwrite", False):
         raise UsageError(f"--out {args.out} already holds results ({existing[0]}); pass --overwrite or choose "
                          "another folder")
-    try:
-        seq = read_tum(args.data, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
-                       max_difference=args.max_difference)
-        n = len(seq) if args.max_frames is None else min(args.max_frames, len(seq))
-        if n < 2:
-            raise UsageError(f"{args.data}: need at least 2 frames to track, found {n}")
-        seq.check_files(n)
-    except DatasetError as e:
-        raise UsageError(str(e)) from None
+    # (a file that cannot be used is a DatasetError: one line without the usage text, status 1)
+    seq = read_tum(args.data, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
+                   max_difference=args.max_difference)
+    n = len(seq) if args.max_frames is None else min(args.max_frames, len(seq))
+    if n < 2:
+        raise DatasetError(f"{args.data}: need at least 2 frames to track, found {n}")
+    seq.check_files(n)
     cx, cy = seq.K[0, 2], seq.K[1, 2]
     if not (0 <= cx <= seq.width - 1 and 0 <= cy <= seq.height - 1):
         source = "--intrinsics" if seq.intrinsics_source == "given" else seq.intrinsics_source
@@ -216,12 +214,9 @@ def check_method(args: argparse.Namespace):
     if missing_packages(("torch",)):
         raise UsageError(f"--method {method} needs {INSTALL_HINTS['torch']}")
     # torch loads only here, for a network: --method direct (the default) never imports it
-    from ..vo.checkpoint import CheckpointError, load_network
+    from ..vo.checkpoint import load_network
 
-    try:
-        return load_network(ckpt)
-    except CheckpointError as e:
-        raise UsageError(str(e)) from None
+    return load_network(ckpt)  # (a CheckpointError is one line, status 1)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -242,27 +237,21 @@ def run(args: argparse.Namespace) -> int:
         if missing_packages(("torch",)):
             raise UsageError(f"--depth predicted needs {INSTALL_HINTS['torch']}")
         from ..depth.predict import DepthPredictor  # torch: only for a network (see check_method)
-        from ..vo.checkpoint import CheckpointError
 
-        try:
-            predictor = DepthPredictor(args.checkpoint)
-        except CheckpointError as e:
-            raise UsageError(str(e)) from None
+        predictor = DepthPredictor(args.checkpoint)  # (a CheckpointError is one line, status 1)
     policy = None
     if args.keyframes:  # the options given, else the policy's defaults
         given = {field: getattr(args, option, None) for option, field in KEYFRAME_OPTIONS.items()}
         policy = KeyframePolicy(**{field: v for field, v in given.items() if v is not None})
-    try:
-        report = track_sequence(
-            seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
-            checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
-            levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
-            max_difference=args.max_difference, predictor=predictor,
-            interpolate_gt=getattr(args, "gt_interpolate", False), progress=not args.no_progress,
-        )
-    except DatasetError as e:  # an unreadable image met while tracking: one line naming the file
-        print(f"gvnn-warp track: error: {e}", file=sys.stderr)
-        return 1
+    # an image that cannot be read while tracking is one line naming it (and, past frame 1, where the
+    # results of the frames before it were written), status 1: gvnn_warp.cli.runner prints InputErrors
+    report = track_sequence(
+        seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
+        checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
+        levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
+        max_difference=args.max_difference, predictor=predictor,
+        interpolate_gt=getattr(args, "gt_interpolate", False), progress=not args.no_progress,
+    )
     print(f"track {seq.root}:\n{_summary(report.rows)}\nwrote {args.out}")
     return 0
 

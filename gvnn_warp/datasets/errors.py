@@ -1,7 +1,9 @@
 """The one error of the dataset readers."""
 
+from ..errors import InputError
+
 __all__ = ["DatasetError"]
 
 
-class DatasetError(ValueError):
+class DatasetError(InputError):
     """A sequence folder or trajectory file that cannot be read; the message names the file."""

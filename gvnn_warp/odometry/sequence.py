@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..datasets.tum import TUMSequence, write_trajectory
+from ..errors import InputError
 from .evaluation import (
     ATE_ALIGNMENT,
     ATE_ALIGNMENT_SIM3,
@@ -48,7 +49,7 @@ from .evaluation import (
     plot_top_view,
     rpe_per_second,
 )
-from .tracking import KeyframePolicy, TrackResult, track
+from .tracking import KeyframePolicy, TrackingStopped, TrackResult, track
 
 __all__ = [
     "LOW_VALID_FRACTION",
@@ -108,7 +109,10 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
 
     ``out`` is made, and the files of :data:`RESULT_FILES` in it removed, only once the tracking is
     done: a run that fails leaves nothing, or the earlier results, and no earlier file is left
-    beside the new ones. The frames go to the aligner grey unless ``color`` or ``method`` is not
+    beside the new ones. A frame that cannot be read (after frame 1) ends the run with the results
+    of the frames before it written (``metrics.json``: ``partial``, ``stopped_at_frame``,
+    ``stopped_by``) and then :class:`.TrackingStopped`, whose message says so. The frames go to
+    the aligner grey unless ``color`` or ``method`` is not
     ``"direct"`` (a network takes RGB). ``keyframes``: align to keyframes replaced by this policy
     (None: to the previous frame); ``init``: ``"identity"`` or ``"velocity"`` (constant velocity)
     initial guess; ``progress``: a tqdm bar. ``method``, ``checkpoint``, ``levels``, ``iterations``,
@@ -137,7 +141,15 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             return seq.image(i, gray=gray), seq.depth(i)
         return seq.image(i, gray=gray), predictor(seq.image(i))
 
-    result = track(read_frame, n, aligner, start_pose=start, keyframes=keyframes, init=init, progress=progress)
+    stopped = None
+    try:
+        result = track(read_frame, n, aligner, start_pose=start, keyframes=keyframes, init=init, progress=progress)
+    except TrackingStopped as e:  # a frame that cannot be read: the frames before it are results too
+        if e.frame < 2:
+            raise
+        stopped, result, n = e, e.result, e.frame
+        gt_poses, gt_valid = (None, None) if gt_poses is None else (gt_poses[:n], gt_valid[:n])
+        has_gt = gt_poses is not None and int(gt_valid.sum()) >= 2
 
     stamps = seq.timestamps[:n]
     # only now, with the run done: make out, and remove the earlier run's files, so that a run that
@@ -172,7 +184,11 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         "unconverged_frames": unconverged,
         "median_valid_fraction": _median_valid(result.valid_fraction),
         "ground_truth": has_gt,
+        "partial": stopped is not None,
     }
+    if stopped is not None:
+        metrics["stopped_at_frame"] = stopped.frame
+        metrics["stopped_by"] = str(stopped)
     K = seq.K
     depth_text = "" if predictor is None else ", depth predicted"
     rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method}{depth_text})"),
@@ -244,6 +260,10 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         rows.append(("ground truth", why))
         metrics["ground_truth_note"] = why
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    if stopped is not None:  # the results so far are written: now the error, which says so
+        raise TrackingStopped(stopped.frame, result, InputError(
+            f"{stopped}; stopped at frame {stopped.frame}: {out} holds the results of the {n} frames before it "
+            "(metrics.json: partial)")) from stopped.__cause__
     return SequenceReport(result, metrics, rows)
 
 

@@ -30,8 +30,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from ..errors import InputError
+
 __all__ = [
     "KeyframePolicy",
+    "TrackingStopped",
     "TrackResult",
     "Tracker",
     "frame_aligner",
@@ -51,6 +54,16 @@ class KeyframePolicy:
     max_trans_m: float = 0.05
     max_rot_deg: float = 2.0
     min_valid: float = 0.6
+
+
+class TrackingStopped(InputError):
+    """A frame that could not be read stopped :func:`track`: ``frame`` is its index, ``result`` the
+    :class:`TrackResult` of the frames before it, ``__cause__`` the reader's error (whose message
+    this one repeats)."""
+
+    def __init__(self, frame: int, result: TrackResult, cause: Exception):
+        super().__init__(str(cause))
+        self.frame, self.result = frame, result
 
 
 @dataclass
@@ -338,6 +351,9 @@ def track(
         pipeline: prepare each frame on a helper thread while the previous one is aligned (see the
             module docstring; the same poses). None (default): when the aligner allows it
             (``concurrent_prepare``).
+
+    A frame i >= 1 that ``read_frame`` cannot read (``gvnn_warp.errors.InputError``, e.g. an image
+    whose pixels do not decode) raises :class:`TrackingStopped` holding the result of frames 0 to i - 1.
     """
     tracker = Tracker(aligner, n_frames, start_pose=start_pose, keyframes=keyframes, init=init, warmup=warmup,
                       pipeline=pipeline)
@@ -347,7 +363,11 @@ def track(
     tracker.add(*read_frame(0))
     with tqdm(total=n_frames, initial=1, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
         for i in range(1, n_frames):
-            tracker.add(*read_frame(i))
+            try:
+                frame = read_frame(i)
+            except InputError as e:
+                raise TrackingStopped(i, tracker.result(), e) from e
+            tracker.add(*frame)
             bar.update(1)
             if progress and (i % 10 == 0 or i == n_frames - 1):
                 bar.set_postfix_str(f"{tracker.ms_per_pair:.1f} ms/pair", refresh=False)

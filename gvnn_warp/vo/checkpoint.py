@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..errors import InputError
 from .model import CascadeVO
 
 __all__ = [
@@ -45,7 +46,7 @@ _NETWORK_KEYS = ("motion", "scales", "size", "widths", "depth_input", "n_head_la
                  "depth_normalised_t")
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError):
     """A file that is not a checkpoint this gvnn_warp can use; the message is one line naming the file."""
 
 

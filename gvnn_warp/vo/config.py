@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..datasets.errors import DatasetError
 from .checkpoint import CHECKPOINT, CheckpointError, read_checkpoint
 from .data import tum_frames
 from .loss import DEFAULT_LOSS, LOSSES
@@ -140,13 +139,11 @@ def n_pairs(cfg: VOConfig, n_traj: int) -> int:
 
 
 def _folder_frames(cfg: VOConfig, roots) -> list[int]:
-    """Frames with ground truth used from each TUM folder (DatasetError as ConfigError)."""
+    """Frames with ground truth used from each TUM folder (DatasetError for a folder that cannot be
+    used)."""
     out = []
     for root in roots:
-        try:
-            _, frames = tum_frames(root, cfg.data_max_frames or None)
-        except DatasetError as e:
-            raise ConfigError(str(e)) from None
+        _, frames = tum_frames(root, cfg.data_max_frames or None)
         out.append(int(frames.size))
     return out
 
@@ -167,7 +164,8 @@ def _data_bytes(cfg: VOConfig, frames: int | None = None, pairs: int | None = No
 def check_config(cfg: VOConfig, world: int | None = None) -> dict | None:
     """Every check of ``cfg`` that can be made before rendering: the options together, the number of
     ranks (``world``, default: ``WORLD_SIZE``), and, with ``cfg.resume``, the checkpoint in
-    ``cfg.out``. Raises :class:`ConfigError`; returns the checkpoint to resume from (or None)."""
+    ``cfg.out``. Raises :class:`ConfigError` (``DatasetError``/``CheckpointError`` for a folder or
+    checkpoint that cannot be used); returns the checkpoint to resume from (or None)."""
     world = world if world is not None else int(os.environ.get("WORLD_SIZE", "1"))
     gap = max(cfg.gaps)
     if cfg.batch_size % world:
@@ -204,8 +202,8 @@ def _resume_checkpoint(cfg: VOConfig) -> dict | None:
         return None
     try:
         ck = read_checkpoint(path)
-    except CheckpointError as e:
-        raise ConfigError(f"cannot resume: {e}; start a new run in another directory") from None
+    except CheckpointError as e:  # a data error (one line, status 1), not the options'
+        raise CheckpointError(f"cannot resume: {e}; start a new run in another directory") from None
     for key in RESUME_KEYS:
         if tuple(np.atleast_1d(ck["config"].get(key))) != tuple(np.atleast_1d(getattr(cfg, key))):
             raise ConfigError(f"cannot resume: checkpoint has {key}={ck['config'].get(key)!r}, "

@@ -80,7 +80,6 @@ def _bad_cases():
             (["--pose-weight", "-1"], "argument --pose-weight: expected a number from 0 to 1e+06"),
             (["--data", NOWHERE], "--data with one folder needs --eval-data DIR"),
             (["--eval-data", NOWHERE], "--eval-data needs --data"),
-            (["--data", NOWHERE, NOWHERE], "nowhere: no such directory"),
             (["--stages", "0"], "argument --stages: expected an integer from 1 to 8"),
             (["--refine", "-1"], "argument --refine: expected an integer from 0 to 20"),
             (["--stages", "1", "--refine", "2"], "--refine 2 must be >= 0 and needs a cascade of at least 2"),
@@ -103,8 +102,6 @@ def _bad_cases():
         "track": [
             (["--out", BAD], "argument --out: '{BAD}' exists and is not a directory"),
             (["--out", FILE_CHILD], "argument --out: cannot make directory"),
-            ([NOWHERE], "nowhere: no such directory"),
-            ([SHORT], "need at least 2 frames to track, found 1"),
             (["--max-frames", "1"], "argument --max-frames: expected an integer >= 2, got '1'"),
             (["--intrinsics", "fr9"], "argument --intrinsics: expected one of fr1, fr2, fr3, icl or fx,fy,cx,cy"),
             (["--intrinsics", "1,2,3"], "argument --intrinsics: expected one of fr1"),
@@ -131,7 +128,6 @@ def _bad_cases():
             (["--depth-weight", "-1"], "argument --depth-weight: expected a number from 0 to 1e+06"),
             (["--depth-weight", "inf"], "argument --depth-weight: expected a number from 0 to 1e+06"),
             (["--method", "vo"], "--method vo needs --checkpoint CKPT"),
-            (["--method", "vo+direct", "--checkpoint", BAD], "not a gvnn-warp vo checkpoint"),
             (["--method", "magic"], "argument --method: invalid choice: 'magic'"),
         ],
     }
@@ -188,6 +184,35 @@ def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, 
     assert "Traceback" not in err
     assert not out.exists()  # nothing was made: no work started
     assert bad_file.read_text() == "not a directory"
+
+
+DATA_ERRORS = [  # a file or folder that cannot be used: one line naming it, status 1, no usage text
+    ("vo", ["--data", NOWHERE, NOWHERE], "nowhere: no such directory"),
+    ("track", [NOWHERE], "nowhere: no such directory"),
+    ("track", [SHORT], "need at least 2 frames to track, found 1"),
+    ("track", ["--method", "vo+direct", "--checkpoint", BAD], "not a gvnn-warp vo checkpoint"),
+    ("track", ["--depth", "predicted", "--checkpoint", BAD], "not a checkpoint this version can load"),
+    ("depth", ["eval", "--checkpoint", BAD, "--data", SEQ], "not a checkpoint this version can load"),
+    ("depth", ["train", "--data", NOWHERE, "--steps", "1"], "nowhere: no such directory"),
+]
+
+
+@pytest.mark.parametrize("command, extra, message", DATA_ERRORS, ids=[f"{c} {' '.join(e)}" for c, e, _ in DATA_ERRORS])
+def test_data_errors_are_one_line_without_the_usage(command, extra, message, tmp_path, capsys, request):
+    bad_file = tmp_path / "a_file"
+    bad_file.write_text("not a checkpoint")
+    sequence, short = request.getfixturevalue("sequences")
+    out = tmp_path / "out"
+    replace = {BAD: str(bad_file), NOWHERE: str(tmp_path / "nowhere"), SHORT: str(short), SEQ: str(sequence)}
+    extra = [replace.get(a, a) for a in extra]
+    argv = ([command, *extra[:1]] if command == "depth" else [command]) + (extra[1:] if command == "depth" else extra)
+    if command == "track" and extra[0].startswith("-"):
+        argv.insert(1, str(sequence))
+    argv += ["--out", str(out), "--no-progress"] if command != "vo" else ["--out", str(out), "--motion", "so3"]
+    assert cli.main(argv) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"gvnn-warp {command}") and message in lines[0], lines
+    assert not out.exists() or not any(out.iterdir())
 
 
 def test_validators():

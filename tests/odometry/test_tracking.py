@@ -3,6 +3,7 @@ chaining, keyframes, failures reported) and `gvnn-warp track` end to end."""
 
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
@@ -417,20 +418,25 @@ def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
 
 
 def test_track_cli_file_errors_name_the_file(tmp_path, capsys):
-    # (every bad option is in test_cli.py's table; here: what is found on disk)
+    # (every bad option is in test_cli.py's table; here: what is found on disk, a data error: one
+    # line naming the file, status 1, no usage text)
     from gvnn_warp.cli import main
 
-    data = _render(tmp_path, frames=3, size="16x16")
+    data = _render(tmp_path, frames=4, size="16x16")
     out = tmp_path / "o"
+
+    def one_line_error(*argv):
+        assert main(["track", str(data), "--out", str(out), "--no-progress", *argv]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("gvnn-warp track: error: ") and "usage" not in err[0], err
+        return err[0]
+
     (data / "rgb.txt").rename(data / "rgb.old")
-    with pytest.raises(SystemExit) as e:
-        main(["track", str(data), "--out", str(out)])
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err[0].startswith("usage: gvnn-warp track") and sum("error" in line for line in err) == 1
-    assert re.fullmatch(r"gvnn-warp track: error: .*rgb.txt: missing colour list file.*", err[-1]), err
+    assert re.fullmatch(r"gvnn-warp track: error: .*rgb.txt: missing colour list file.*", one_line_error())
+    (data / "rgb.txt").write_text("# an empty list\n")
+    assert "rgb.txt" in one_line_error()
     (data / "rgb.old").rename(data / "rgb.txt")
-    assert not out.exists()  # nothing is written before the arguments are checked
+    assert not out.exists()  # nothing is written before the files are checked
     # an image that is missing, not an image, or of the wrong format or size is found before any
     # frame is tracked (from the headers)
     images = sorted((data / "rgb").glob("*.png"))
@@ -448,26 +454,27 @@ def test_track_cli_file_errors_name_the_file(tmp_path, capsys):
             Image.open(path).resize(bad).save(path)
         else:
             path.write_bytes(bad)
-        with pytest.raises(SystemExit) as e:
-            main(["track", str(data), "--out", str(out), "--no-progress"])
-        assert e.value.code == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert err[-1].startswith("gvnn-warp track: error: ") and path.name in err[-1] and says in err[-1], err
+        line = one_line_error()
+        assert path.name in line and says in line, line
         assert not out.exists()
         path.write_bytes(original)
-    # pixel data that cannot be decoded behind a good header is met while tracking: one line
-    # naming the file, status 1, and nothing written; an earlier run's results are kept
-    kept = tmp_path / "kept"
-    assert main(["track", str(data), "--out", str(kept), "--no-progress"]) == 0
-    before = {p.name: p.read_bytes() for p in kept.iterdir()}
-    capsys.readouterr()
+    depths[3].unlink()
+    assert depths[3].name in one_line_error() and not out.exists()
+    depths[3].write_bytes(depths[2].read_bytes())
+    # pixel data that cannot be decoded behind a good header is met while tracking: one line naming
+    # the file and saying where the results of the frames before it are, written and marked partial
     images[2].write_bytes(good[: len(good) // 2])
-    assert main(["track", str(data), "--out", str(out), "--no-progress"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("gvnn-warp track: error: ") and images[2].name in err[0], err
-    assert not out.exists()
-    assert main(["track", str(data), "--out", str(kept), "--no-progress", "--overwrite"]) == 1
-    assert {p.name: p.read_bytes() for p in kept.iterdir()} == before
+    line = one_line_error()
+    assert images[2].name in line and "stopped at frame 2" in line and str(out) in line
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["partial"] and m["stopped_at_frame"] == 2 and m["frames"] == 2 and images[2].name in m["stopped_by"]
+    stamps, _ = read_trajectory(out / "trajectory.txt")
+    assert stamps.shape == (2,)
+    # frame 1 unreadable: nothing to report, nothing written
+    shutil.rmtree(out)
+    images[2].write_bytes(good)
+    images[1].write_bytes(images[1].read_bytes()[:60])
+    assert images[1].name in one_line_error() and not out.exists()
 
 
 def test_track_cli_keeps_results_and_says_what_it_used(tmp_path, capsys):
@@ -743,13 +750,18 @@ def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
         (["--checkpoint", str(old)], "--checkpoint is used by --method vo and vo+direct only"),
         (["--method", "vo", "--checkpoint", str(tmp_path)], "not a file"),
     ]
+    usage_mistakes = {"--method vo needs --checkpoint CKPT", "--checkpoint is used by --method vo and vo+direct only"}
     for extra, message in cases:
-        with pytest.raises(SystemExit) as e:
-            main(["track", str(data), "--out", str(tmp_path / "o"), *extra])
-        assert e.value.code == 2
+        if message in usage_mistakes:  # the arguments' mistakes: after the usage text, status 2
+            with pytest.raises(SystemExit) as e:
+                main(["track", str(data), "--out", str(tmp_path / "o"), *extra])
+            assert e.value.code == 2
+        else:  # a checkpoint that cannot be used is a data error: one line, status 1
+            assert main(["track", str(data), "--out", str(tmp_path / "o"), *extra]) == 1
         err = capsys.readouterr().err.strip().splitlines()
         assert err[-1].startswith("gvnn-warp track: error: ") and message in err[-1], (extra, err)
         assert sum("error" in line for line in err) == 1
+        assert (len(err) == 1) == (message not in usage_mistakes), err
     assert not (tmp_path / "o").exists()
 
 

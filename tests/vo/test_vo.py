@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 
+from gvnn_warp.datasets.errors import DatasetError
 from gvnn_warp.vo import CascadeVO, SiameseVO, compose_pose, default_config, photometric_loss, pose_errors, train
 from gvnn_warp.vo.data import render_split
 from gvnn_warp.vo.loss import warp_live
@@ -412,7 +413,7 @@ def test_resume_refuses_checkpoints_of_other_versions(tmp_path, old):
     pickled inside, no format number, format 2 without the network's description, format 3 without
     its symmetries) gets a clear
     one-line error, not a traceback or a silent resume."""
-    from gvnn_warp.vo.train import ConfigError
+    from gvnn_warp.vo.checkpoint import CheckpointError
 
     cfg = _tiny_config(tmp_path, resume=True)
     ck = {"config": dataclasses.asdict(cfg), "step": 3, "train_loss": [1.0, 1.0, 1.0]}
@@ -421,7 +422,7 @@ def test_resume_refuses_checkpoints_of_other_versions(tmp_path, old):
     if old in ("format 2", "format 3"):
         ck.update(format=int(old[-1]), model=CascadeVO("so3", size=TINY).state_dict())
     torch.save(ck, tmp_path / "checkpoint.pt")
-    with pytest.raises(ConfigError, match="cannot resume: .*checkpoint.pt: .*(older|another) version") as e:
+    with pytest.raises(CheckpointError, match="cannot resume: .*checkpoint.pt: .*(older|another) version") as e:
         train(cfg)
     assert "\n" not in str(e.value)
     if old != "pickled numpy":
@@ -593,7 +594,7 @@ def test_train_on_tum_folders_holds_out_the_last(tum_folders, tmp_path):
         assert torch.equal(v, ck["model"][k]), k
     with pytest.raises(ConfigError, match="--data with one folder needs --eval-data"):
         _tiny_config(tmp_path, data=tuple(tum_folders[:1]))
-    with pytest.raises(ConfigError, match="groundtruth.txt: missing"):
+    with pytest.raises(DatasetError, match="groundtruth.txt: missing"):
         bare = tmp_path / "bare"
         shutil.copytree(tum_folders[0], bare)
         (bare / "groundtruth.txt").unlink()
