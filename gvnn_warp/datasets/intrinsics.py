@@ -90,9 +90,34 @@ def _preset_from_name(root: Path) -> str | None:
 
 
 def resolve_intrinsics(root: Path, intrinsics, width: int, height: int):
-    """(K, source, dist or None) of a sequence folder ``root`` of ``width`` x ``height`` images, from
-    ``intrinsics`` (see :func:`gvnn_warp.datasets.tum.read_tum`), else ``root/intrinsics.txt``, else
-    the Freiburg preset named by the folder."""
+    """(K, source, dist or None, override) of a sequence folder ``root`` of ``width`` x ``height``
+    images, from ``intrinsics`` (see :func:`gvnn_warp.datasets.tum.read_tum`), else
+    ``root/intrinsics.txt``, else the Freiburg preset named by the folder. ``override``: None, or,
+    when given intrinsics replace the folder's ``intrinsics.txt``, a sentence saying so and whether
+    the two differ (a warning for the user: the wrong camera costs far more than a wrong option)."""
+    K, source, dist = _resolve(root, intrinsics, width, height)
+    path = root / "intrinsics.txt"
+    override = None
+    if intrinsics is not None and path.exists():
+        try:
+            K_file, dist_file = _read_intrinsics_file(path)
+        except DatasetError:
+            return K, source, dist, f"the intrinsics given replace {path}, which cannot be read"
+        same = np.allclose(K, K_file, rtol=1e-6, atol=1e-9) and (
+            (dist is None and dist_file is None) or (dist is not None and dist_file is not None
+                                                     and np.allclose(dist, dist_file, rtol=1e-6, atol=1e-12)))
+        if same:
+            override = f"the intrinsics given replace {path}, which has the same values"
+        else:
+            def text(K_, d_):
+                return (f"fx {K_[0, 0]:g} fy {K_[1, 1]:g} cx {K_[0, 2]:g} cy {K_[1, 2]:g}"
+                        + ("" if d_ is None else " with radial-tangential distortion"))
+            override = (f"the intrinsics given ({text(K, dist)}) replace {path}, which differs "
+                        f"({text(K_file, dist_file)}): check that they are this camera's")
+    return K, source, dist, override
+
+
+def _resolve(root: Path, intrinsics, width: int, height: int):
     scaled = "" if (width, height) == (640, 480) else f", scaled from 640x480 to {width}x{height}"
     if isinstance(intrinsics, str):
         if intrinsics not in INTRINSICS_PRESETS:

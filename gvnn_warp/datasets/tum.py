@@ -116,7 +116,9 @@ class TUMSequence:
 
     Attributes:
         root: the folder.
-        K: (3, 3) float64 intrinsics; ``intrinsics_source`` says where they came from.
+        K: (3, 3) float64 intrinsics; ``intrinsics_source`` says where they came from, and
+            ``intrinsics_override`` (None, or a sentence) that given intrinsics replaced the
+            folder's ``intrinsics.txt`` and whether it differs.
         dist: (5,) float64 radial-tangential distortion (k1, k2, p1, p2, k3) of the images, or
             None (a pinhole: undistorted images); from the same source as K.
         width, height: image size (from the first colour image).
@@ -145,6 +147,7 @@ class TUMSequence:
     gt_timestamps: np.ndarray | None = None
     gt_raw_poses: np.ndarray | None = field(default=None, repr=False)
     dist: np.ndarray | None = None
+    intrinsics_override: str | None = None
 
     def __len__(self) -> int:
         return len(self.rgb_files)
@@ -244,9 +247,10 @@ def read_tum(
     first = read_rgb(rgb_files[0])
     height, width = first.shape[1:]
 
-    K, source, dist = resolve_intrinsics(root, intrinsics, width, height)
+    K, source, dist, override = resolve_intrinsics(root, intrinsics, width, height)
     seq = TUMSequence(
-        root=root, K=K, intrinsics_source=source, width=width, height=height, dist=dist,
+        root=root, K=K, intrinsics_source=source, intrinsics_override=override, width=width, height=height,
+        dist=dist,
         timestamps=rgb_times[pairs[:, 0]], depth_timestamps=depth_times[pairs[:, 1]],
         rgb_files=rgb_files, depth_files=depth_files, depth_scale=float(depth_scale),
     )

@@ -27,9 +27,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from matplotlib.figure import Figure
-from tqdm import tqdm
 
 from ..functional import se3_to_matrix, warp_frame_depth
+from ..progress import progress_bar
 from .views import make_views, max_levels, pose_error
 
 __all__ = ["AlignResult", "align_demo", "figure", "fit_pose", "save_figure"]
@@ -47,7 +47,7 @@ def fit_pose(ref: torch.Tensor, depth: torch.Tensor, live: torch.Tensor, K: torc
     ``progress``: a tqdm bar (None: only on a terminal)."""
     xi = torch.zeros(1, 6, dtype=torch.float32, requires_grad=True)
     optim = torch.optim.Adam([xi], lr=0.01)
-    with tqdm(total=levels * steps, desc="align", unit="step", mininterval=0.5,
+    with progress_bar(total=levels * steps, desc="align", unit="step", mininterval=0.5,
               disable=None if progress is None else not progress) as bar:
         for level in reversed(range(levels)):
             s = 2**level

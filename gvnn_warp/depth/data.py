@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import Tensor
-from tqdm import tqdm
 
 from ..cameras import RadTanCamera
 from ..datasets.errors import DatasetError
 from ..datasets.tum import read_tum
+from ..progress import progress_bar
 from ..vo.frontend import resize_frame, scale_intrinsics
 
 __all__ = ["Video", "read_video"]
@@ -66,7 +66,7 @@ def read_video(roots, size: tuple[int, int], *, gap: int = 1, with_depth: bool =
     K = dist = None
     n = 0
     seqs = [read_tum(r) for r in roots]
-    bar = tqdm(total=sum(len(s) if max_frames is None else min(len(s), max_frames) for s in seqs),
+    bar = progress_bar(total=sum(len(s) if max_frames is None else min(len(s), max_frames) for s in seqs),
                desc="reading frames", unit="frame", disable=not progress, mininterval=0.5)
     for k, seq in enumerate(seqs):
         count = len(seq) if max_frames is None else min(len(seq), max_frames)

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import torch
 from torch import Tensor
-from tqdm import tqdm
 
+from ..progress import progress_bar
 from ..vo.checkpoint import atomic_write_text
 from .data import read_video
 from .train import load_checkpoint, load_depth_net
@@ -74,7 +74,7 @@ def evaluate(checkpoint: str | Path, data: str | Path, out: str | Path, *, progr
     video = read_video([data], size, with_depth=True, progress=progress)
     preds = []
     with torch.no_grad():
-        for i in tqdm(range(0, video.images.shape[0], batch_size), desc="depth eval", unit="batch",
+        for i in progress_bar(range(0, video.images.shape[0], batch_size), desc="depth eval", unit="batch",
                       disable=not progress, mininterval=0.5):
             preds.append(net.depth(video.images[i:i + batch_size]))
     pred = torch.cat(preds)

@@ -24,12 +24,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
-from tqdm import tqdm
 
 from ..datasets.tum import read_tum
 from ..functional.lie import se3_to_matrix
 from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
 from ..odometry.aligner import DirectAligner
+from ..progress import progress_bar
 from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
@@ -267,7 +267,7 @@ def train(cfg: DepthConfig) -> dict:
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM,)}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(flag=True))
     budget = 60.0 * cfg.minutes
-    bar = tqdm(desc="depth train", unit="step", initial=step, total=cfg.steps, disable=not cfg.progress,
+    bar = progress_bar(desc="depth train", unit="step", initial=step, total=cfg.steps, disable=not cfg.progress,
                mininterval=0.5)
     t0 = last_ck = time.perf_counter()
     interrupted = False

@@ -75,7 +75,7 @@ def flow_warp(image: Tensor, flow: Tensor, *, padding_mode: str = "zeros") -> Te
         the border like ``grid_sample``.
     """
     chk = ArgCheck("flow_warp")
-    chk.tensor("image", image, "B C H W")
+    chk.tensor("image", image, "B C H W", image=True)
     chk.tensor("flow", flow, "B 2 H W")
     pad = _padding(chk, padding_mode)
     _, C, H, W = image.shape
@@ -98,7 +98,7 @@ def disparity_warp(image: Tensor, disparity: Tensor, *, padding_mode: str = "zer
         (B, C, H, W) reconstructed left image; gradients flow to image and disparity.
     """
     chk = ArgCheck("disparity_warp")
-    chk.tensor("image", image, "B C H W")
+    chk.tensor("image", image, "B C H W", image=True)
     chk.tensor("disparity", disparity, "B 1 H W")
     pad = _padding(chk, padding_mode)
     _, C, H, W = image.shape
@@ -120,7 +120,7 @@ def affine_flow_warp(image: Tensor, params: Tensor, *, padding_mode: str = "zero
         (B, C, H, W) warped image; gradients flow to image and params.
     """
     chk = ArgCheck("affine_flow_warp")
-    chk.tensor("image", image, "B C H W")
+    chk.tensor("image", image, "B C H W", image=True)
     chk.tensor("params", params, "B 6 H W")
     pad = _padding(chk, padding_mode)
     _, C, H, W = image.shape

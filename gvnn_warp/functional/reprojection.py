@@ -84,8 +84,8 @@ def reprojection_loss(
     chosen candidate of each pixel; they are finite for every depth value (0, negative, NaN).
     """
     chk = ArgCheck("reprojection_loss")
-    chk.tensor("target", target, "B C H W")
-    chk.tensor("sources", sources, "B S C H W")
+    chk.tensor("target", target, "B C H W", image=True)
+    chk.tensor("sources", sources, "B S C H W", image=True)
     B, S, C, H, W = sources.shape
     if S < 1:
         chk.fail(ValueError, "argument 'sources' must hold at least one source frame (S >= 1), got S = 0")
@@ -157,7 +157,7 @@ def edge_aware_smoothness(disparity: Tensor, image: Tensor) -> Tensor:
     """
     chk = ArgCheck("edge_aware_smoothness")
     chk.tensor("disparity", disparity, "B 1 H W")
-    chk.tensor("image", image, "B C H W")
+    chk.tensor("image", image, "B C H W", image=True)
     B, C, H, W = image.shape
     if H < 2 or W < 2:
         chk.fail(ValueError, f"images must be at least 2x2, got {H}x{W}")

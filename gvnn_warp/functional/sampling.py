@@ -44,7 +44,7 @@ def bilinear_sample(
         (B, C, h, w) samples; gradients for image and grid.
     """
     chk = ArgCheck("bilinear_sample")
-    chk.tensor("image", image, "B C H W")
+    chk.tensor("image", image, "B C H W", image=True)
     chk.tensor("grid", grid, "B h w 2")
     pad = _PADDING[chk.option("padding_mode", padding_mode, tuple(_PADDING))]
     B, C, H, W = image.shape
@@ -101,7 +101,7 @@ def warp_frame_depth(
     ``grid_sample`` does), though ``valid`` is false there: mask the loss with ``valid``.
     """
     chk = ArgCheck("warp_frame_depth")
-    chk.tensor("image", image, "B C H W")
+    chk.tensor("image", image, "B C H W", image=True)
     chk.tensor("depth", depth, "B 1 H W")
     pose34 = chk.pose("pose", pose, "B 3|4 4")
     cam = FusedCamera(chk, K)

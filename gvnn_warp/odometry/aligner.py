@@ -63,6 +63,7 @@ Import needs no torch; torch is imported only when a tensor comes in.
 from __future__ import annotations
 
 import math
+import warnings
 import weakref
 
 import numpy as np
@@ -73,6 +74,8 @@ from ..kernels.geometry.camera import MIN_DEPTH
 from .frame import Frame, PyramidBuffers, recycle
 from .inputs import as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
 from .solver import LMState
+
+INTENSITY_LIMIT = 1.5  # above this an image is taken for [0, 255] intensities (warned about once per aligner)
 
 __all__ = ["DirectAligner", "Frame"]
 
@@ -224,6 +227,7 @@ class DirectAligner:
         self.lm_down = real_number(lm_down)
         self.min_valid_fraction = real_number(min_valid_fraction)
         self.depth_tolerance = real_number(depth_tolerance)
+        self._range_warned = False  # intensities beyond [0, 1] are reported once per aligner
         self._weights: dict[int, wp.array] = {}
         self._states: dict[tuple, LMState] = {}  # per (B, level shapes)
         self._frame_pool: dict[tuple, list] = {}  # per (B, C, H, W, with depth): free PyramidBuffers
@@ -286,6 +290,14 @@ class DirectAligner:
                 fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}{also}")
         if not use_depth:
             depth = None  # checked, but not needed
+        if not self._range_warned:  # 8-bit intensities run, but worse (the thresholds assume [0, 1])
+            sample = img[..., ::7, ::7]  # (1/49 of the pixels: cheap beside the pyramid)
+            top = float(np.nanmax(sample)) if np.isfinite(sample).any() else 0.0
+            if top > INTENSITY_LIMIT:
+                self._range_warned = True
+                warnings.warn(f"DirectAligner.{fn}: argument '{image_name}' has intensities up to {top:g}; they are "
+                              f"expected in [0, 1] (divide 8-bit images by 255), and accuracy suffers otherwise",
+                              UserWarning, stacklevel=3)
         key = (B, C, H, W, depth is not None)
         pool = self._frame_pool.setdefault(key, [])
         pyr = pool.pop() if pool else PyramidBuffers(B, C, H, W, depth is not None, levels=self._levels_for(H, W),

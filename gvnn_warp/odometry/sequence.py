@@ -198,6 +198,10 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             ("ms per pair", f"{result.ms_per_pair:.2f}"),
             ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {_frames_text(unconverged)})" if unconverged
                                                            else ""))]
+    if seq.intrinsics_override is not None:
+        differs = "differs" in seq.intrinsics_override or "cannot be read" in seq.intrinsics_override
+        rows.append(("warning" if differs else "note", seq.intrinsics_override))
+        metrics["intrinsics"]["override"] = seq.intrinsics_override
     if keyframes:
         rows.append(("keyframes", str(len(result.keyframes))))
     depth0 = seq.depth(0) if predictor is None else np.zeros(0)  # (a predicted depth's scale is set, not read)
@@ -205,11 +209,11 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
     median0 = metrics["first_frame_median_depth_m"] = float(np.median(depth0)) if depth0.size else None
     if median0 is not None and not PLAUSIBLE_DEPTH_M[0] <= median0 <= PLAUSIBLE_DEPTH_M[1]:
         rows.append(("warning", f"the first frame's median depth is {median0:.4g} m: check --depth-scale "
-                                f"({seq.depth_scale:g} units per metre)"))
+                                f"({_per_metre(seq.depth_scale)})"))
     valid = metrics["median_valid_fraction"]
     if valid is not None and valid < LOW_VALID_FRACTION:
         rows.append(("warning", f"only {100 * valid:.1f}% of the pixels were usable (median over the pairs): check "
-                                f"the depth images and --depth-scale ({seq.depth_scale:g} units per metre)"))
+                                f"the depth images and --depth-scale ({_per_metre(seq.depth_scale)})"))
     if has_gt:
         m = evaluate_trajectory(stamps, result.poses, gt_poses, gt_valid, correct_scale=predictor is not None)
         per_second = rpe_per_second(stamps, result.poses, seq.gt_timestamps, seq.gt_raw_poses, scale=m.scale)
@@ -265,6 +269,11 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             f"{stopped}; stopped at frame {stopped.frame}: {out} holds the results of the {n} frames before it "
             "(metrics.json: partial)")) from stopped.__cause__
     return SequenceReport(result, metrics, rows)
+
+
+def _per_metre(scale: float) -> str:
+    """The depth scale in words: 5000 units per metre, 1 unit per metre."""
+    return f"{scale:g} unit{'' if scale == 1 else 's'} per metre"
 
 
 def _median_valid(fractions) -> float | None:

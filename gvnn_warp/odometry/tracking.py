@@ -28,9 +28,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
 
 from ..errors import InputError
+from ..progress import progress_bar
 
 __all__ = [
     "KeyframePolicy",
@@ -361,7 +361,8 @@ def track(
     # a compile notice is not printed into it and its rate counts tracked frames only (the Tracker
     # has refused n_frames < 1)
     tracker.add(*read_frame(0))
-    with tqdm(total=n_frames, initial=1, unit="frame", disable=not progress, desc=desc, dynamic_ncols=True) as bar:
+    with progress_bar(total=n_frames, initial=1, unit="frame", disable=not progress, desc=desc,
+                      dynamic_ncols=True) as bar:
         for i in range(1, n_frames):
             try:
                 frame = read_frame(i)

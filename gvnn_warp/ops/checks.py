@@ -29,13 +29,16 @@ class ArgCheck:
         self.fn = f"gvnn_warp.{fn}"
         self.dims: dict[str, tuple[int, str]] = {}
         self.dtype: tuple[torch.dtype, str] | None = None
+        self.hint = ""  # added to shape errors: an image argument that looks channel-last
 
     def fail(self, exc, msg: str):
-        raise exc(f"{self.fn}: {msg}")
+        raise exc(f"{self.fn}: {msg}{self.hint if exc is ValueError else ''}")
 
-    def tensor(self, name: str, t, spec: str, *, floating: bool = True) -> torch.Tensor:
+    def tensor(self, name: str, t, spec: str, *, floating: bool = True, image: bool = False) -> torch.Tensor:
         """Check ``t`` is a CPU tensor of shape ``spec`` (and, if ``floating``, float32/float64,
-        the same dtype as every other floating argument of the call). Returns ``t``."""
+        the same dtype as every other floating argument of the call). Returns ``t``. ``image``: ``t``
+        is an image whose channels come before its rows (``... C H W``); if it looks channel-last
+        (last size 1, 3 or 4 and more than 4 "channels"), every later shape error of the call says so."""
         if not isinstance(t, torch.Tensor):
             self.fail(TypeError, f"argument '{name}' must be a torch.Tensor, got {type(t).__name__}")
         if t.device.type != "cpu":
@@ -53,6 +56,12 @@ class ArgCheck:
                 )
         if t.numel() >= 2**31:
             self.fail(ValueError, f"argument '{name}' has {t.numel()} elements; kernels index with int32 (< 2**31)")
+        if image and t.dim() >= 3 and t.shape[-1] in (1, 3, 4) and t.shape[-3] > 4 and not self.hint:
+            lead, n = ["B"] * (t.dim() - 3), t.dim()
+            perm = ", ".join(map(str, [*range(n - 3), n - 1, n - 3, n - 2]))
+            self.hint = (f" (argument '{name}' has shape {tuple(t.shape)}, which looks channel-last "
+                         f"({', '.join([*lead, 'H', 'W', 'C'])}): images are ({', '.join([*lead, 'C', 'H', 'W'])}); "
+                         f"use .permute({perm}))")
         alternatives = spec.split(" or ")
         if len(alternatives) > 1:  # pick the alternative of matching rank, for a specific message
             same_rank = [a for a in alternatives if len(a.split()) == t.dim()]

@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from ..datasets.tum import TUMWriter
+from ..progress import progress_bar
 from .render import render_rgbd
 from .scene import make_room_scene
 from .trajectories import default_intrinsics, rotation_trajectory, smooth_se3_trajectory
@@ -77,7 +77,7 @@ def render_sequence(out: Path, motion: str, frames: int, size: tuple[int, int], 
     if scene_seed is not None and scene_seed != seed:
         comment += f" --scene-seed {scene_seed}"
     render_s = 0.0
-    with TUMWriter(out, K, comment=comment) as writer, tqdm(
+    with TUMWriter(out, K, comment=comment) as writer, progress_bar(
         total=frames, unit="frame", disable=not progress, desc="render"
     ) as bar:
         for start in range(0, frames, chunk):

@@ -28,9 +28,9 @@ import numpy as np
 import torch
 import torch.distributed as dist
 from torch import Tensor
-from tqdm import tqdm
 
 from ..datasets.errors import DatasetError
+from ..progress import progress_bar
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, atomic_save, network_spec, rng_state, set_rng_state
 from .config import ConfigError, VOConfig, check_config, default_config
 from .data import PairSet, read_split, render_split, split_seeds
@@ -236,7 +236,7 @@ def train(cfg: VOConfig) -> dict:
 
     flips = cfg.flip_augment and _symmetric_intrinsics(train_set.K, W, H)
     stages = _stage_steps(cfg.steps)
-    bar = tqdm(total=cfg.steps, initial=step, desc=f"vo {cfg.motion}", unit="step", mininterval=0.5,
+    bar = progress_bar(total=cfg.steps, initial=step, desc=f"vo {cfg.motion}", unit="step", mininterval=0.5,
                disable=not (cfg.progress and rank == 0))
     t_train0 = time.perf_counter()
     last_ckpt_t, last_ckpt_step = t_train0, step

@@ -227,7 +227,12 @@ def test_groundtruth_is_interpolated_like_evo(tmp_path):
 def test_intrinsics_file_presets_and_explicit(tmp_path):
     _three_frame_folder(tmp_path)
     assert read_tum(tmp_path).intrinsics_source.endswith("intrinsics.txt")
-    seq = read_tum(tmp_path, intrinsics="fr1")  # explicit beats the file
+    assert read_tum(tmp_path).intrinsics_override is None
+    seq = read_tum(tmp_path, intrinsics="fr1")  # explicit beats the file, and says so: they differ
+    assert "replace" in seq.intrinsics_override and "which differs (fx 500 fy 501 cx 2 cy 1.5)" in (
+        seq.intrinsics_override) and "radial-tangential" in seq.intrinsics_override
+    same = read_tum(tmp_path, intrinsics=(500, 501, 2.0, 1.5)).intrinsics_override
+    assert "which has the same values" in same
     # fr1 is 517.3 516.5 318.6 255.3 at 640x480; these images are 5x4
     sx, sy = 5 / 640, 4 / 480
     np.testing.assert_allclose(seq.K, [[517.3 * sx, 0, 319.1 * sx - 0.5], [0, 516.5 * sy, 255.8 * sy - 0.5], [0, 0, 1]])

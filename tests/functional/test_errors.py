@@ -33,6 +33,12 @@ CASES = [
     (lambda: G.warp_frame_depth(IMG, DEPTH.expand(2, 3, 6, 8), POSE, K), ValueError, r"warp_frame_depth: argument 'depth' must have shape \(B, 1, H, W\)"),
     (lambda: G.warp_frame_depth(IMG, DEPTH[:, :, :5], POSE, K), ValueError, r"argument 'depth' has H=5 .* 'image' has H=6"),
     (lambda: G.warp_frame_depth(IMG, DEPTH[:1], POSE, K), ValueError, r"argument 'depth' has B=1 .* 'image' has B=2"),
+    # a channel-last image (as image libraries load them): the error says so, whichever argument it is about
+    (lambda: G.warp_frame_depth(IMG.permute(0, 2, 3, 1), DEPTH, POSE, K), ValueError,
+     r"argument 'depth' has H=6 .* 'image' has H=8 \(argument 'image' has shape \(2, 6, 8, 3\), which looks "
+     r"channel-last \(B, H, W, C\): images are \(B, C, H, W\); use .permute\(0, 3, 1, 2\)\)$"),
+    (lambda: G.reprojection_loss(IMG.permute(0, 2, 3, 1), IMG[:, None], DEPTH, POSE[:, None], K), ValueError,
+     r"reprojection_loss: .*'target' has shape \(2, 6, 8, 3\), which looks channel-last"),
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE[:, :2], K), ValueError, r"warp_frame_depth: argument 'pose' must have shape \(B, 3\|4, 4\)"),
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE, K[:2]), ValueError, r"warp_frame_depth: argument 'K' must have shape \(3, 3\), got \(2, 3\)"),
     (lambda: G.warp_frame_depth(IMG, DEPTH, POSE, K[None, None]), ValueError, r"'K' must have shape \(3, 3\) or \(B, 3, 3\), got \(1, 1, 3, 3\)"),

@@ -357,6 +357,22 @@ def test_identity_pair_gives_identity():
     np.testing.assert_allclose(T, np.eye(4), atol=1e-5)
 
 
+def test_eight_bit_intensities_are_warned_about_once():
+    import warnings
+
+    ri, rd, li, ld, K, _ = rendered_pair(motion((0.5, 0.0, 0.0)), width=W // 2, height=H // 2)
+    aligner = DirectAligner(K)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # [0, 1] intensities: nothing to say
+        aligner.align(ri, rd, li)
+    with pytest.warns(UserWarning, match=r"DirectAligner.align: argument 'ref_image' has intensities up to 2\d\d.*"
+                                         r"expected in \[0, 1\] \(divide 8-bit images by 255\)"):
+        aligner.align(255 * ri, rd, 255 * li)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per aligner
+        aligner.align(255 * ri, rd, 255 * li)
+
+
 def test_batch_equals_single_calls_and_torch_equals_numpy():
     pairs = [rendered_pair(m, width=W // 2, height=H // 2, seed=s) for s, m in
              enumerate([motion((1.0, 0.5, 0.0), (0.02, 0, 0)), motion((0, -1.0, 0.3), (0, 0.01, 0.03))])]

@@ -399,6 +399,20 @@ def test_track_cli_metrics_are_evos_for_the_files_it_wrote(tmp_path, monkeypatch
     assert "cm/s" in capsys.readouterr().out
 
 
+def test_track_cli_says_when_given_intrinsics_replace_the_folders(tmp_path, monkeypatch, capsys):
+    from gvnn_warp.cli import main
+    from gvnn_warp.cli import track as track_cli
+
+    data = _render(tmp_path, frames=3, size="32x24")
+    gt = read_tum(data).gt_poses
+    monkeypatch.setattr(track_cli, "make_aligner", lambda K, **kw: TrueMotion(gt))
+    assert main(["track", str(data), "--out", str(tmp_path / "o"), "--no-progress", "--intrinsics", "fr1"]) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"warning +the intrinsics given \(fx .*\) replace .*intrinsics.txt, which differs", text), text
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert "which differs" in m["intrinsics"]["override"]
+
+
 def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
     from gvnn_warp.cli import main
     from gvnn_warp.cli import track as track_cli
