@@ -19,7 +19,8 @@ RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained 
 
 
 def fail(fn: str, exc: type[Exception], msg: str):
-    raise exc(f"gvnn_warp.odometry.{fn}: {msg}")
+    """Raise ``exc`` naming the method: ``fn`` relative to gvnn_warp.odometry, or a full name."""
+    raise exc(f"{fn if fn.startswith('gvnn_warp.') else 'gvnn_warp.odometry.' + fn}: {msg}")
 
 
 def real_number(v) -> float:

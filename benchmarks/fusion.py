@@ -1,0 +1,143 @@
+"""TSDF fusion against Open3D 0.20's ``VoxelBlockGrid`` on the CPU, side by side in one process.
+
+    python -m benchmarks.fusion [--frames 30] [--size 640x480] [--voxel 0.01] [--seed 3] [--no-open3d]
+
+A se3 sequence of a rendered room (``gvnn_warp.synthetic``) is fused by both with the same voxel
+size, truncation (4 voxels), blocks of 8^3 voxels, depth range and true poses. Per frame, interleaved:
+
+- integrate: ours :meth:`TSDFVolume.integrate` (finding the frame's blocks included) against
+  Open3D's ``compute_unique_block_coordinates`` + ``integrate`` (the pair its tutorial runs);
+- raycast: ours :meth:`TSDFVolume.raycast` (depth, colour, normals) against Open3D's ``ray_cast``
+  of depth, colour and normal from the same pose, after each integration.
+
+It prints the medians and their ratio (ours / Open3D; the machines are shared, so the ratio is what
+to compare), and the raycast depth's median error against the rendered depth for both.
+Open3D is a benchmark extra (``pip install -e .[bench]``; its wheel needs the system's libusb-1.0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gvnn_warp.cli.args import image_size, positive_int
+from gvnn_warp.datasets.tum import read_tum
+from gvnn_warp.fusion import TSDFVolume
+from gvnn_warp.synthetic.sequence import render_sequence
+
+DEPTH_MAX = 10.0  # metres: the rendered rooms are up to 8 m deep
+
+
+class Open3DVolume:
+    """Open3D's VoxelBlockGrid with the same settings, the calls of its TSDF tutorial."""
+
+    def __init__(self, voxel: float, trunc_voxels: float, K: np.ndarray, blocks: int):
+        import open3d as o3d
+
+        self.o3d = o3d
+        self.vbg = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3d.core.float32, o3d.core.float32, o3d.core.float32),
+            attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=8, block_count=blocks)
+        self.trunc = trunc_voxels
+        self.K = o3d.core.Tensor(np.asarray(K, dtype=np.float64))
+        self.blocks = None
+
+    def integrate(self, depth_u16: np.ndarray, rgb_u8: np.ndarray, T_world_cam: np.ndarray, depth_scale: float):
+        o3d = self.o3d
+        depth = o3d.t.geometry.Image(o3d.core.Tensor(depth_u16))
+        colour = o3d.t.geometry.Image(o3d.core.Tensor(rgb_u8))  # (uint16 depth with uint8 colour, as it wants)
+        extrinsic = o3d.core.Tensor(np.linalg.inv(T_world_cam))
+        self.blocks = self.vbg.compute_unique_block_coordinates(depth, self.K, extrinsic, depth_scale, DEPTH_MAX,
+                                                                trunc_voxel_multiplier=self.trunc)
+        self.vbg.integrate(self.blocks, depth, colour, self.K, extrinsic, depth_scale, DEPTH_MAX,
+                           trunc_voxel_multiplier=self.trunc)
+
+    def raycast(self, T_world_cam: np.ndarray, height: int, width: int, depth_scale: float):
+        o3d = self.o3d
+        out = self.vbg.ray_cast(self.blocks, self.K, o3d.core.Tensor(np.linalg.inv(T_world_cam)), width, height,
+                                render_attributes=["depth", "color", "normal"], depth_scale=depth_scale,
+                                depth_min=0.1, depth_max=DEPTH_MAX, weight_threshold=0.5,
+                                trunc_voxel_multiplier=self.trunc)
+        return out["depth"].numpy()[..., 0] / depth_scale
+
+
+def _median_ms(xs) -> float:
+    return 1000.0 * float(np.median(xs))
+
+
+def run(frames: int, size: tuple[int, int], voxel: float, seed: int, open3d: bool) -> dict:
+    from PIL import Image
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "seq"
+        render_sequence(root, "se3", frames, size, seed, progress=False)
+        seq = read_tum(root)
+        ours = TSDFVolume(voxel, 4 * voxel, max_depth=DEPTH_MAX)
+        theirs = Open3DVolume(voxel, 4.0, seq.K, 60000) if open3d else None
+        # warm-up: kernels compiled or loaded, Open3D's first call
+        ours.integrate(seq.depth(0), seq.image(0), seq.K, seq.gt_poses[0])
+        ours.raycast(seq.K, seq.gt_poses[0], seq.height, seq.width)
+        t = {"ours_integrate": [], "ours_raycast": [], "o3d_integrate": [], "o3d_raycast": []}
+        err = {"ours": [], "o3d": []}
+        if theirs is not None:
+            raw = [(np.asarray(Image.open(seq.depth_files[i])), np.asarray(Image.open(seq.rgb_files[i]).convert("RGB")))
+                   for i in range(frames)]
+            theirs.integrate(raw[0][0], raw[0][1], seq.gt_poses[0], seq.depth_scale)
+        for i in range(1, frames):
+            depth, colour, T = seq.depth(i), seq.image(i), seq.gt_poses[i]
+            s = time.perf_counter()
+            ours.integrate(depth, colour, seq.K, T)
+            t["ours_integrate"].append(time.perf_counter() - s)
+            s = time.perf_counter()
+            d_ours, _, _ = ours.raycast(seq.K, T, seq.height, seq.width)
+            t["ours_raycast"].append(time.perf_counter() - s)
+            true = depth[0]
+            ok = (true > 0) & (d_ours > 0)
+            err["ours"].append(float(np.median(np.abs(d_ours[ok] - true[ok]))))
+            if theirs is not None:
+                s = time.perf_counter()
+                theirs.integrate(raw[i][0], raw[i][1], T, seq.depth_scale)
+                t["o3d_integrate"].append(time.perf_counter() - s)
+                s = time.perf_counter()
+                d_o3d = theirs.raycast(T, seq.height, seq.width, seq.depth_scale)
+                t["o3d_raycast"].append(time.perf_counter() - s)
+                ok = (true > 0) & (d_o3d > 0)
+                err["o3d"].append(float(np.median(np.abs(d_o3d[ok] - true[ok]))))
+    res = {k: _median_ms(v) for k, v in t.items() if v}
+    res.update({f"{k}_depth_error_mm": 1000 * float(np.median(v)) for k, v in err.items() if v})
+    res["blocks"] = ours.n_blocks
+    return res
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--frames", type=positive_int, default=30)
+    p.add_argument("--size", type=image_size, default=(640, 480))
+    p.add_argument("--voxel", type=float, default=0.01)
+    p.add_argument("--seed", type=int, default=3)
+    p.add_argument("--no-open3d", action="store_true")
+    args = p.parse_args(argv)
+    open3d = not args.no_open3d
+    if open3d:
+        try:
+            import open3d  # noqa: F401
+        except ImportError as e:
+            print(f"(Open3D not available: {e}; ours only)")
+            open3d = False
+    r = run(args.frames, args.size, args.voxel, args.seed, open3d)
+    print(f"fusion, {args.size[0]}x{args.size[1]}, voxel {args.voxel:g} m, {args.frames} frames, {r['blocks']} blocks")
+    for what in ("integrate", "raycast"):
+        line = f"  {what:<9} ours {r[f'ours_{what}']:7.1f} ms"
+        if f"o3d_{what}" in r:
+            line += f"   Open3D {r[f'o3d_{what}']:7.1f} ms   ratio {r[f'ours_{what}'] / r[f'o3d_{what}']:.2f}"
+        print(line)
+    print(f"  raycast depth median error: ours {r['ours_depth_error_mm']:.2f} mm"
+          + (f", Open3D {r['o3d_depth_error_mm']:.2f} mm" if "o3d_depth_error_mm" in r else ""))
+
+
+if __name__ == "__main__":
+    main()

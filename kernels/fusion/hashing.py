@@ -1,0 +1,141 @@
+"""``@wp.func`` library of the voxel-block hash table and voxel lookups (no launches).
+
+The table has a power-of-two number of slots, each a vec4i ``(x, y, z, index)``: a block's integer
+coordinates and its index in the voxel arrays (-1: the slot is empty; one cache line holds both),
+probed linearly from the hash of the coordinates. Blocks are only
+ever added (never removed), so a lookup may stop at the first empty slot. A voxel is read through
+its block: the voxel arrays hold ``BLOCK ** 3`` voxels
+per block index, x fastest: ``tw`` (vec2: the TSDF and its weight, read together) and ``colour``
+(vec4: RGB and its own weight, the updates inside the truncation band).
+"""
+
+import warp as wp
+
+BLOCK = 8  # voxels per block side
+BLOCK_VOXELS = BLOCK * BLOCK * BLOCK
+SHIFT = 3  # log2(BLOCK)
+MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is never more than half full)
+
+
+@wp.func
+def block_hash(b: wp.vec3i, mask: int):
+    """Slot where the search for block ``b`` starts (three large primes, xor-ed: Teschner et al. 2003)."""
+    h = (wp.uint32(b[0]) * wp.uint32(73856093)) ^ (wp.uint32(b[1]) * wp.uint32(19349669)) ^ (
+        wp.uint32(b[2]) * wp.uint32(83492791))
+    return wp.int32(h & wp.uint32(mask))
+
+
+@wp.func
+def same(a: wp.vec3i, b: wp.vec3i):
+    """a == b (component-wise; Warp has no != on vectors)."""
+    return a[0] == b[0] and a[1] == b[1] and a[2] == b[2]
+
+
+@wp.func
+def find_block(table: wp.array(dtype=wp.vec4i), mask: int, b: wp.vec3i):
+    """Index of block ``b``, -1 if it is not allocated."""
+    h = block_hash(b, mask)
+    found = int(-1)
+    for _probe in range(MAX_PROBES):
+        e = table[h]
+        if e[3] < 0:
+            break
+        if e[0] == b[0] and e[1] == b[1] and e[2] == b[2]:
+            found = e[3]
+            break
+        h = (h + 1) & mask
+    return found
+
+
+@wp.func
+def voxel_block(i: wp.vec3i):
+    """The block of voxel ``i`` (floor division by BLOCK: an arithmetic shift, right for negatives)."""
+    return wp.vec3i(i[0] >> SHIFT, i[1] >> SHIFT, i[2] >> SHIFT)
+
+
+@wp.func
+def voxel_offset(i: wp.vec3i):
+    """Index of voxel ``i`` inside its block (x fastest)."""
+    lx = i[0] - ((i[0] >> SHIFT) << SHIFT)
+    ly = i[1] - ((i[1] >> SHIFT) << SHIFT)
+    lz = i[2] - ((i[2] >> SHIFT) << SHIFT)
+    return lx + BLOCK * (ly + BLOCK * lz)
+
+
+@wp.func
+def find_voxel(table: wp.array(dtype=wp.vec4i), mask: int, i: wp.vec3i):
+    """Index of voxel ``i`` in the voxel arrays, -1 if its block is not allocated."""
+    blk = find_block(table, mask, voxel_block(i))
+    out = int(-1)
+    if blk >= 0:
+        out = blk * BLOCK_VOXELS + voxel_offset(i)
+    return out
+
+
+@wp.func
+def voxel_of_point(p: wp.vec3, inv_voxel: float):
+    """The voxel whose centre is nearest to world point ``p``."""
+    return wp.vec3i(int(wp.floor(p[0] * inv_voxel + 0.5)), int(wp.floor(p[1] * inv_voxel + 0.5)),
+                    int(wp.floor(p[2] * inv_voxel + 0.5)))
+
+
+@wp.func
+def trilinear(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
+                   inv_voxel: float):
+    """Trilinear TSDF at world point ``p`` from the 8 voxels around it: (value, ok); ``ok`` is False
+    if one of them is unobserved (no block, or weight 0). One block lookup when the 8 share a block
+    (about 2 times in 3), else one per voxel."""
+    g = p * inv_voxel
+    f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
+    i0 = wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2]))
+    t = g - f0
+    local = voxel_offset(i0)
+    lx = local % BLOCK
+    ly = (local // BLOCK) % BLOCK
+    lz = local // (BLOCK * BLOCK)
+    shared = int(-2)  # the block all 8 lie in (-1: not allocated), or -2: they do not share one
+    if lx < BLOCK - 1 and ly < BLOCK - 1 and lz < BLOCK - 1:
+        shared = find_block(table, mask, voxel_block(i0))
+    value = float(0.0)
+    ok = bool(shared != -1)
+    if ok:
+        for c in range(8):
+            dx = c & 1
+            dy = (c >> 1) & 1
+            dz = (c >> 2) & 1
+            k = int(-1)
+            if shared >= 0:
+                k = shared * BLOCK_VOXELS + local + dx + BLOCK * (dy + BLOCK * dz)
+            else:
+                k = find_voxel(table, mask, i0 + wp.vec3i(dx, dy, dz))
+            w = float(0.0)
+            if k >= 0:
+                w = tw[k][1]
+            if w <= 0.0:
+                ok = False
+            else:
+                wx = wp.where(dx == 1, t[0], 1.0 - t[0])
+                wy = wp.where(dy == 1, t[1], 1.0 - t[1])
+                wz = wp.where(dz == 1, t[2], 1.0 - t[2])
+                value += wx * wy * wz * tw[k][0]
+    return value, ok
+
+
+@wp.func
+def neighbour(table: wp.array(dtype=wp.vec4i), mask: int, blk: int, i: wp.vec3i,
+              step: wp.vec3i):
+    """Index of voxel ``i + step`` (a unit step) given ``blk``, the block index of ``i``: no lookup
+    unless the step leaves the block."""
+    j = i + step
+    out = int(-1)
+    if blk >= 0 and hashing_same_block(i, j):
+        out = blk * BLOCK_VOXELS + voxel_offset(j)
+    else:
+        out = find_voxel(table, mask, j)
+    return out
+
+
+@wp.func
+def hashing_same_block(i: wp.vec3i, j: wp.vec3i):
+    """Voxels ``i`` and ``j`` lie in the same block."""
+    return same(voxel_block(i), voxel_block(j))

@@ -1,0 +1,576 @@
+"""The thin kernels of the TSDF (see :mod:`gvnn_warp.kernels.fusion`; the host is :mod:`.volume`).
+
+Every per-element kernel takes a leading ``offset`` (its launch covers elements ``offset + tid``),
+so the host can cut a launch into chunks over threads; each element writes only its own outputs
+(blocks of voxels are disjoint), so any split gives the same result. :func:`insert_blocks` is the
+one serial kernel (it owns the hash table while it runs).
+
+Images are flat (H * W) arrays, colour as three planes (3 * H * W); a camera is ``rays`` (H * W
+vec3 ``(xn, yn, w)``: the pixel's ideal normalized coordinates, ``w`` 0 where it has none) for
+going from pixels to 3D, and ``(fx, fy, cx, cy, model, dist)`` for projecting (a lens model of
+:mod:`gvnn_warp.kernels.geometry.lens`, ``model`` 0 the pinhole).
+"""
+
+import warp as wp
+from warp._src.geometry.marching_cubes import MC_CASE_TO_TRI_RANGE, MC_TRI_LOCAL_INDICES
+
+from ..core.kinds import vec8d
+from ..geometry.lens import dispatch
+from . import hashing
+from .hashing import BLOCK, BLOCK_VOXELS, find_block, find_voxel, voxel_block, voxel_offset
+
+SENTINEL = wp.constant(-(2**31))  # an unused candidate slot (x coordinate)
+FULL = wp.constant(0.999)  # |tsdf| at or above this is truncated: no surface between such voxels
+
+# The marching cubes tables (Warp ships them, ``warp.geometry``'s marching cubes; bit c of a case is
+# corner CORNER[c], set where the TSDF is >= 0): the triangles of case c are the edges
+# tri[range[c]:range[c + 1]], three per triangle (``MC_RANGE``, ``MC_TRI``: passed to the kernels as
+# arrays); edge e joins the voxel at EDGE_CELL[e] from the cell origin to its neighbour along axis
+# EDGE_AXIS[e].
+MC_RANGE = MC_CASE_TO_TRI_RANGE
+MC_TRI = MC_TRI_LOCAL_INDICES
+_EDGES = ((0, 0, 0, 0), (1, 0, 0, 1), (0, 1, 0, 0), (0, 0, 0, 1), (0, 0, 1, 0), (1, 0, 1, 1), (0, 1, 1, 0),
+          (0, 0, 1, 1), (0, 0, 0, 2), (1, 0, 0, 2), (1, 1, 0, 2), (0, 1, 0, 2))
+EDGE_CELL = wp.constant(wp.types.matrix((12, 3), wp.int32)(*[v for e in _EDGES for v in e[:3]]))
+EDGE_AXIS = wp.constant(wp.types.vector(12, wp.int32)(*[e[3] for e in _EDGES]))
+CORNER = wp.constant(wp.types.matrix((8, 3), wp.int32)(0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0,
+                                                      0, 0, 1, 1, 0, 1, 1, 1, 1, 0, 1, 1))
+
+
+@wp.func
+def project(p: wp.vec3, fx: float, fy: float, cx: float, cy: float, model: int, dist: vec8d):
+    """Pixel (u, v) of camera point ``p`` (z > 0) through the lens, and whether it is in the lens's domain."""
+    x = wp.float64(p[0] / p[2])
+    y = wp.float64(p[1] / p[2])
+    ok = dispatch.in_domain64(model, dist, x, y)
+    xd, yd = dispatch.distort_value64(model, dist, x, y)
+    return fx * float(xd) + cx, fy * float(yd) + cy, ok
+
+
+@wp.func
+def depth_bilinear(depth: wp.array(dtype=wp.float32), u: float, v: float, W: int, H: int, nearest: float,
+                   min_depth: float, max_depth: float):
+    """The depth at (u, v), bilinear between the 4 pixels around it when all are valid and within 5%
+    of ``nearest`` (the nearest pixel's: the same surface), else ``nearest`` (no depth is mixed
+    across an edge). On a slanted surface the nearest pixel's depth is off by up to half a pixel
+    times the slope, which is what makes a TSDF built from nearest depths a staircase."""
+    x0 = int(wp.floor(u))
+    y0 = int(wp.floor(v))
+    out = nearest
+    if x0 >= 0 and y0 >= 0 and x0 + 1 < W and y0 + 1 < H:
+        a = depth[y0 * W + x0]
+        b = depth[y0 * W + x0 + 1]
+        c = depth[(y0 + 1) * W + x0]
+        d = depth[(y0 + 1) * W + x0 + 1]
+        lo = wp.min(wp.min(a, b), wp.min(c, d))
+        hi = wp.max(wp.max(a, b), wp.max(c, d))
+        if lo > min_depth and hi < max_depth and hi - lo < 0.05 * nearest:
+            fx = u - float(x0)
+            fy = v - float(y0)
+            out = (1.0 - fy) * ((1.0 - fx) * a + fx * b) + fy * ((1.0 - fx) * c + fx * d)
+    return out
+
+
+@wp.kernel
+def touched_blocks(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array(dtype=wp.vec3),
+                   R_wc: wp.mat33, t_wc: wp.vec3, W: int, stride: int, trunc: float, inv_block_len: float,
+                   min_depth: float, max_depth: float, samples: int, out: wp.array(dtype=wp.vec3i)):
+    """Blocks that the truncation band [d - trunc, d + trunc] of a sampled pixel's depth passes
+    through (``samples`` points along it; consecutive repeats written once, the rest SENTINEL)."""
+    e = offset + wp.tid()
+    sw = (W + stride - 1) // stride
+    px = (e % sw) * stride
+    py = (e // sw) * stride
+    k = py * W + px
+    d = depth[k]
+    r = rays[k]
+    base = e * samples
+    n = int(0)
+    if d > min_depth and d < max_depth and r[2] > 0.0:
+        direction = R_wc * wp.vec3(r[0], r[1], 1.0)
+        prev = wp.vec3i(SENTINEL, 0, 0)
+        for s in range(samples):
+            z = d - trunc + 2.0 * trunc * float(s) / float(samples - 1)
+            p = t_wc + z * direction
+            b = wp.vec3i(int(wp.floor(p[0] * inv_block_len)), int(wp.floor(p[1] * inv_block_len)),
+                         int(wp.floor(p[2] * inv_block_len)))
+            if not hashing.same(b, prev):
+                out[base + n] = b
+                n += 1
+                prev = b
+    for s in range(n, samples):
+        out[base + s] = wp.vec3i(SENTINEL, 0, 0)
+
+
+@wp.kernel
+def insert_blocks(candidates: wp.array(dtype=wp.vec3i), n_candidates: int, table: wp.array(dtype=wp.vec4i),
+                  mask: int, coords: wp.array(dtype=wp.vec3i), stamp: wp.array(dtype=wp.int32), call: int,
+                  active: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32)):
+    """One thread: find or add every candidate block; list each block met in this call once in
+    ``active``. ``counts``: [blocks, active, stop], stop 1 if a block did not fit in ``coords``, 2
+    if the table would be more than half full (the host grows what is full and calls again: the
+    blocks found are listed again under the next ``call``)."""
+    n_blocks = counts[0]
+    n_active = int(0)
+    capacity = coords.shape[0]
+    room = (mask + 1) // 2
+    for i in range(n_candidates):
+        b = candidates[i]
+        if b[0] == SENTINEL:
+            continue
+        h = hashing.block_hash(b, mask)
+        idx = int(-1)
+        searching = bool(True)
+        while searching:
+            e = table[h]
+            if e[3] < 0:
+                if n_blocks >= capacity:
+                    counts[2] = 1
+                elif n_blocks >= room:
+                    counts[2] = 2
+                else:
+                    table[h] = wp.vec4i(b[0], b[1], b[2], n_blocks)
+                    coords[n_blocks] = b
+                    idx = n_blocks
+                    n_blocks += 1
+                searching = False
+            elif e[0] == b[0] and e[1] == b[1] and e[2] == b[2]:
+                idx = e[3]
+                searching = False
+            else:
+                h = (h + 1) & mask
+        if idx >= 0:
+            if stamp[idx] != call:
+                stamp[idx] = call
+                active[n_active] = idx
+                n_active += 1
+        if counts[2] != 0:
+            break
+    counts[0] = n_blocks
+    counts[1] = n_active
+
+
+@wp.kernel
+def rehash(coords: wp.array(dtype=wp.vec3i), n_blocks: int, table: wp.array(dtype=wp.vec4i), mask: int):
+    """One thread: put blocks [0, n_blocks) into an empty table."""
+    for i in range(n_blocks):
+        b = coords[i]
+        h = hashing.block_hash(b, mask)
+        while table[h][3] >= 0:
+            h = (h + 1) & mask
+        table[h] = wp.vec4i(b[0], b[1], b[2], i)
+
+
+@wp.kernel
+def integrate(offset: int, active: wp.array(dtype=wp.int32), coords: wp.array(dtype=wp.vec3i),
+              depth: wp.array(dtype=wp.float32), image: wp.array(dtype=wp.float32), has_colour: int,
+              W: int, H: int, fx: float, fy: float, cx: float, cy: float, model: int, dist: vec8d,
+              R_cw: wp.mat33, t_cw: wp.vec3, voxel: float, trunc: float, min_depth: float, max_depth: float,
+              tw: wp.array(dtype=wp.vec2),
+              colour: wp.array(dtype=wp.vec4)):
+    """Each row of BLOCK voxels along x of the active blocks (element = block * BLOCK^2 + row):
+    each voxel's depth from the pixel its centre projects to (nearest; in the band, bilinear where
+    the 4 pixels around agree: :func:`depth_bilinear`), its projective signed
+    distance ``d - z`` truncated to [-trunc, trunc] (voxels more than ``trunc`` behind the surface
+    are left alone), averaged in with weight 1 (KinectFusion's update); the pixel's colour likewise,
+    for voxels inside the band, averaged with its own weight (free space keeps no colour: no surface
+    is drawn there)."""
+    e = offset + wp.tid()
+    rows = BLOCK * BLOCK
+    a = e // rows
+    row = e - a * rows
+    blk = active[a]
+    b = coords[blk]
+    i = wp.vec3i(b[0] * BLOCK, b[1] * BLOCK + row % BLOCK, b[2] * BLOCK + row // BLOCK)
+    p = R_cw * (voxel * wp.vec3(float(i[0]), float(i[1]), float(i[2]))) + t_cw
+    step = voxel * wp.vec3(R_cw[0, 0], R_cw[1, 0], R_cw[2, 0])  # one voxel along x, in the camera
+    base = blk * BLOCK_VOXELS + row * BLOCK
+    n = W * H
+    for x in range(BLOCK):
+        q = p + float(x) * step
+        if q[2] > min_depth:
+            u = float(0.0)
+            v = float(0.0)
+            ok = bool(True)
+            if model == 0:
+                u = fx * q[0] / q[2] + cx
+                v = fy * q[1] / q[2] + cy
+            else:
+                u, v, ok = project(q, fx, fy, cx, cy, model, dist)
+            iu = int(wp.floor(u + 0.5))
+            iv = int(wp.floor(v + 0.5))
+            if ok and iu >= 0 and iv >= 0 and iu < W and iv < H:
+                pix = iv * W + iu
+                d = depth[pix]
+                if d > min_depth and d < max_depth:
+                    sdf = d - q[2]
+                    if wp.abs(sdf) < trunc:  # in the band: the depth at the projection itself
+                        d = depth_bilinear(depth, u, v, W, H, d, min_depth, max_depth)
+                        sdf = d - q[2]
+                    if sdf >= -trunc:
+                        k = base + x
+                        old = tw[k]
+                        w = old[1]
+                        tw[k] = wp.vec2((old[0] * w + wp.min(sdf / trunc, 1.0)) / (w + 1.0), w + 1.0)
+                        if has_colour != 0 and sdf < trunc:
+                            c = wp.vec3(image[pix], image[n + pix], image[2 * n + pix])
+                            old_c = colour[k]
+                            wc = old_c[3]
+                            mean = (wp.vec3(old_c[0], old_c[1], old_c[2]) * wc + c) / (wc + 1.0)
+                            colour[k] = wp.vec4(mean[0], mean[1], mean[2], wc + 1.0)
+
+
+@wp.kernel
+def depth_range(coords: wp.array(dtype=wp.vec3i), n_blocks: int, R_cw: wp.mat33, t_cw: wp.vec3, fx: float,
+                fy: float, cx: float, cy: float, block_len: float, min_depth: float, tile: int, margin: int,
+                tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32)):
+    """One thread: for each tile of ``tile`` x ``tile`` ideal pixels (``fx xn + cx``, ``fy yn + cy``
+    of the ray; ``margin`` tiles around the image for lenses), the nearest and farthest z of the
+    blocks whose bounding box projects onto it (``far`` 0: no block; ``near`` must start large).
+    A block that reaches the near plane covers every tile from ``min_depth`` on."""
+    for bi in range(n_blocks):
+        b = coords[bi]
+        o = block_len * wp.vec3(float(b[0]), float(b[1]), float(b[2]))
+        zlo = float(1.0e30)
+        zhi = float(-1.0e30)
+        ulo = float(1.0e30)
+        uhi = float(-1.0e30)
+        vlo = float(1.0e30)
+        vhi = float(-1.0e30)
+        behind = bool(False)
+        for c in range(8):
+            corner = o + block_len * wp.vec3(float(c & 1), float((c >> 1) & 1), float((c >> 2) & 1))
+            q = R_cw * corner + t_cw
+            zlo = wp.min(zlo, q[2])
+            zhi = wp.max(zhi, q[2])
+            if q[2] <= min_depth:
+                behind = True
+            else:
+                u = fx * q[0] / q[2] + cx
+                v = fy * q[1] / q[2] + cy
+                ulo = wp.min(ulo, u)
+                uhi = wp.max(uhi, u)
+                vlo = wp.min(vlo, v)
+                vhi = wp.max(vhi, v)
+        if zhi <= min_depth:
+            continue
+        tx0 = int(0)
+        tx1 = tiles_x - 1
+        ty0 = int(0)
+        ty1 = tiles_y - 1
+        if not behind:
+            tx0 = wp.max(tx0, int(wp.floor(ulo / float(tile))) + margin)
+            tx1 = wp.min(tx1, int(wp.floor(uhi / float(tile))) + margin)
+            ty0 = wp.max(ty0, int(wp.floor(vlo / float(tile))) + margin)
+            ty1 = wp.min(ty1, int(wp.floor(vhi / float(tile))) + margin)
+        zlo = wp.max(zlo, min_depth)
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
+                k = ty * tiles_x + tx
+                near[k] = wp.min(near[k], zlo)
+                far[k] = wp.max(far[k], zhi)
+
+
+@wp.func
+def block_exit(p: wp.vec3, direction: wp.vec3, b: wp.vec3i, voxel: float, block_len: float):
+    """Ray parameter from ``p`` to where the ray ``p + t direction`` leaves the space of block ``b``
+    (its voxels' cells: [(BLOCK b - 1/2) voxel, (BLOCK (b + 1) - 1/2) voxel) on each axis)."""
+    t = float(1.0e30)
+    for a in range(3):
+        lo = float(b[a]) * block_len - 0.5 * voxel
+        if direction[a] > 0.0:
+            t = wp.min(t, (lo + block_len - p[a]) / direction[a])
+        elif direction[a] < 0.0:
+            t = wp.min(t, (lo - p[a]) / direction[a])
+    return wp.max(t, 0.0)
+
+
+@wp.kernel
+def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
+            tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4),
+            rays: wp.array(dtype=wp.vec3), R_wc: wp.mat33, t_wc: wp.vec3, R_cw: wp.mat33, voxel: float, trunc: float,
+            min_depth: float, max_depth: float, fx: float, fy: float, cx: float, cy: float, tile: int, margin: int,
+            tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32), H: int,
+            out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
+    """Each pixel: march its ray through the z range of the blocks that project onto its tile
+    (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
+    inside blocks - to the first crossing from positive to negative (refined linearly between
+    trilinear values). Writes the crossing's depth (0: none) and colour (three planes; the nearest
+    voxel's). The normals come from the depth image (:func:`depth_normals`)."""
+    # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
+    # read the same voxels, run one after the other (the voxels are read from memory once)
+    e = offset + wp.tid()
+    n_pix = out_depth.shape[0]
+    W = n_pix // H
+    tiles_w = (W + 7) // 8
+    tile_k = e // 64
+    px = (tile_k % tiles_w) * 8 + (e % 8)
+    py = (tile_k // tiles_w) * 8 + (e % 64) // 8
+    if px >= W or py >= H:
+        return
+    k = py * W + px
+    out_depth[k] = 0.0
+    out_colour[k] = 0.0
+    out_colour[n_pix + k] = 0.0
+    out_colour[2 * n_pix + k] = 0.0
+    r = rays[k]
+    if r[2] <= 0.0:
+        return
+    tx = int(wp.floor((fx * r[0] + cx) / float(tile))) + margin
+    ty = int(wp.floor((fy * r[1] + cy) / float(tile))) + margin
+    if tx < 0 or ty < 0 or tx >= tiles_x or ty >= tiles_y:
+        return
+    t_end = wp.min(max_depth, far[ty * tiles_x + tx])
+    t = wp.max(min_depth, near[ty * tiles_x + tx])
+    if t_end <= t:
+        return
+    direction = R_wc * wp.vec3(r[0], r[1], 1.0)
+    scale = wp.length(direction)  # metres per unit of z
+    inv_voxel = 1.0 / voxel
+    block_len = voxel * float(BLOCK)
+    prev_t = float(0.0)
+    prev_f = float(0.0)
+    have_prev = bool(False)
+    hit = float(0.0)
+    last = wp.vec3i(SENTINEL, 0, 0)  # the block looked up last, and its index
+    blk = int(-1)
+    crossed = bool(False)
+    cross_t = float(0.0)
+    cross_f = float(0.0)
+    while t < t_end:
+        p = t_wc + t * direction
+        i = hashing.voxel_of_point(p, inv_voxel)
+        bc = voxel_block(i)
+        if not hashing.same(bc, last):
+            last = bc
+            blk = find_block(table, mask, bc)
+        if blk < 0:  # no block: on to where the ray leaves this block's space
+            have_prev = False
+            t += block_exit(p, direction, bc, voxel, block_len) + 0.01 * voxel / scale
+            continue
+        kk = blk * BLOCK_VOXELS + voxel_offset(i)
+        if tw[kk][1] <= 0.0:
+            have_prev = False
+            t += voxel / scale
+            continue
+        f = tw[kk][0]
+        if f <= 0.0:
+            crossed = have_prev  # (a negative value first: the back of a surface, or inside it: no hit)
+            cross_t = t
+            cross_f = f
+            break
+        prev_t = t
+        prev_f = f
+        have_prev = True
+        t += wp.max(voxel, 0.8 * f * trunc) / scale
+    if crossed:
+        # refine with trilinear values: bracket the crossing between two samples whose trilinear
+        # values straddle zero (the nearest voxels' values that stopped the march may disagree with
+        # them by up to half a voxel: move the bracket by half voxels, at most 4 times), then
+        # interpolate linearly between them
+        ta = prev_t
+        tb = cross_t
+        fa, oka = hashing.trilinear(table, mask, tw, t_wc + ta * direction, inv_voxel)
+        fb, okb = hashing.trilinear(table, mask, tw, t_wc + tb * direction, inv_voxel)
+        half = 0.5 * voxel / scale
+        for _move in range(4):
+            if oka and okb and fa > 0.0 and fb > 0.0:
+                ta = tb
+                fa = fb
+                tb = tb + half
+                fb, okb = hashing.trilinear(table, mask, tw, t_wc + tb * direction, inv_voxel)
+            elif oka and okb and fa <= 0.0 and fb <= 0.0:
+                tb = ta
+                fb = fa
+                ta = ta - half
+                fa, oka = hashing.trilinear(table, mask, tw, t_wc + ta * direction, inv_voxel)
+        if oka and okb and fa > 0.0 and fb <= 0.0:
+            hit = ta + (tb - ta) * fa / (fa - fb)
+        else:  # (an unobserved voxel among the 8: the nearest voxels' values)
+            hit = prev_t + (cross_t - prev_t) * prev_f / (prev_f - cross_f)
+    if hit <= 0.0:
+        return
+    q = t_wc + hit * direction
+    c = hashing.voxel_of_point(q, inv_voxel)
+    cb = find_block(table, mask, voxel_block(c))
+    rgb = wp.vec3(0.0)
+    if cb >= 0:  # the colour of the voxel nearest to the hit (colours are kept near the surface only)
+        cc = colour[cb * BLOCK_VOXELS + voxel_offset(c)]
+        rgb = wp.vec3(cc[0], cc[1], cc[2])
+    out_depth[k] = hit
+    out_colour[k] = rgb[0]
+    out_colour[n_pix + k] = rgb[1]
+    out_colour[2 * n_pix + k] = rgb[2]
+
+
+@wp.kernel
+def depth_normals(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array(dtype=wp.vec3), W: int, H: int,
+                  max_jump: float, normal: wp.array(dtype=wp.vec3)):
+    """Unit normals (camera frame, facing the camera) of a depth image from its neighbours' points
+    (the cross product of the central differences along x and y, as KinectFusion's normal map);
+    zero where a neighbour has no depth or lies more than ``max_jump`` (relative) farther or nearer."""
+    k = offset + wp.tid()
+    x = k % W
+    y = k // W
+    normal[k] = wp.vec3(0.0)
+    if x < 1 or y < 1 or x >= W - 1 or y >= H - 1:
+        return
+    d = depth[k]
+    dl = depth[k - 1]
+    dr = depth[k + 1]
+    du = depth[k - W]
+    dd = depth[k + W]
+    if d <= 0.0 or dl <= 0.0 or dr <= 0.0 or du <= 0.0 or dd <= 0.0:
+        return
+    lim = max_jump * d
+    if wp.abs(dl - d) > lim or wp.abs(dr - d) > lim or wp.abs(du - d) > lim or wp.abs(dd - d) > lim:
+        return
+    rl = rays[k - 1]
+    rr = rays[k + 1]
+    ru = rays[k - W]
+    rd = rays[k + W]
+    px = dr * wp.vec3(rr[0], rr[1], 1.0) - dl * wp.vec3(rl[0], rl[1], 1.0)
+    py = dd * wp.vec3(rd[0], rd[1], 1.0) - du * wp.vec3(ru[0], ru[1], 1.0)
+    n = wp.cross(py, px)
+    if wp.length(n) <= 0.0:
+        return
+    n = wp.normalize(n)
+    r = rays[k]
+    if wp.dot(n, wp.vec3(r[0], r[1], 1.0)) > 0.0:  # (facing the camera)
+        n = -n
+    normal[k] = n
+
+
+@wp.func
+def corner_value(table: wp.array(dtype=wp.vec4i), mask: int, blk: int,
+                 b: wp.vec3i, local: wp.vec3i, tw: wp.array(dtype=wp.vec2)):
+    """(index, usable) of the voxel at ``local`` (0..BLOCK on each axis) from block ``b`` (index
+    ``blk``): its own block's unless it crosses into a neighbour; usable: observed and not truncated."""
+    k = int(-1)
+    if local[0] < BLOCK and local[1] < BLOCK and local[2] < BLOCK:
+        k = blk * BLOCK_VOXELS + local[0] + BLOCK * (local[1] + BLOCK * local[2])
+    else:
+        k = find_voxel(table, mask, b * BLOCK + local)
+    ok = bool(False)
+    if k >= 0:
+        ok = tw[k][1] > 0.0 and wp.abs(tw[k][0]) < FULL
+    return k, ok
+
+
+@wp.kernel
+def mesh_count(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
+               coords: wp.array(dtype=wp.vec3i), tw: wp.array(dtype=wp.vec2), mc_range: wp.array(dtype=wp.int32),
+               vertices: wp.array(dtype=wp.int32), triangles: wp.array(dtype=wp.int32)):
+    """Marching cubes, first pass, per voxel: the vertices on its three edges towards +x, +y, +z
+    (both ends usable, signs differ) and the triangles of the cell it is the origin of (all eight
+    corners usable)."""
+    e = offset + wp.tid()
+    blk = e // BLOCK_VOXELS
+    local = e - blk * BLOCK_VOXELS
+    b = coords[blk]
+    li = wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
+    k0, ok0 = corner_value(table, mask, blk, b, li, tw)
+    nv = int(0)
+    if ok0:
+        for a in range(3):
+            step = wp.vec3i(0, 0, 0)
+            step[a] = 1
+            k1, ok1 = corner_value(table, mask, blk, b, li + step, tw)
+            if ok1 and ((tw[k0][0] >= 0.0) != (tw[k1][0] >= 0.0)):
+                nv += 1
+    vertices[e] = nv
+    case = int(0)
+    usable = bool(ok0)
+    for c in range(8):
+        corner = wp.vec3i(CORNER[c, 0], CORNER[c, 1], CORNER[c, 2])
+        kc, okc = corner_value(table, mask, blk, b, li + corner, tw)
+        if not okc:
+            usable = False
+        elif tw[kc][0] >= 0.0:
+            case = case | (1 << c)
+    nt = int(0)
+    if usable:
+        nt = (mc_range[case + 1] - mc_range[case]) // 3
+    triangles[e] = nt
+
+
+@wp.kernel
+def mesh_vertices(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
+                  coords: wp.array(dtype=wp.vec3i), tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4),
+                  voxel: float,
+                  first: wp.array(dtype=wp.int32), edge_vertex: wp.array(dtype=wp.int32),
+                  points: wp.array(dtype=wp.vec3), point_colours: wp.array(dtype=wp.vec3)):
+    """Second pass, per voxel: its edges' vertices (where the linear interpolation of the TSDF is
+    zero; colour interpolated alike) from index ``first[e]`` on, and their indices in ``edge_vertex``
+    (3 per voxel, -1 where none)."""
+    e = offset + wp.tid()
+    blk = e // BLOCK_VOXELS
+    local = e - blk * BLOCK_VOXELS
+    b = coords[blk]
+    li = wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
+    k0, ok0 = corner_value(table, mask, blk, b, li, tw)
+    n = first[e]
+    gi = b * BLOCK + li
+    for a in range(3):
+        edge_vertex[3 * e + a] = -1
+        if ok0:
+            step = wp.vec3i(0, 0, 0)
+            step[a] = 1
+            k1, ok1 = corner_value(table, mask, blk, b, li + step, tw)
+            f0 = tw[k0][0]
+            if ok1:
+                f1 = tw[k1][0]
+                if (f0 >= 0.0) != (f1 >= 0.0):
+                    s = f0 / (f0 - f1)
+                    pos = voxel * wp.vec3(float(gi[0]), float(gi[1]), float(gi[2]))
+                    pos[a] = pos[a] + s * voxel
+                    points[n] = pos
+                    c0 = colour[k0]
+                    c1 = colour[k1]
+                    point_colours[n] = (1.0 - s) * wp.vec3(c0[0], c0[1], c0[2]) + s * wp.vec3(c1[0], c1[1], c1[2])
+                    edge_vertex[3 * e + a] = n
+                    n += 1
+
+
+@wp.kernel
+def mesh_faces(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
+               coords: wp.array(dtype=wp.vec3i), tw: wp.array(dtype=wp.vec2), mc_range: wp.array(dtype=wp.int32),
+               mc_tri: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32),
+               edge_vertex: wp.array(dtype=wp.int32), faces: wp.array(dtype=wp.vec3i)):
+    """Third pass, per voxel: the triangles of its cell from index ``first[e]`` on, each corner the
+    vertex of the edge it lies on (owned by the edge's lower voxel, maybe in another block)."""
+    e = offset + wp.tid()
+    blk = e // BLOCK_VOXELS
+    local = e - blk * BLOCK_VOXELS
+    b = coords[blk]
+    li = wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
+    case = int(0)
+    usable = bool(True)
+    for c in range(8):
+        corner = wp.vec3i(CORNER[c, 0], CORNER[c, 1], CORNER[c, 2])
+        kc, okc = corner_value(table, mask, blk, b, li + corner, tw)
+        if not okc:
+            usable = False
+        elif tw[kc][0] >= 0.0:
+            case = case | (1 << c)
+    if not usable:
+        return
+    start = mc_range[case]
+    nt = (mc_range[case + 1] - start) // 3
+    n = first[e]
+    for t in range(nt):
+        tri = wp.vec3i(0, 0, 0)
+        for s in range(3):
+            edge = mc_tri[start + 3 * t + s]
+            owner = li + wp.vec3i(EDGE_CELL[edge, 0], EDGE_CELL[edge, 1], EDGE_CELL[edge, 2])
+            ko = int(-1)
+            if owner[0] < BLOCK and owner[1] < BLOCK and owner[2] < BLOCK:
+                ko = blk * BLOCK_VOXELS + owner[0] + BLOCK * (owner[1] + BLOCK * owner[2])
+            else:
+                ko = find_voxel(table, mask, b * BLOCK + owner)
+            tri[s] = edge_vertex[3 * ko + EDGE_AXIS[edge]]
+        faces[n + t] = tri
+
+
+__all__ = ["MC_RANGE", "MC_TRI", "SENTINEL", "depth_normals", "depth_range", "integrate", "insert_blocks",
+           "mesh_count", "mesh_faces", "mesh_vertices", "raycast", "rehash", "touched_blocks"]

@@ -1,0 +1,267 @@
+"""gvnn_warp.fusion: the TSDF against surfaces known in closed form (planes, a sphere), through a
+pinhole and a lens, its mesh, its invariances (world translation across block boundaries, thread
+count), bad input and the PLY files."""
+
+import numpy as np
+import pytest
+from gvnn_warp.kernels.core.threads import get_num_threads, set_num_threads
+
+from gvnn_warp.fusion import TSDFVolume, write_ply
+from gvnn_warp.fusion.ply import read_ply
+
+W, H = 160, 120
+K = np.array([[125.0, 0, 79.5], [0, 125.0, 59.5], [0, 0, 1]])  # (a pixel is 1.2 cm at 1.5 m: finer than a voxel)
+VOXEL = 0.02
+
+
+def _pose(R=None, t=(0, 0, 0)):
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _rot(axis, deg):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(deg) * np.asarray(axis, float)).as_matrix()
+
+
+def _rays(K_, dist=None):
+    """(H, W, 3) rays (xn, yn, 1) of every pixel; through radial-tangential ``dist`` by fixed-point
+    undistortion (an independent numpy inverse)."""
+    x, y = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    xd, yd = (x - K_[0, 2]) / K_[0, 0], (y - K_[1, 2]) / K_[1, 1]
+    xn, yn = xd.copy(), yd.copy()
+    if dist is not None:
+        k1, k2, p1, p2, k3 = dist
+        for _ in range(200):
+            r2 = xn * xn + yn * yn
+            radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+            dx = 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+            dy = p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+            xn, yn = (xd - dx) / radial, (yd - dy) / radial
+    return np.stack([xn, yn, np.ones_like(xn)], -1)
+
+
+def _sphere_depth(T_world_cam, centre, radius, rays):
+    """Depth (z) of the first hit of each ray with a sphere, 0 where it misses."""
+    R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    d = rays @ R.T  # world directions (not unit: z = 1 in the camera)
+    oc = t - centre
+    a = (d * d).sum(-1)
+    b = 2 * (d * oc).sum(-1)
+    c = oc @ oc - radius**2
+    disc = b * b - 4 * a * c
+    z = np.where(disc > 0, (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a), 0.0)
+    return np.where(z > 0, z, 0.0).astype(np.float32)
+
+
+def _plane_depth(n, c, rays):
+    """Depth of the plane n . p = c (camera frame) along each ray."""
+    return (c / (rays @ n)).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    """A sphere of radius 0.5 m at 1.5 m, fused from 9 poses around it."""
+    centre, radius = np.array([0.1, -0.05, 1.5]), 0.5
+    rays = _rays(K)
+    vol = TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0)
+    poses = []
+    for yaw in (-20, -10, 0, 10, 20):
+        for pitch in ((-8, 8) if yaw in (-10, 10) else (0,)):
+            R = _rot([0, 1, 0], yaw) @ _rot([1, 0, 0], pitch)
+            t = centre - R @ np.array([0, 0, 1.5])  # looking at the centre from 1.5 m
+            T = _pose(R, t)
+            poses.append(T)
+            colour = np.broadcast_to(np.array([0.2, 0.5, 0.8])[:, None, None], (3, H, W)).astype(np.float32)
+            vol.integrate(_sphere_depth(T, centre, radius, rays), colour, K, T)
+    return vol, centre, radius, poses, rays
+
+
+def test_raycast_and_mesh_of_a_sphere_match_the_sphere(sphere):
+    vol, centre, radius, poses, rays = sphere
+    T = poses[2]
+    depth, colour, normals = vol.raycast(K, T, H, W)
+    true = _sphere_depth(T, centre, radius, rays)
+    both = (depth > 0) & (true > 0)
+    assert both.sum() > 0.9 * (true > 0).sum()  # (the silhouette's pixels may miss)
+    assert np.median(np.abs(depth[both] - true[both])) < 0.15 * VOXEL
+    assert np.percentile(np.abs(depth[both] - true[both]), 90) < 0.5 * VOXEL
+    np.testing.assert_allclose(colour[:, both].mean(1), [0.2, 0.5, 0.8], atol=1e-4)  # (float32 running means)
+    # normals: the sphere's, in the camera frame, facing the camera
+    p_cam = depth[..., None] * rays
+    c_cam = T[:3, :3].T @ (centre - T[:3, 3])
+    expected = (p_cam - c_cam) / radius
+    ok = both & (np.abs(normals).sum(0) > 0)
+    cos = (normals.transpose(1, 2, 0)[ok] * expected[ok]).sum(-1)
+    assert ok.sum() > 0.8 * both.sum() and np.median(cos) > 0.995
+    # the mesh: on the sphere, faces outward (counter-clockwise seen from outside)
+    v, f, c = vol.extract_mesh()
+    dist = np.abs(np.linalg.norm(v - centre, axis=1) - radius)
+    assert len(f) > 500 and np.median(dist) < 0.1 * VOXEL and dist.max() < 0.75 * VOXEL
+    a, b, cc = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    face_n = np.cross(b - a, cc - a)
+    outward = ((a + b + cc) / 3 - centre)
+    assert ((face_n * outward).sum(1) > 0).mean() > 0.99
+    np.testing.assert_allclose(c.mean(0), [0.2, 0.5, 0.8], atol=1e-4)
+    assert f.min() >= 0 and f.max() < len(v)
+    assert np.unique(f).size == len(v)  # every vertex is in a face
+    # shared vertices: an interior edge belongs to two faces
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, count = np.unique(edges, axis=0, return_counts=True)
+    assert (count == 2).mean() > 0.9 and count.max() <= 2
+    pts, cols = vol.extract_points()  # the crossings: the vertices and those at the mesh's borders
+    assert len(pts) >= len(v) and np.isin(v.view("V12"), pts.view("V12")).all()
+    assert np.median(np.abs(np.linalg.norm(pts - centre, axis=1) - radius)) < 0.1 * VOXEL
+
+
+def test_world_translation_across_block_boundaries_changes_nothing(sphere):
+    # the same frames with the world moved by an offset that crosses many blocks, into negative
+    # coordinates (floor division of negative voxel indices): the same depth and the same mesh, moved
+    vol, centre, radius, poses, rays = sphere
+    shift = np.array([-3.37, -5.01, -2.2])  # (not a multiple of the block size)
+    moved = TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0)
+    for T in poses:
+        T2 = T.copy()
+        T2[:3, 3] += shift
+        moved.integrate(_sphere_depth(T, centre, radius, rays), None, K, T2)
+    T2 = poses[2].copy()
+    T2[:3, 3] += shift
+    d1, _, _ = vol.raycast(K, poses[2], H, W)
+    d2, _, _ = moved.raycast(K, T2, H, W)
+    both = (d1 > 0) & (d2 > 0)
+    assert both.sum() > 0.95 * (d1 > 0).sum()
+    assert np.median(np.abs(d1[both] - d2[both])) < 0.1 * VOXEL  # (the voxel grid moved with the world, not exactly)
+    v2, _, _ = moved.extract_mesh()
+    assert np.median(np.abs(np.linalg.norm(v2 - (centre + shift), axis=1) - radius)) < 0.1 * VOXEL
+
+
+def test_results_do_not_depend_on_the_thread_count(sphere):
+    _, centre, radius, poses, rays = sphere
+    out = []
+    before = get_num_threads()
+    try:
+        for n in (1, 2):
+            set_num_threads(n)
+            vol = TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0)
+            for T in poses[:4]:
+                vol.integrate(_sphere_depth(T, centre, radius, rays), None, K, T)
+            out.append((vol.tw.numpy()[: vol.n_blocks * 512].copy(), *vol.raycast(K, poses[1], H, W),
+                        *vol.extract_mesh()))
+    finally:
+        set_num_threads(before)
+    for a, b in zip(out[0], out[1]):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_lens_camera_integrates_and_raycasts_through_its_distortion():
+    # a tilted plane seen through a radial-tangential lens: the depth of each lens pixel in closed
+    # form (its ray from an independent numpy undistortion); fused and raycast through the same lens
+    dist = (-0.25, 0.08, 0.001, -0.002, 0.0)
+    rays = _rays(K, dist)
+    n, c = np.array([0.25, -0.1, 1.0]), 1.2
+    depth = _plane_depth(n, c, rays)
+    vol = TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0)
+    for _ in range(2):
+        vol.integrate(depth, None, (K, dist), np.eye(4))
+    got, _, normals = vol.raycast((K, dist), np.eye(4), H, W)
+    ok = got > 0
+    assert ok.mean() > 0.9
+    assert np.median(np.abs(got[ok] - depth[ok])) < 0.1 * VOXEL
+    unit = n / np.linalg.norm(n)
+    good = np.abs(normals).sum(0) > 0
+    assert np.median(normals.transpose(1, 2, 0)[good] @ -unit) > 0.999
+    # the surface in space is the plane itself: seen through a pinhole with the same K it has the
+    # pinhole's closed-form depth, which is not the lens image's (so the lens was used)
+    pinhole_true = _plane_depth(n, c, _rays(K))
+    d_pin, _, _ = vol.raycast(K, np.eye(4), H, W)
+    both = (d_pin > 0) & ok
+    assert both.mean() > 0.8 and np.median(np.abs(d_pin[both] - pinhole_true[both])) < 0.1 * VOXEL
+    assert np.percentile(np.abs(depth - pinhole_true)[both], 90) > VOXEL
+
+
+def test_invalid_depth_is_skipped_and_a_frame_without_any_changes_nothing():
+    rays = _rays(K)
+    depth = _plane_depth(np.array([0, 0, 1.0]), 1.0, rays)
+    depth[:10] = np.nan
+    depth[10:20] = -1.0
+    depth[20:24] = 0.0
+    original = depth.copy()
+    vol = TSDFVolume(VOXEL)
+    report = vol.integrate(depth, None, K, np.eye(4))
+    np.testing.assert_array_equal(depth, original)  # inputs are never modified
+    assert report.valid_pixels == (H - 24) * W and report.new_blocks == report.total_blocks > 0
+    got, _, _ = vol.raycast(K, np.eye(4), H, W)
+    assert np.all(np.isfinite(got)) and np.median(np.abs(got[30:] - 1.0)) < 0.05 * VOXEL
+    assert (got[:8] == 0).all()  # rows never seen: no surface
+    none = vol.integrate(np.full((H, W), np.nan, np.float32), None, K, np.eye(4))
+    assert none.valid_pixels == 0 and none.blocks == 0 and none.total_blocks == report.total_blocks
+
+
+def test_memory_limit_and_growth():
+    rays = _rays(K)
+    depth = _plane_depth(np.array([0, 0, 1.0]), 2.0, rays)
+    small = TSDFVolume(0.005, max_memory_mb=0.5)  # 42 blocks at most
+    with pytest.raises(ValueError, match=r"TSDFVolume.integrate: the map needs more than 42 blocks .* use larger "
+                                         r"voxels or allow more memory"):
+        small.integrate(depth, None, K, np.eye(4))
+    grown = TSDFVolume(0.005, max_memory_mb=512)  # past its first allocation and first table
+    for x in np.linspace(-4, 4, 9):
+        grown.integrate(depth, None, K, _pose(t=(x, 0, 0)))
+    assert grown.n_blocks > 1024 and grown.memory_bytes == grown.n_blocks * 512 * 24
+    d, _, _ = grown.raycast(K, _pose(t=(4.0, 0, 0)), H, W)
+    assert np.median(np.abs(d[d > 0] - 2.0)) < 0.002
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda v: v.integrate(np.ones((H, W, 3), np.float32), None, K, np.eye(4)), ValueError,
+     r"TSDFVolume.integrate: argument 'depth' must be \(H, W\) or \(1, H, W\)"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), np.ones((H, W, 3), np.float32), K, np.eye(4)), ValueError,
+     r"argument 'colour' must be \(3, 120, 160\) like the depth, got \(120, 160, 3\), which looks channel-last"),
+    (lambda v: v.integrate(np.ones((H, W), np.int32), None, K, np.eye(4)), TypeError,
+     r"TSDFVolume.integrate: argument 'depth' must be float32 or float64"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, K, np.ones((4, 4))), ValueError,
+     r"argument 'T_world_cam' must be a rigid transform"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, np.eye(2), np.eye(4)), ValueError,
+     r"argument 'camera' must have a finite \(3, 3\) K"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, (K, (0.1, 0.2)), np.eye(4)), ValueError,
+     r"argument 'dist' must be 5 finite coefficients"),
+    (lambda v: v.raycast(K, np.eye(4), 0, W), ValueError, r"TSDFVolume.raycast: arguments 'height' and 'width'"),
+    (lambda v: TSDFVolume(0.0), ValueError, r"TSDFVolume.__init__: argument 'voxel_size' must be a positive"),
+    (lambda v: TSDFVolume(0.01, 0.001), ValueError, r"argument 'truncation' must be at least the voxel size"),
+    (lambda v: TSDFVolume(0.01, min_depth=2.0, max_depth=1.0), ValueError, r"0 < min_depth < max_depth"),
+])
+def test_bad_input_is_named(call, error, message):
+    with pytest.raises(error, match=message):
+        call(TSDFVolume(VOXEL))
+
+
+def test_empty_volume_has_empty_results():
+    vol = TSDFVolume(VOXEL)
+    v, f, c = vol.extract_mesh()
+    assert v.shape == (0, 3) and f.shape == (0, 3) and c.shape == (0, 3)
+    d, col, n = vol.raycast(K, np.eye(4), H, W)
+    assert not d.any() and not col.any() and not n.any()
+
+
+def test_ply_round_trip_and_header(tmp_path):
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(7, 3)).astype(np.float32)
+    f = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]], np.int32)
+    c = rng.uniform(size=(7, 3)).astype(np.float32)
+    write_ply(tmp_path / "m.ply", v, f, c, comment="test mesh")
+    head = (tmp_path / "m.ply").read_bytes()[:300].decode("ascii", "replace")
+    assert head.startswith("ply\nformat binary_little_endian 1.0\ncomment test mesh\nelement vertex 7\n")
+    assert "property list uchar int vertex_indices\nend_header\n" in head
+    v2, f2, c2 = read_ply(tmp_path / "m.ply")
+    np.testing.assert_array_equal(v2, v)
+    np.testing.assert_array_equal(f2, f)
+    np.testing.assert_allclose(c2, np.round(c * 255) / 255, atol=1e-7)
+    write_ply(tmp_path / "p.ply", v)  # a point cloud
+    v3, f3, c3 = read_ply(tmp_path / "p.ply")
+    assert f3 is None and c3 is None and np.array_equal(v3, v)
+    with pytest.raises(ValueError, match="face indices"):
+        write_ply(tmp_path / "bad.ply", v, f + 5)
