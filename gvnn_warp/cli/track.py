@@ -3,7 +3,8 @@
 Usage::
 
     gvnn-warp track DIR --out OUT [--overwrite] [--method direct|vo|vo+direct [--checkpoint CKPT]]
-                    [--depth sensor|predicted --checkpoint CKPT]
+                    [--depth sensor|predicted --checkpoint CKPT] [--fuse | --model] [--voxel M]
+                    [--truncation M] [--fuse-memory MB]
                     [--intrinsics fr1|fr2|fr3|icl|fx,fy,cx,cy[,k1,k2,p1,p2,k3]] [--depth-scale S]
                     [--max-frames N] [--gt-interpolate] [--keyframes [--keyframe-trans M] [--keyframe-rot DEG]
                     [--keyframe-valid F]] [--init identity|velocity] [--levels L] [--robust KIND]
@@ -21,7 +22,12 @@ of the identity or ``--init``) - and writes the results below. With ``--depth pr
 depth files are not read: each frame's depth is predicted from its colour by the network of a
 ``gvnn-warp depth train`` checkpoint (``--checkpoint``; ``gvnn_warp.depth.predict``, one scale for
 the sequence, the first frame's median depth 1 m), monocular direct odometry with learned depth; the
-ATE and RPE are then those of the estimate after a similarity alignment (``evo_ape -as``). It writes:
+ATE and RPE are then those of the estimate after a similarity alignment (``evo_ape -as``). With
+``--fuse`` the frames are then integrated at the estimated poses into a TSDF of ``--voxel``-metre
+voxels (``gvnn_warp.fusion``) whose marching-cubes mesh is written to ``OUT/mesh.ply`` with a
+picture of it from the first pose (``OUT/mesh.png``); with ``--model`` each frame is tracked
+against the model raycast at the previous pose instead of the previous frame, and integrated as it
+goes (KinectFusion's loop). It writes:
 
 - ``OUT/trajectory.txt``: the estimate in the TUM format (``timestamp tx ty tz qx qy qz qw``,
   ``T_world_cam``), one pose per frame, starting at the ground truth's first pose (identity
@@ -63,6 +69,9 @@ REQUIRES = ("evo", "matplotlib", "tqdm")
 ROBUST = ("huber", "l2", "cauchy", "geman_mcclure", "tukey")  # DirectAligner's
 PRESETS = ("fr1", "fr2", "fr3", "icl")
 METHODS = ("direct", "vo", "vo+direct")
+FUSE_VOXEL = 0.01  # metres
+FUSE_MEMORY_MB = 4096.0
+FUSE_OPTIONS = ("voxel", "truncation", "fuse_memory")  # (refused without --fuse or --model)
 DEPTHS = ("sensor", "predicted")
 MAX_LEVELS = 12  # a 4096-pixel side halved 11 times is 2 pixels
 MAX_ITERATIONS = 1000
@@ -134,6 +143,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-weight", type=finite_float(0, 1e6), default=0.0, metavar="W",
                    help="weight of the depth term (0: photometric only)")
     p.add_argument("--color", action="store_true", help="photometric term on RGB instead of grey")
+    fuse = p.add_mutually_exclusive_group()
+    fuse.add_argument("--fuse", action="store_true",
+                      help="integrate the frames at the estimated poses into a TSDF and write OUT/mesh.ply and "
+                           "OUT/mesh.png")
+    fuse.add_argument("--model", action="store_true",
+                      help="track each frame against the raycast of the TSDF so far (frame-to-model), integrating "
+                           "as it goes; writes the mesh as --fuse does")
+    p.add_argument("--voxel", type=finite_float(0.001, 1.0, "m"), default=None, metavar="M",
+                   help=f"with --fuse/--model: voxel size, metres (default {FUSE_VOXEL:g})")
+    p.add_argument("--truncation", type=positive_float, default=None, metavar="M",
+                   help="with --fuse/--model: truncation of the signed distance, metres (default 4 voxels)")
+    p.add_argument("--fuse-memory", type=positive_float, default=None, metavar="MB",
+                   help=f"with --fuse/--model: the most memory the voxels may take (default {FUSE_MEMORY_MB:g} MiB)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -195,6 +217,21 @@ def check_method(args: argparse.Namespace):
     and its checkpoint entry ``network`` for --method vo / vo+direct, else None."""
     method = getattr(args, "method", "direct")
     ckpt = getattr(args, "checkpoint", None)
+    fusing = getattr(args, "fuse", False) or getattr(args, "model", False)
+    if not fusing:
+        given = [name for name in FUSE_OPTIONS if getattr(args, name, None) is not None]
+        if given:
+            raise UsageError(f"--{given[0].replace('_', '-')} applies with --fuse or --model only")
+    if getattr(args, "model", False):
+        if method != "direct":
+            raise UsageError(f"--model tracks with the direct aligner (--method direct), not --method {method}")
+        if getattr(args, "keyframes", False):
+            raise UsageError("--model tracks against the model, not keyframes: use one of --model, --keyframes")
+    voxel = getattr(args, "voxel", None) or FUSE_VOXEL
+    if fusing and getattr(args, "truncation", None) is not None and args.truncation < voxel:
+        raise UsageError(f"--truncation {args.truncation:g} is less than a voxel ({voxel:g} m)")
+    if fusing and getattr(args, "depth", "sensor") == "predicted":
+        raise UsageError("--fuse and --model integrate the sensor's depth: not with --depth predicted")
     if getattr(args, "depth", "sensor") == "predicted":
         if method != "direct":
             raise UsageError(f"--depth predicted tracks with --method direct only (this run is --method {method})")
@@ -243,6 +280,16 @@ def run(args: argparse.Namespace) -> int:
     if args.keyframes:  # the options given, else the policy's defaults
         given = {field: getattr(args, option, None) for option, field in KEYFRAME_OPTIONS.items()}
         policy = KeyframePolicy(**{field: v for field, v in given.items() if v is not None})
+    volume = tracker = None
+    if getattr(args, "fuse", False) or getattr(args, "model", False):
+        from ..fusion import TSDFVolume  # (numpy and Warp: no torch)
+
+        voxel = args.voxel or FUSE_VOXEL
+        volume = TSDFVolume(voxel, args.truncation, max_memory_mb=args.fuse_memory or FUSE_MEMORY_MB)
+        if args.model:
+            from ..fusion.sequence import ModelTracker
+
+            tracker = ModelTracker(seq, aligner, volume)
     # an image that cannot be read while tracking is one line naming it (and, past frame 1, where the
     # results of the frames before it were written), status 1: gvnn_warp.cli.runner prints InputErrors
     report = track_sequence(
@@ -250,9 +297,63 @@ def run(args: argparse.Namespace) -> int:
         checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
         levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
         max_difference=args.max_difference, predictor=predictor,
-        interpolate_gt=getattr(args, "gt_interpolate", False), progress=not args.no_progress,
+        interpolate_gt=getattr(args, "gt_interpolate", False), tracker=tracker, progress=not args.no_progress,
     )
+    if volume is not None:
+        status = _fuse_and_mesh(args, seq, report, volume, tracker)
+        if status:
+            return status
     print(f"track {seq.root}:\n{_summary(report.rows)}\nwrote {args.out}")
+    return 0
+
+
+def _fuse_and_mesh(args, seq, report, volume, tracker) -> int:
+    """--fuse / --model after tracking: integrate (--fuse), then OUT/mesh.ply and OUT/mesh.png, and
+    the fusion's numbers added to metrics.json and the summary. A map that outgrows --fuse-memory is
+    one line, status 1 (the trajectory and metrics are written already)."""
+    import json
+    import time
+
+    from ..fusion import write_ply
+    from ..fusion.sequence import camera_of, fuse_sequence, render_picture
+    from ..odometry.sequence import frames_text
+
+    try:
+        fused = tracker.fuse if tracker is not None else fuse_sequence(volume, seq, report.result.poses,
+                                                                       progress=not args.no_progress)
+    except ValueError as e:
+        print(f"gvnn-warp track: error: {e} (--voxel, --fuse-memory); {args.out} holds the trajectory and metrics, "
+              "not the mesh", file=sys.stderr)
+        return 1
+    s = time.perf_counter()
+    vertices, faces, colours = volume.extract_mesh()
+    mesh_seconds = time.perf_counter() - s
+    write_ply(args.out / "mesh.ply", vertices, faces, colours, comment=f"gvnn-warp track {seq.root}")
+    seen = render_picture(volume, camera_of(seq), report.result.poses[0], seq.height, seq.width,
+                          args.out / "mesh.png")
+    fusion = {"voxel_m": volume.voxel_size, "truncation_m": volume.truncation, "blocks": volume.n_blocks,
+              "memory_mib": volume.memory_bytes / 2**20, "frames_integrated": fused.integrated,
+              "frames_skipped": fused.skipped, "ms_per_frame_integrate": fused.ms_per_frame,
+              "mesh_vertices": int(len(vertices)), "mesh_faces": int(len(faces)), "mesh_seconds": mesh_seconds,
+              "picture_coverage": seen}
+    metrics_path = args.out / "metrics.json"
+    metrics = json.loads(metrics_path.read_text())
+    metrics["fusion"] = fusion
+    if tracker is not None:
+        metrics["ms_per_pair_note"] = "raycast of the model, alignment and integration; file reading excluded"
+    metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
+    report.rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} m "
+                                  f"({volume.memory_bytes / 2**20:.0f} MiB), {fused.ms_per_frame:.1f} ms per frame to "
+                                  "integrate"))
+    if fused.skipped:
+        report.rows.append(("skipped", f"{len(fused.skipped)} frames with no valid depth or pose (frames "
+                                       f"{frames_text(fused.skipped)})"))
+    if len(faces):
+        report.rows.append(("mesh", f"{len(vertices)} vertices, {len(faces)} faces in {mesh_seconds:.1f} s: "
+                                    "mesh.ply, mesh.png (from the first pose)"))
+    else:
+        report.rows.append(("warning", "the mesh is empty: no surface was seen twice within the depth range "
+                                       "(check --depth-scale and the depth images)"))
     return 0
 
 

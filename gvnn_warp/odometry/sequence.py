@@ -56,13 +56,15 @@ __all__ = [
     "PLAUSIBLE_DEPTH_M",
     "RESULT_FILES",
     "SequenceReport",
+    "frames_text",
     "make_aligner",
     "track_sequence",
 ]
 
 GT_NEAREST = "pose of nearest stamp (as evo and TUM's scripts associate)"
 GT_INTERPOLATED = "interpolated at the frames' stamps (--gt-interpolate)"
-RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png")  # what track_sequence writes
+# what track_sequence writes (and the mesh and its picture that gvnn-warp track --fuse writes after it)
+RESULT_FILES = ("trajectory.txt", "metrics.json", "trajectory.png", "errors.png", "mesh.ply", "mesh.png")
 LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the summary warns (depth scale, images)
 PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth suggests a wrong depth scale
 
@@ -102,7 +104,7 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                    checkpoint: Path | None = None, color: bool = False, keyframes: KeyframePolicy | None = None,
                    init: str = "identity", levels: int | None = None, iterations: int | None = None,
                    robust: str = "huber", depth_weight: float = 0.0, max_difference: float = 0.02, predictor=None,
-                   interpolate_gt: bool = False,
+                   interpolate_gt: bool = False, tracker=None,
                    progress: bool = True) -> SequenceReport:
     """Track the first ``n`` (>= 2) frames of ``seq`` with ``aligner`` and write the results into the
     folder ``out`` (see the module docstring); returns them (:class:`SequenceReport`).
@@ -123,7 +125,9 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
     predicted in place of the sensor's; the estimate's scale is then free and the ATE and RPE are
     those of the estimate after a similarity alignment (``evo_ape -as``). The ground truth of each
     frame is the pose of nearest stamp in ``groundtruth.txt`` (as evo and TUM's scripts associate),
-    or with ``interpolate_gt`` the sequence's interpolation at the frame's stamp.
+    or with ``interpolate_gt`` the sequence's interpolation at the frame's stamp. ``tracker``:
+    ``tracker(n, start_pose, progress) -> TrackResult`` in place of :func:`.tracking.track` with
+    ``aligner`` (e.g. ``gvnn_warp.fusion.ModelTracker``, frame-to-model); ``method`` then names it.
     """
     gray = not color and method == "direct"  # the network takes RGB (the direct aligner makes it grey)
     gt_poses = gt_valid = None
@@ -143,7 +147,11 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
 
     stopped = None
     try:
-        result = track(read_frame, n, aligner, start_pose=start, keyframes=keyframes, init=init, progress=progress)
+        if tracker is not None:
+            result = tracker(n, start, progress)
+        else:
+            result = track(read_frame, n, aligner, start_pose=start, keyframes=keyframes, init=init,
+                           progress=progress)
     except TrackingStopped as e:  # a frame that cannot be read: the frames before it are results too
         if e.frame < 2:
             raise
@@ -170,7 +178,8 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                        "source": seq.intrinsics_source},
         "settings": {"method": method,
                      "checkpoint": str(checkpoint) if checkpoint else None,
-                     "mode": "keyframe" if keyframes else "frame-to-frame",
+                     "mode": "frame-to-model" if tracker is not None else (
+                         "keyframe" if keyframes else "frame-to-frame"),
                      "init": init if method == "direct" else "network",
                      "levels": levels or "auto", "iterations": iterations, "robust": robust,
                      "depth_weight": depth_weight,
@@ -196,7 +205,7 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                            f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
                            f"({seq.intrinsics_source})"),
             ("ms per pair", f"{result.ms_per_pair:.2f}"),
-            ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {_frames_text(unconverged)})" if unconverged
+            ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {frames_text(unconverged)})" if unconverged
                                                            else ""))]
     if seq.intrinsics_override is not None:
         differs = "differs" in seq.intrinsics_override or "cannot be read" in seq.intrinsics_override
@@ -283,6 +292,7 @@ def _median_valid(fractions) -> float | None:
     return float(np.median(known)) if known.size else None
 
 
-def _frames_text(frames: list[int], limit: int = 12) -> str:
+def frames_text(frames: list[int], limit: int = 12) -> str:
+    """Frame numbers for a summary: the first ``limit``, then how many in all."""
     text = ", ".join(str(f) for f in frames[:limit])
     return text + (f", ... ({len(frames)} in all)" if len(frames) > limit else "")

@@ -413,6 +413,51 @@ def test_track_cli_says_when_given_intrinsics_replace_the_folders(tmp_path, monk
     assert "which differs" in m["intrinsics"]["override"]
 
 
+def test_track_cli_fuses_a_mesh_and_tracks_against_the_model(tmp_path, capsys):
+    # a rendered room: --fuse writes a mesh on the room's true surfaces; --model tracks frame to
+    # model (each frame against the raycast of the TSDF so far) as accurately
+    from gvnn_warp.cli import main
+    from gvnn_warp.fusion.ply import read_ply
+    from gvnn_warp.synthetic import make_room_scene, surface_distance
+
+    data = _render(tmp_path, frames=8, size="160x120", seed=4)
+    results = {}
+    for mode in ("--fuse", "--model"):
+        out = tmp_path / mode.strip("-")
+        assert main(["track", str(data), "--out", str(out), "--no-progress", mode, "--voxel", "0.02"]) == 0
+        text = capsys.readouterr().out
+        assert re.search(r"fusion +\d+ blocks of 8\^3 voxels at 0.02 m", text) and "mesh.ply" in text
+        m = json.loads((out / "metrics.json").read_text())
+        results[mode] = m
+        v, f, c = read_ply(out / "mesh.ply")
+        assert m["fusion"]["mesh_faces"] == len(f) > 1000 and m["fusion"]["mesh_vertices"] == len(v)
+        dist = surface_distance(make_room_scene(seed=4), v)  # (the room of the rendered seed)
+        assert np.median(dist) < 0.3 * 0.02, mode  # (within 0.3 voxel of the room's true surfaces)
+        assert Image.open(out / "mesh.png").size == (160, 120) and m["fusion"]["picture_coverage"] > 0.9
+    assert results["--model"]["settings"]["mode"] == "frame-to-model"
+    assert results["--model"]["failed_pairs"] == 0 and results["--model"]["ate_rmse_m"] < 0.01
+
+
+def test_track_cli_fusion_options_and_limits(tmp_path, capsys):
+    from gvnn_warp.cli import main
+
+    data = _render(tmp_path, frames=3, size="64x48")
+    for argv, message in ((["--voxel", "0.02"], "--voxel applies with --fuse or --model only"),
+                          (["--model", "--keyframes"], "use one of --model, --keyframes"),
+                          (["--fuse", "--model"], "not allowed with argument"),
+                          (["--fuse", "--truncation", "0.001"], "less than a voxel")):
+        with pytest.raises(SystemExit) as e:
+            main(["track", str(data), "--out", str(tmp_path / "o"), *argv])
+        assert e.value.code == 2 and message in capsys.readouterr().err
+    # a map larger than the memory given: one line, status 1; the trajectory is kept
+    out = tmp_path / "small"
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--fuse", "--voxel", "0.002",
+                 "--fuse-memory", "0.1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the map needs more than" in err[0] and "--fuse-memory" in err[0]
+    assert (out / "trajectory.txt").exists() and not (out / "mesh.ply").exists()
+
+
 def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
     from gvnn_warp.cli import main
     from gvnn_warp.cli import track as track_cli

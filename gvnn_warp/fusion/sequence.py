@@ -1,0 +1,128 @@
+"""A TUM sequence fused into a :class:`~.volume.TSDFVolume`: after tracking, or while tracking
+against the model (what ``gvnn-warp track --fuse`` / ``--model`` run; no torch).
+
+- :func:`fuse_sequence`: every frame integrated at its estimated pose;
+- :class:`ModelTracker`: frame-to-model tracking (KinectFusion's loop): each new frame is aligned
+  by the direct aligner to the model raycast at the previous frame's pose (its depth, and the grey
+  of its colour, as the reference frame), then integrated at the pose found. The model averages
+  every earlier frame, so the reference is less noisy than the previous frame and errors do not
+  chain from frame to frame as they do in frame-to-frame odometry;
+- :func:`render_picture`: a PNG of the model raycast from a pose, its colour shaded by the normals.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..datasets.images import to_gray
+from ..datasets.tum import TUMSequence
+from ..odometry.tracking import TrackResult, info_converged, info_valid_fraction
+from ..progress import progress_bar
+from .volume import IntegrateReport, TSDFVolume
+
+__all__ = ["FuseReport", "ModelTracker", "camera_of", "fuse_sequence", "render_picture"]
+
+
+def camera_of(seq: TUMSequence):
+    """The camera of a sequence as :class:`TSDFVolume` takes it: K, or (K, radial-tangential dist)."""
+    return seq.K if seq.dist is None else (seq.K, seq.dist)
+
+
+class FuseReport:
+    """Fusion statistics: frames integrated, frames skipped (no valid depth), seconds spent integrating."""
+
+    def __init__(self):
+        self.integrated, self.skipped, self.seconds = 0, [], 0.0
+
+    def add(self, frame: int, report: IntegrateReport, seconds: float) -> None:
+        self.seconds += seconds
+        if report.valid_pixels == 0:
+            self.skipped.append(frame)
+        else:
+            self.integrated += 1
+
+    @property
+    def ms_per_frame(self) -> float:
+        n = self.integrated + len(self.skipped)
+        return 1000.0 * self.seconds / max(n, 1)
+
+
+def fuse_sequence(volume: TSDFVolume, seq: TUMSequence, poses: np.ndarray, *, progress: bool = True) -> FuseReport:
+    """Integrate frames 0 .. len(poses) - 1 of ``seq`` at ``poses`` (N, 4, 4) ``T_world_cam``;
+    frames whose pose is not finite are skipped (reported), as are frames with no valid depth."""
+    report = FuseReport()
+    camera = camera_of(seq)
+    for i in progress_bar(range(len(poses)), desc="fuse", unit="frame", disable=not progress):
+        if not np.all(np.isfinite(poses[i])):
+            report.skipped.append(i)
+            continue
+        depth, colour = seq.depth(i), seq.image(i)
+        s = time.perf_counter()
+        r = volume.integrate(depth, colour, camera, poses[i])
+        report.add(i, r, time.perf_counter() - s)
+    return report
+
+
+class ModelTracker:
+    """Frame-to-model tracking (see the module docstring): ``tracker(n, start_pose, progress)`` ->
+    :class:`TrackResult` over the first ``n`` frames of ``seq``, with ``volume`` holding the model
+    at the end and ``fuse`` its integration statistics. ``aligner``: a ``DirectAligner`` for the
+    sequence's camera (grey images); ``seconds`` per frame count the raycast, the alignment and the
+    integration."""
+
+    def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume):
+        self.seq, self.aligner, self.volume = seq, aligner, volume
+        self.fuse = FuseReport()
+
+    def __call__(self, n: int, start_pose: np.ndarray, progress: bool = True) -> TrackResult:
+        seq, vol, camera = self.seq, self.volume, camera_of(self.seq)
+        H, W = seq.height, seq.width
+        poses = np.full((n, 4, 4), np.nan)
+        poses[0] = start_pose
+        converged, finite = np.ones(n, bool), np.ones(n, bool)
+        valid, seconds = np.full(n, np.nan), np.zeros(n)
+        infos: list = [None]
+        rgb, depth = seq.image(0), seq.depth(0)
+        s = time.perf_counter()
+        self.fuse.add(0, vol.integrate(depth, rgb, camera, start_pose), time.perf_counter() - s)
+        with progress_bar(total=n, initial=1, unit="frame", desc="track (model)", disable=not progress) as bar:
+            for i in range(1, n):
+                rgb, depth = seq.image(i), seq.depth(i)
+                s = time.perf_counter()
+                ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W)
+                T, info = self.aligner.align(to_gray(ref_colour), ref_depth[None], to_gray(rgb))
+                T = np.asarray(T, dtype=np.float64)
+                if not np.all(np.isfinite(T)):
+                    finite[i], T = False, np.eye(4)
+                poses[i] = poses[i - 1] @ np.linalg.inv(T)
+                converged[i], valid[i] = info_converged(info), info_valid_fraction(info)
+                t = time.perf_counter()
+                self.fuse.add(i, vol.integrate(depth, rgb, camera, poses[i]), time.perf_counter() - t)
+                seconds[i] = time.perf_counter() - s
+                infos.append(info)
+                bar.update(1)
+                if i % 10 == 0 or i == n - 1:
+                    bar.set_postfix_str(f"{1000 * seconds[1:i + 1].mean():.0f} ms/frame", refresh=False)
+        return TrackResult(poses, np.arange(-1, n - 1), converged, finite, valid, seconds, list(range(max(n - 1, 1))),
+                           infos)
+
+
+def render_picture(volume: TSDFVolume, camera, T_world_cam: np.ndarray, height: int, width: int,
+                   path: str | Path, title: str | None = None) -> float:
+    """A PNG of the model seen from ``T_world_cam``: its colour shaded by the normals (a light at the
+    camera), black where there is no surface. Returns the fraction of pixels with a surface."""
+    from PIL import Image, ImageDraw
+
+    depth, colour, normals = volume.raycast(camera, T_world_cam, height, width)
+    light = np.abs(normals[2])  # (the normal's z in the camera: facing the camera is bright)
+    shade = np.where(light > 0, 0.35 + 0.65 * light, 1.0)
+    img = np.clip(colour * shade[None], 0.0, 1.0)
+    img[:, depth <= 0] = 0.0
+    out = Image.fromarray(np.round(255 * img.transpose(1, 2, 0)).astype(np.uint8))
+    if title:
+        ImageDraw.Draw(out).text((4, 4), title, fill=(255, 255, 255))
+    out.save(path)
+    return float((depth > 0).mean())
