@@ -1,6 +1,7 @@
 """TSDF fusion against Open3D 0.20's ``VoxelBlockGrid`` on the CPU, side by side in one process.
 
     python -m benchmarks.fusion [--frames 30] [--size 640x480] [--voxel 0.01] [--seed 3] [--no-open3d]
+    python -m benchmarks.fusion --accuracy [--frames 300] [--size 320x240] [--voxel 0.01] [--seed 11]
 
 A se3 sequence of a rendered room (``gvnn_warp.synthetic``) is fused by both with the same voxel
 size, truncation (4 voxels), blocks of 8^3 voxels, depth range and true poses. Per frame, interleaved:
@@ -13,6 +14,12 @@ size, truncation (4 voxels), blocks of 8^3 voxels, depth range and true poses. P
 It prints the medians and their ratio (ours / Open3D; the machines are shared, so the ratio is what
 to compare), and the raycast depth's median error against the rendered depth for both.
 Open3D is a benchmark extra (``pip install -e .[bench]``; its wheel needs the system's libusb-1.0).
+
+``--accuracy``: the mesh of a rendered se3 sequence fused at its true poses against the room's true
+surfaces (``gvnn_warp.synthetic.surface_distance``): accuracy, the distances of the mesh's vertices
+to the surface (median, 90th percentile, in voxels); completeness, the fraction of the visible true
+surface (every 4th pixel of every 10th frame, back-projected with its true depth) within one voxel
+of a mesh vertex.
 """
 
 from __future__ import annotations
@@ -113,14 +120,63 @@ def run(frames: int, size: tuple[int, int], voxel: float, seed: int, open3d: boo
     return res
 
 
+def accuracy(frames: int, size: tuple[int, int], voxel: float, seed: int) -> dict:
+    """Mesh accuracy and completeness (see the module docstring)."""
+    from scipy.spatial import cKDTree
+
+    from gvnn_warp.synthetic import make_room_scene, surface_distance
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "seq"
+        render_sequence(root, "se3", frames, size, seed, progress=False)
+        seq = read_tum(root)
+        vol = TSDFVolume(voxel, 4 * voxel, max_depth=DEPTH_MAX)
+        s = time.perf_counter()
+        for i in range(frames):
+            vol.integrate(seq.depth(i), seq.image(i), seq.K, seq.gt_poses[i])
+        fuse_s = time.perf_counter() - s
+        s = time.perf_counter()
+        v, f, _ = vol.extract_mesh()
+        mesh_s = time.perf_counter() - s
+        dist = surface_distance(make_room_scene(seed), v) / voxel
+        x, y = np.meshgrid(np.arange(0, seq.width, 4), np.arange(0, seq.height, 4))
+        rays = np.stack([(x - seq.K[0, 2]) / seq.K[0, 0], (y - seq.K[1, 2]) / seq.K[1, 1], np.ones(x.shape)], -1)
+        surface = []
+        for i in range(0, frames, 10):
+            d = seq.depth(i)[0][::4, ::4]
+            ok = (d > 0.1) & (d < DEPTH_MAX)
+            p = d[ok][:, None] * rays[ok]
+            T = seq.gt_poses[i]
+            surface.append(p @ T[:3, :3].T + T[:3, 3])
+        surface = np.concatenate(surface)
+        near, _ = cKDTree(v).query(surface, distance_upper_bound=10 * voxel)
+    return {"vertices": len(v), "faces": len(f), "median_voxels": float(np.median(dist)),
+            "p90_voxels": float(np.percentile(dist, 90)), "completeness": float((near <= voxel).mean()),
+            "surface_points": len(surface), "fuse_s": fuse_s, "mesh_s": mesh_s, "blocks": vol.n_blocks}
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--frames", type=positive_int, default=30)
-    p.add_argument("--size", type=image_size, default=(640, 480))
+    p.add_argument("--frames", type=positive_int, default=None, help="(default 30; 300 with --accuracy)")
+    p.add_argument("--size", type=image_size(16), default=None, help="WxH (default 640x480; 320x240 with --accuracy)")
     p.add_argument("--voxel", type=float, default=0.01)
-    p.add_argument("--seed", type=int, default=3)
+    p.add_argument("--seed", type=int, default=None, help="(default 3; 11 with --accuracy)")
     p.add_argument("--no-open3d", action="store_true")
+    p.add_argument("--accuracy", action="store_true", help="mesh accuracy and completeness instead of timings")
     args = p.parse_args(argv)
+    defaults = (300, (320, 240), 11) if args.accuracy else (30, (640, 480), 3)
+    args.frames, args.size, args.seed = (given if given is not None else d for given, d in
+                                         zip((args.frames, args.size, args.seed), defaults))
+    if args.accuracy:
+        r = accuracy(args.frames, args.size, args.voxel, args.seed)
+        print(f"mesh of {args.frames} frames, {args.size[0]}x{args.size[1]}, voxel {args.voxel:g} m, seed {args.seed}: "
+              f"{r['vertices']} vertices, {r['faces']} faces, {r['blocks']} blocks; fused in {r['fuse_s']:.1f} s, "
+              f"meshed in {r['mesh_s']:.1f} s")
+        print(f"  accuracy: median {r['median_voxels']:.3f} voxel, 90th percentile {r['p90_voxels']:.3f} voxel "
+              "from the true surface")
+        print(f"  completeness: {100 * r['completeness']:.1f}% of {r['surface_points']} visible true surface points "
+              "within one voxel of the mesh")
+        return
     open3d = not args.no_open3d
     if open3d:
         try:

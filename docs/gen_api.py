@@ -31,6 +31,7 @@ SECTIONS = [
         ["NormalEquations", "photometric_error", "photometric_normal_equations"],
     ),
     ("Direct RGB-D odometry (from gvnn_warp.odometry; numpy or torch, no torch needed)", "gvnn_warp.odometry"),
+    ("Dense fusion: a TSDF in hashed voxel blocks (from gvnn_warp.fusion; no torch)", "gvnn_warp.fusion"),
 ]
 # the sections up to this one document names that gvnn_warp itself exports
 _TOP_LEVEL = next(i for i, (_, modname, *_) in enumerate(SECTIONS) if modname == "gvnn_warp") + 1

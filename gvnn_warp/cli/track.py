@@ -55,7 +55,7 @@ import sys
 from pathlib import Path
 
 from ..datasets.tum import DatasetError, read_tum
-from ..odometry.sequence import RESULT_FILES, make_aligner, track_sequence
+from ..odometry.sequence import LENS_MODES, RESULT_FILES, make_aligner, track_sequence
 from ..odometry.tracking import KeyframePolicy
 from .args import UsageError, bounded_int, description, finite_float, output_dir, positive_float
 from .runner import INSTALL_HINTS, command_main, missing_packages
@@ -143,6 +143,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-weight", type=finite_float(0, 1e6), default=0.0, metavar="W",
                    help="weight of the depth term (0: photometric only)")
     p.add_argument("--color", action="store_true", help="photometric term on RGB instead of grey")
+    p.add_argument("--lens", choices=LENS_MODES, default="resample",
+                   help="through a lens (radial-tangential intrinsics): resample each frame once into the ideal "
+                        "pinhole image and track that (pinhole speed), or move every ray through the lens model "
+                        "(exact)")
     fuse = p.add_mutually_exclusive_group()
     fuse.add_argument("--fuse", action="store_true",
                       help="integrate the frames at the estimated poses into a TSDF and write OUT/mesh.ply and "
@@ -262,7 +266,8 @@ def run(args: argparse.Namespace) -> int:
     aligner = None
     if getattr(args, "method", "direct") != "vo":
         aligner = make_aligner(seq.K, levels=args.levels, iterations=args.iterations, robust=args.robust,
-                               depth_weight=args.depth_weight, color=args.color, dist=seq.dist)
+                               depth_weight=args.depth_weight, color=args.color, dist=seq.dist,
+                               size=(seq.width, seq.height), lens=getattr(args, "lens", "resample"))
     if network is not None:
         from ..vo.frontend import NetworkAligner  # torch: only with a network (see check_method)
 

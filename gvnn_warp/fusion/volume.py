@@ -3,7 +3,7 @@
 :class:`TSDFVolume` checks its inputs (numpy arrays or CPU torch tensors), grows its arrays and
 launches the kernels of :mod:`gvnn_warp.kernels.fusion` (conventions: that module's docstring and
 ``docs/conventions.md``), cutting every per-voxel and per-pixel launch into chunks over the
-library's threads (:func:`gvnn_warp.set_num_threads`); results do not depend on the thread count.
+library's threads (``launch_chunks``) (:func:`gvnn_warp.set_num_threads`); results do not depend on the thread count.
 
 Example::
 
@@ -25,8 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..kernels.core import threads
-from ..kernels.core.launch import ensure_loaded, wp_launch
+from ..kernels.core.launch import launch_chunks, wp_launch
 from ..kernels.fusion import kernels as K_
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
@@ -39,7 +38,6 @@ BYTES_PER_BLOCK = BLOCK_VOXELS * (8 + 16)  # per voxel: TSDF and weight, colour 
 _FIRST_BLOCKS = 1024  # blocks allocated at first (10 MiB); doubled as needed
 _TILE = 8  # pixels per side of the tiles of the raycast's depth range
 _NORMAL_JUMP = 0.05  # a raycast normal needs its neighbours' depths within 5% (else it is a depth edge)
-_CHUNK = 4  # chunks per thread in a launch (evens out uneven work: raycasts, empty voxels)
 
 
 @dataclass
@@ -55,19 +53,6 @@ class IntegrateReport:
 
 def _name(method: str) -> str:
     return f"gvnn_warp.fusion.TSDFVolume.{method}"
-
-
-def _parallel(kernel, n: int, args: list) -> None:
-    """``kernel`` over elements [0, n) (its first argument the offset), in chunks over threads."""
-    if n <= 0:
-        return
-    n_threads = threads.get_num_threads()
-    count = max(1, min(n_threads * _CHUNK, n // 4096 + 1))
-    step = -(-n // count)
-    chunks = [(s, min(step, n - s)) for s in range(0, n, step)]
-    ensure_loaded(kernel, dim=chunks[0][1], inputs=[chunks[0][0], *args], device="cpu")  # (before the threads)
-    threads.pool().run(lambda c: wp.launch(kernel, dim=chunks[c][1], inputs=[chunks[c][0], *args], device="cpu"),
-                       len(chunks), n_threads)
 
 
 class TSDFVolume:
@@ -240,7 +225,7 @@ class TSDFVolume:
         scale = self._ray_scale[id(rays)]
         samples = max(2, math.ceil(2 * self.truncation * scale / (0.5 * block_len)) + 1)
         cand = wp.empty(n_samp * samples, dtype=wp.vec3i, device="cpu")
-        _parallel(K_.touched_blocks, n_samp, [depth_w, rays, wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), W, s,
+        launch_chunks(K_.touched_blocks, n_samp, [depth_w, rays, wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), W, s,
                                               self.truncation, 1.0 / block_len, self.min_depth, self.max_depth,
                                               samples, cand])
         # 2. find or add them (one thread: it owns the table), growing the arrays as needed
@@ -265,7 +250,7 @@ class TSDFVolume:
                      f"{self.voxel_size:g} m: use larger voxels or allow more memory")
             self._allocate_blocks(min(self.max_blocks, 2 * self.capacity))
         # 3. update every voxel of those blocks
-        _parallel(K_.integrate, n_active * BLOCK * BLOCK,
+        launch_chunks(K_.integrate, n_active * BLOCK * BLOCK,
                   [active, self.coords, depth_w, image, int(has_colour), W, H, fx, fy, cx, cy, model, dist,
                    wp.mat33(*R_cw.ravel()), wp.vec3(*t_cw), self.voxel_size, self.truncation, self.min_depth,
                    self.max_depth, self.tw, self.colour])
@@ -300,11 +285,11 @@ class TSDFVolume:
                                                  self.voxel_size * BLOCK, self.min_depth, _TILE, margin, tiles_x,
                                                  tiles_y, near, far], device="cpu")
         n_tiled = 64 * (-(-width // 8)) * (-(-height // 8))  # (the kernel runs over 8 x 8 tiles of pixels)
-        _parallel(K_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays,
+        launch_chunks(K_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays,
                                   wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), R_cw, self.voxel_size, self.truncation,
                                   self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin, tiles_x, tiles_y,
                                   near, far, height, depth, colour])
-        _parallel(K_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
+        launch_chunks(K_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
         return (depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width),
                 np.ascontiguousarray(normal.numpy().reshape(height, width, 3).transpose(2, 0, 1)))
 
@@ -320,7 +305,7 @@ class TSDFVolume:
         nv = wp.empty(n, dtype=wp.int32, device="cpu")
         nt = wp.empty(n, dtype=wp.int32, device="cpu")
         table = [self.table, self.mask, self.coords, self.tw]
-        _parallel(K_.mesh_count, n, [*table, mc_range, nv, nt])
+        launch_chunks(K_.mesh_count, n, [*table, mc_range, nv, nt])
         counts_v, counts_t = nv.numpy(), nt.numpy()
         first_v = np.concatenate([[0], np.cumsum(counts_v, dtype=np.int64)[:-1]]).astype(np.int32)
         first_t = np.concatenate([[0], np.cumsum(counts_t, dtype=np.int64)[:-1]]).astype(np.int32)
@@ -328,10 +313,10 @@ class TSDFVolume:
         points = wp.empty(max(total_v, 1), dtype=wp.vec3, device="cpu")
         colours = wp.empty(max(total_v, 1), dtype=wp.vec3, device="cpu")
         edge_vertex = wp.empty(3 * n, dtype=wp.int32, device="cpu")
-        _parallel(K_.mesh_vertices, n, [*table, self.colour, self.voxel_size,
+        launch_chunks(K_.mesh_vertices, n, [*table, self.colour, self.voxel_size,
                                         wp.array(first_v, dtype=wp.int32, device="cpu"), edge_vertex, points, colours])
         faces = wp.empty(max(total_t, 1), dtype=wp.vec3i, device="cpu")
-        _parallel(K_.mesh_faces, n, [*table, mc_range, mc_tri, wp.array(first_t, dtype=wp.int32, device="cpu"),
+        launch_chunks(K_.mesh_faces, n, [*table, mc_range, mc_tri, wp.array(first_t, dtype=wp.int32, device="cpu"),
                                      edge_vertex, faces])
         return points.numpy()[:total_v], faces.numpy()[:total_t].astype(np.int32), colours.numpy()[:total_v]
 

@@ -52,6 +52,7 @@ from .evaluation import (
 from .tracking import KeyframePolicy, TrackingStopped, TrackResult, track
 
 __all__ = [
+    "LENS_MODES",
     "LOW_VALID_FRACTION",
     "PLAUSIBLE_DEPTH_M",
     "RESULT_FILES",
@@ -69,20 +70,35 @@ LOW_VALID_FRACTION = 0.05  # below this median fraction of usable pixels the sum
 PLAUSIBLE_DEPTH_M = (0.05, 100.0)  # outside, the first frame's median depth suggests a wrong depth scale
 
 
+LENS_MODES = ("resample", "exact")  # how make_aligner tracks through a lens (see its docstring)
+
+
 def make_aligner(K, *, levels: int | None = None, iterations: int | None = None, robust: str = "huber",
-                 depth_weight: float = 0.0, color: bool = False, dist=None):
-    """The :class:`.DirectAligner` that ``gvnn-warp track`` uses for images of intrinsics ``K``
-    (3, 3), pixels. ``levels``, ``iterations``: None for the aligner's defaults; ``robust``: the
-    photometric penalty; ``depth_weight``: weight of the depth term (0: photometric only); ``color``:
-    the photometric term on RGB instead of grey; ``dist``: radial-tangential coefficients (k1, k2, p1,
-    p2, k3) of the images, None for a pinhole."""
+                 depth_weight: float = 0.0, color: bool = False, dist=None, size: tuple[int, int] | None = None,
+                 lens: str = "resample"):
+    """The aligner that ``gvnn-warp track`` uses for images of intrinsics ``K`` (3, 3), pixels.
+    ``levels``, ``iterations``: None for the aligner's defaults; ``robust``: the photometric penalty;
+    ``depth_weight``: weight of the depth term (0: photometric only); ``color``: the photometric term
+    on RGB instead of grey; ``dist``: radial-tangential coefficients (k1, k2, p1, p2, k3) of the
+    images, None for a pinhole. Through a lens, ``lens="resample"`` (the default; needs ``size`` =
+    (W, H)) resamples each frame once into the ideal pinhole image and tracks that at pinhole speed
+    (:class:`.undistort.UndistortingAligner`), ``"exact"`` moves every ray through the lens model
+    inside the aligner (:class:`.DirectAligner` with ``model="radtan"``)."""
+    if lens not in LENS_MODES:
+        raise ValueError(f"make_aligner: lens must be one of {LENS_MODES}, got {lens!r}")
     kwargs = {"robust": robust, "depth_weight": depth_weight, "color": color}
-    if dist is not None:
-        kwargs.update(model="radtan", dist=dist)
     if levels is not None:
         kwargs["levels"] = levels
     if iterations is not None:
         kwargs["iterations"] = iterations
+    if dist is not None and lens == "resample":
+        if size is None:
+            raise ValueError("make_aligner: lens='resample' needs the image size (W, H)")
+        from .undistort import UndistortingAligner  # (the aligner's kernels load on first use: see below)
+
+        return UndistortingAligner(K, dist, size, **kwargs)
+    if dist is not None:
+        kwargs.update(model="radtan", dist=dist)
     # (imported here: the aligner defines its kernels at import, which `gvnn-warp --help` and the
     # other commands, importing this module through `gvnn-warp track`'s parser, should not wait for)
     from .aligner import DirectAligner

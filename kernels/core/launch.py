@@ -331,6 +331,22 @@ def launch(
 
 
 
+def launch_chunks(kernel: wp.Kernel, n: int, args: Sequence, chunks_per_thread: int = 4) -> None:
+    """A forward-only kernel whose first argument is an element offset, over elements [0, n), cut
+    into contiguous chunks run on :func:`get_num_threads` threads (for kernels outside the
+    float32/float64 :class:`FloatKernel` family, e.g. the TSDF's). Each element must write only its
+    own outputs, so any cut gives the same result."""
+    if n <= 0:
+        return
+    n_threads = threads.get_num_threads()
+    count = max(1, min(n_threads * chunks_per_thread, n // 4096 + 1))
+    step = -(-n // count)
+    chunks = [(start, min(step, n - start)) for start in range(0, n, step)]
+    ensure_loaded(kernel, dim=chunks[0][1], inputs=[chunks[0][0], *args], device="cpu")  # (before the threads)
+    threads.pool().run(lambda c: wp.launch(kernel, dim=chunks[c][1], inputs=[chunks[c][0], *args], device="cpu"),
+                       len(chunks), n_threads)
+
+
 class RecordedLaunch:
     """A forward kernel ``kernel(offset, *inputs, *outputs)`` over elements [0, n) (1-D), its
     arguments packed once (one ``wp.launch(..., record_cmd=True)``) and replayed by calling the
@@ -402,6 +418,7 @@ __all__ = [
     "element_type",
     "get_num_threads",
     "launch",
+    "launch_chunks",
     "mat34d",
     "mat34f",
     "plan_chunks",

@@ -682,8 +682,60 @@ def test_track_passes_the_radtan_distortion_to_the_aligner(tmp_path, monkeypatch
     assert json.loads((out / "metrics.json").read_text())["intrinsics"]["radtan"] == [0.1, -0.2, 0.01, 0.02, 0.3]
     assert main(["track", str(data), "--out", str(out), "--no-progress", "--overwrite", "--intrinsics", "fr1"]) == 0
     np.testing.assert_array_equal(made[-1]["dist"], [0.2624, -0.9531, -0.0054, 0.0026, 1.1633])
-    aligner = real(read_tum(data).K, dist=[0.1, -0.2, 0.01, 0.02, 0.3])
+    assert made[-1]["lens"] == "resample" and made[-1]["size"] == (80, 60)
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--overwrite", "--intrinsics", "fr1",
+                 "--lens", "exact"]) == 0
+    assert made[-1]["lens"] == "exact"
+    aligner = real(read_tum(data).K, dist=[0.1, -0.2, 0.01, 0.02, 0.3], lens="exact")
     assert aligner.model == "radtan" and aligner.dist[4] == 0.3
+    resampling = real(read_tum(data).K, dist=[0.1, -0.2, 0.01, 0.02, 0.3], size=(80, 60))
+    assert type(resampling).__name__ == "UndistortingAligner" and resampling.aligner.model == "pinhole"
+
+
+def test_a_lens_sequence_tracks_the_same_resampled_as_exact(tmp_path):
+    # rendered frames seen through the Freiburg 1 lens (each lens pixel takes the pinhole image at
+    # its ray): tracked through one resampling per frame (the default) and through the lens model
+    # inside the aligner, both recover the true motion as the pinhole frames do
+    from benchmarks.lens_tracking import lens_twin
+    from gvnn_warp.datasets.intrinsics import DISTORTION_PRESETS
+    from gvnn_warp.odometry.sequence import make_aligner
+    from gvnn_warp.odometry.undistort import ideal_camera, lens_positions
+
+    pin = read_tum(_render(tmp_path, frames=5, size="160x120", seed=2))
+    dist = DISTORTION_PRESETS["fr1"]
+    lens_twin(pin, tmp_path / "lens", dist)
+    lens = read_tum(tmp_path / "lens")
+    assert lens.dist is not None
+    # the ideal camera of the resampling keeps every ideal pixel inside the lens image
+    Ki = ideal_camera(lens.K, dist, 160, 120)
+    pos = lens_positions(lens.K, dist, 160, 120, Ki)
+    assert Ki[0, 0] >= lens.K[0, 0] and pos.min() >= 0 and pos[:, 0].max() <= 159 and pos[:, 1].max() <= 119
+    frames = [(lens.image(i, gray=True), lens.depth(i)) for i in range(5)]
+    for mode in ("resample", "exact"):
+        r = track(lambda i: frames[i], 5, make_aligner(lens.K, dist=lens.dist, size=(160, 120), lens=mode),
+                  start_pose=lens.gt_poses[0], progress=False)
+        t_err, r_err = pose_error(r.poses, lens.gt_poses)
+        assert t_err.max() < 0.004 and r_err.max() < 0.15, mode
+
+
+def test_remap_is_bilinear_and_nearest_with_empty_outside():
+    from gvnn_warp.kernels.sampling.remap import RemapTable, remap
+
+    rng = np.random.default_rng(0)
+    src = rng.uniform(size=(2, 5, 7)).astype(np.float32)
+    src[1, 2, 3] = np.nan
+    pos = np.array([[0, 0], [6, 4], [2.25, 1.5], [3.4, 2.2], [-0.6, 1], [6.4, 4.4], [7.2, 1]], np.float64)
+    table = RemapTable(pos, 7, 5)
+    lin = remap(src, table, (1, 7))[:, 0]
+    near = remap(src, table, (1, 7), nearest=True)[:, 0]
+    x0, y0, fx, fy = 2, 1, 0.25, 0.5
+    expected = (1 - fy) * ((1 - fx) * src[0, y0, x0] + fx * src[0, y0, x0 + 1]) + fy * (
+        (1 - fx) * src[0, y0 + 1, x0] + fx * src[0, y0 + 1, x0 + 1])
+    np.testing.assert_allclose(lin[0, :3], [src[0, 0, 0], src[0, 4, 6], expected], rtol=1e-6)
+    assert lin[0, 4] == 0 and lin[0, 6] == 0  # outside: no source
+    np.testing.assert_array_equal(near[0, :4], [src[0, 0, 0], src[0, 4, 6], src[0, 2, 2], src[0, 2, 3]])
+    assert near[1, 3] == 0  # a NaN source reads as 0 (no depth)
+    assert near[0, 5] == src[0, 4, 6] and near[0, 6] == 0  # within half a pixel of the image, and beyond
 
 
 # ------------------------------------------------------------------------------------------------

@@ -1,0 +1,105 @@
+"""A lens camera tracked at pinhole speed: each frame resampled once into the ideal pinhole image.
+
+:class:`UndistortingAligner` wraps a pinhole :class:`~.aligner.DirectAligner`: ``prepare`` resamples
+each frame once - colour bilinearly, depth from the nearest pixel (no depth is invented across an
+edge) - at the positions where the pixels of an ideal pinhole camera fall in the lens image
+(``u = K distort(K_ideal^-1 [x, y, 1])``, computed once per camera), and the aligner then runs on
+pinhole images, whose fused kernels use the pinhole's row-linear fast path. ``K_ideal`` is the
+lens's K with the focal lengths scaled by the smallest factor (>= 1) that keeps every ideal pixel
+inside the lens image and the model's domain (OpenCV's ``getOptimalNewCameraMatrix`` with alpha 0):
+an ideal image with no empty border, whose edge the aligner would otherwise take for the scene's.
+The poses are those of the same physical camera (the resampling changes the pixels, not the camera
+centre or orientation). What it changes: the images are interpolated once more (the exact path,
+``DirectAligner(K, model="radtan", dist=...)``, moves rays through the lens instead), and the few
+lens pixels outside the ideal image (its corners are cut at the narrowest edge) are not used.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.geometry import lens as _lens
+from ..kernels.sampling.remap import RemapTable, remap
+from .inputs import as_numpy, fail
+
+__all__ = ["UndistortingAligner", "ideal_camera", "lens_positions"]
+
+
+def lens_positions(K: np.ndarray, dist, width: int, height: int, K_ideal: np.ndarray | None = None) -> np.ndarray:
+    """(H * W, 2) float32 positions (u, v) in the lens image (intrinsics ``K``, radial-tangential
+    ``dist`` = k1, k2, p1, p2, k3) of the pixels of the ideal pinhole camera ``K_ideal`` (default
+    ``K``); (-1, -1) beyond the model's domain."""
+    K = np.asarray(K, dtype=np.float64)
+    Ki = K if K_ideal is None else np.asarray(K_ideal, dtype=np.float64)
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    limit = _lens.pack_dist(_lens.MODEL_IDS["radtan"], dist)[5]  # the domain's bound on r^2
+    x, y = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    xn, yn = (x - Ki[0, 2]) / Ki[0, 0], (y - Ki[1, 2]) / Ki[1, 1]
+    r2 = xn * xn + yn * yn
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+    u, v = K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]
+    outside = r2 > limit
+    u[outside], v[outside] = -1.0, -1.0
+    return np.stack([u, v], -1).reshape(-1, 2).astype(np.float32)
+
+
+def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> np.ndarray:
+    """``K`` with its focal lengths scaled by the smallest factor in [1, 3] (steps of 0.5%) whose
+    ideal pixels all fall inside the lens image (see the module docstring)."""
+    K = np.asarray(K, dtype=np.float64)
+    for scale in np.arange(1.0, 3.0, 0.005):
+        Ki = K.copy()
+        Ki[0, 0], Ki[1, 1] = K[0, 0] * scale, K[1, 1] * scale
+        pos = lens_positions(K, dist, width, height, Ki)
+        if pos.min() >= 0 and pos[:, 0].max() <= width - 1 and pos[:, 1].max() <= height - 1:
+            return Ki
+    return Ki
+
+
+class UndistortingAligner:
+    """The direct aligner of a radial-tangential camera through one resampling per frame (see the
+    module docstring). ``K`` (3, 3) and ``dist`` (k1, k2, p1, p2, k3) of the lens images of ``size``
+    (W, H); ``**kwargs``: the :class:`~.aligner.DirectAligner`'s other settings. Same interface:
+    ``prepare``, ``align_frames``, ``align``."""
+
+    concurrent_prepare = True
+
+    def __init__(self, K, dist, size: tuple[int, int], **kwargs):
+        from .aligner import DirectAligner
+
+        self.width, self.height = int(size[0]), int(size[1])
+        dist = np.asarray(dist, dtype=np.float64).reshape(-1)
+        if dist.shape != (5,) or not np.all(np.isfinite(dist)):
+            fail("UndistortingAligner", ValueError, f"argument 'dist' must be 5 finite coefficients (k1, k2, p1, "
+                                                    f"p2, k3), got {dist.tolist()}")
+        K = np.asarray(K, dtype=np.float64)
+        self.K, self.dist = K, dist
+        self.K_ideal = ideal_camera(K, dist, self.width, self.height)
+        self.aligner = DirectAligner(self.K_ideal, **kwargs)
+        self.table = RemapTable(lens_positions(K, dist, self.width, self.height, self.K_ideal), self.width,
+                                self.height)
+
+    def undistort(self, image, depth=None):
+        """(image, depth) of a lens frame ((C, H, W), (1, H, W)) as the ideal pinhole camera's."""
+        img = as_numpy("UndistortingAligner.prepare", "image", image, (3,))
+        if img.shape[1:] != (self.height, self.width):
+            fail("UndistortingAligner.prepare", ValueError, f"argument 'image' must be (C, {self.height}, "
+                                                            f"{self.width}), got {img.shape}")
+        out_img = remap(img, self.table, (self.height, self.width))
+        out_depth = None
+        if depth is not None:
+            d = as_numpy("UndistortingAligner.prepare", "depth", depth, (3,))
+            out_depth = remap(d, self.table, (self.height, self.width), nearest=True)
+        return out_img, out_depth
+
+    def prepare(self, image, depth=None):
+        return self.aligner.prepare(*self.undistort(image, depth))
+
+    def align_frames(self, ref, live, init=None):
+        return self.aligner.align_frames(ref, live, init)
+
+    def align(self, ref_image, ref_depth, live_image, live_depth=None, init=None):
+        return self.aligner.align_frames(self.prepare(ref_image, ref_depth), self.prepare(live_image, live_depth),
+                                         init)

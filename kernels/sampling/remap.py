@@ -1,0 +1,82 @@
+"""Resampling an image through a fixed map of source positions (e.g. undistortion into the ideal
+pinhole image of a lens camera): the map is turned once into source indices and weights
+(:class:`RemapTable`), then each image costs one thin kernel launch per plane."""
+
+import numpy as np
+import warp as wp
+
+from ..core.launch import launch_chunks
+
+__all__ = ["RemapTable", "remap", "remap_bilinear", "remap_nearest"]
+
+
+@wp.kernel
+def remap_bilinear(offset: int, src: wp.array(dtype=wp.float32), base: wp.array(dtype=wp.int32),
+                   weights: wp.array(dtype=wp.vec2), W: int, out: wp.array(dtype=wp.float32)):
+    """out[k]: bilinear between source pixels base[k], +1, +W, +W+1 with weights (wx, wy); 0 where
+    base[k] < 0 (no source)."""
+    k = offset + wp.tid()
+    b = base[k]
+    value = 0.0
+    if b >= 0:
+        w = weights[k]
+        top = (1.0 - w[0]) * src[b] + w[0] * src[b + 1]
+        bottom = (1.0 - w[0]) * src[b + W] + w[0] * src[b + W + 1]
+        value = (1.0 - w[1]) * top + w[1] * bottom
+    out[k] = value
+
+
+@wp.kernel
+def remap_nearest(offset: int, src: wp.array(dtype=wp.float32), index: wp.array(dtype=wp.int32),
+                  out: wp.array(dtype=wp.float32)):
+    """out[k] = src[index[k]], 0 where index[k] < 0 or the value is not finite."""
+    k = offset + wp.tid()
+    i = index[k]
+    value = 0.0
+    if i >= 0:
+        v = src[i]
+        if wp.isfinite(v):
+            value = v
+    out[k] = value
+
+
+class RemapTable:
+    """A map of source positions ``positions`` (N, 2) (u, v), pixel centres at integer coordinates,
+    into a (H, W) source, as the indices and weights the kernels read: bilinear where the position
+    is inside [0, W - 1] x [0, H - 1], nearest where it is within half a pixel of the image."""
+
+    def __init__(self, positions: np.ndarray, width: int, height: int):
+        p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+        u, v = p[:, 0], p[:, 1]
+        self.width, self.height, self.n = int(width), int(height), p.shape[0]
+        inside = (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
+        x0 = np.clip(np.floor(u), 0, width - 2).astype(np.int64)
+        y0 = np.clip(np.floor(v), 0, height - 2).astype(np.int64)
+        base = np.where(inside, y0 * width + x0, -1).astype(np.int32)
+        weights = np.stack([u - x0, v - y0], 1).astype(np.float32)
+        iu, iv = np.floor(u + 0.5).astype(np.int64), np.floor(v + 0.5).astype(np.int64)
+        near = (u >= -0.5) & (v >= -0.5) & (iu >= 0) & (iv >= 0) & (iu < width) & (iv < height)
+        index = np.where(near, iv * width + iu, -1).astype(np.int32)
+        self.base = wp.array(base, dtype=wp.int32, device="cpu")
+        self.weights = wp.array(weights, dtype=wp.vec2, device="cpu")
+        self.index = wp.array(index, dtype=wp.int32, device="cpu")
+
+
+def remap(src: np.ndarray, table: RemapTable, out_shape: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    """``src`` (C, H, W) float32 resampled through ``table``: (C, H', W') float32 with
+    ``out_shape`` = (H', W'); bilinear, or the nearest pixel's value (non-finite values read as 0)."""
+    C, H, W = src.shape
+    if (H, W) != (table.height, table.width):
+        raise ValueError(f"remap: the source is {W}x{H}, the table's {table.width}x{table.height}")
+    n = out_shape[0] * out_shape[1]
+    if table.n != n:
+        raise ValueError(f"remap: {table.n} positions for an output of {out_shape}")
+    flat = np.ascontiguousarray(src, dtype=np.float32).reshape(C, -1)
+    out = np.empty((C, n), np.float32)
+    for c in range(C):
+        s = wp.array(flat[c], dtype=wp.float32, device="cpu", copy=False)
+        o = wp.array(out[c], dtype=wp.float32, device="cpu", copy=False)
+        kernel, args = ((remap_nearest, [s, table.index, o]) if nearest else
+                        (remap_bilinear, [s, table.base, table.weights, W, o]))
+        launch_chunks(kernel, n, args)
+    return out.reshape(C, *out_shape)
