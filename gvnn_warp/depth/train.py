@@ -6,7 +6,10 @@ frame with ``normalize``), and the motion of t into each neighbour (``pose``: "d
 aligner through the predicted depth; "network", a pose network trained with it) give
 :func:`gvnn_warp.reprojection_loss` at every scale, plus ``smoothness`` x
 :func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the mean over the
-scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``).
+scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``). Launched by
+``torchrun`` (``RANK``/``WORLD_SIZE`` set) it trains data-parallel (DistributedDataParallel over
+gloo): every rank draws the same global batch and takes its share (``batch_size`` must be divisible
+by the ranks), the ranks agree on when to stop, and only rank 0 writes files and progress.
 ``OUT/checkpoint.pt`` is written atomically every ``checkpoint_seconds``, on Ctrl-C / SIGTERM and at
 the end (loadable with ``torch.load(..., weights_only=True)``); ``resume`` continues from it.
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import time
 from dataclasses import dataclass
@@ -31,6 +35,7 @@ from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
 from ..odometry.aligner import DirectAligner
 from ..progress import progress_bar
 from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
+from ..vo.distributed import all_max, finish, setup
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
 from .data import Video, read_video
@@ -229,14 +234,24 @@ def _config_dict(cfg: DepthConfig) -> dict:
 def train(cfg: DepthConfig) -> dict:
     """Train (see the module docstring); returns the metrics written to ``OUT/metrics.json``:
     ``steps``, ``train_loss`` (per step), ``train_seconds``, ``interrupted``."""
+    rank, world = setup()
+    if world > 1:  # the cores shared between the ranks (torch's and gvnn_warp's threads)
+        from ..kernels.core.threads import set_num_threads
+
+        threads = max(1, (os.cpu_count() or 2) // world)
+        torch.set_num_threads(threads)
+        set_num_threads(threads)
+    if cfg.batch_size % world:
+        finish(world)
+        raise ValueError(f"depth train: the batch size {cfg.batch_size} must be divisible by the {world} ranks")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     ck_path = out / "checkpoint.pt"
     ck = _resume(cfg, ck_path)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames, progress=cfg.progress,
-                       with_depth=cfg.supervised)
+    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames,
+                       progress=cfg.progress and rank == 0, with_depth=cfg.supervised)
     camera = video.camera()
     # a mirrored frame is a frame of the same camera only if its principal point is centred
     flip = cfg.flip and video.dist is None and abs(float(video.K[0, 2]) - (cfg.size[0] - 1) / 2) < 1e-3
@@ -248,18 +263,27 @@ def train(cfg: DepthConfig) -> dict:
         poser = direct_poses(DirectAligner(video.camera() if video.dist is not None else video.K.double().numpy(),
                                            levels=3))
         params = list(depth_net.parameters())
+    if world > 1:  # (the same initial weights on every rank: the same seed; DDP averages the gradients)
+        depth_net = torch.nn.parallel.DistributedDataParallel(depth_net)
+        if cfg.pose == "network":
+            pose_net = torch.nn.parallel.DistributedDataParallel(pose_net)
+            poser = network_poses(pose_net.module)
     opt = torch.optim.Adam(params, lr=cfg.lr)
+    local = cfg.batch_size // world
     step, history, elapsed = 0, [], 0.0
     if ck is not None:
-        depth_net.load_state_dict(ck["depth_net"])
-        pose_net.load_state_dict(ck["pose_net"])
+        _module(depth_net).load_state_dict(ck["depth_net"])
+        _module(pose_net).load_state_dict(ck["pose_net"])
         opt.load_state_dict(ck["optimizer"])
         step, history, elapsed = ck["step"], list(ck["train_loss"]), ck["train_seconds"]
         set_rng_state(ck["rng"])
 
     def save(seconds: float) -> None:
+        if rank != 0:
+            return
         atomic_save({"format": CHECKPOINT_FORMAT, "config": _config_dict(cfg), "step": step, "train_loss": history,
-                     "train_seconds": seconds, "depth_net": depth_net.state_dict(), "pose_net": pose_net.state_dict(),
+                     "train_seconds": seconds, "depth_net": _module(depth_net).state_dict(),
+                     "pose_net": _module(pose_net).state_dict(),
                      "optimizer": opt.state_dict(), "rng": rng_state(), "K": video.K,
                      "dist": video.dist if video.dist is not None else torch.zeros(0)}, ck_path)
 
@@ -267,21 +291,25 @@ def train(cfg: DepthConfig) -> dict:
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM,)}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(flag=True))
     budget = 60.0 * cfg.minutes
-    bar = progress_bar(desc="depth train", unit="step", initial=step, total=cfg.steps, disable=not cfg.progress,
+    bar = progress_bar(desc="depth train", unit="step", initial=step, total=cfg.steps,
+                       disable=not (cfg.progress and rank == 0),
                mininterval=0.5)
     t0 = last_ck = time.perf_counter()
     interrupted = False
     try:
         depth_net.train()
         pose_net.train()
-        while not stop["flag"]:
+        while True:
             now = time.perf_counter()
-            if elapsed + now - t0 >= budget or (cfg.steps is not None and step >= cfg.steps):
+            done = stop["flag"] or elapsed + now - t0 >= budget or (cfg.steps is not None and step >= cfg.steps)
+            if all_max(float(done), world):  # (every rank stops at the same step)
                 break
+            # the same global batch on every rank (the same seed), each rank its share
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
+            idx = idx[rank * local:(rank + 1) * local]
             target, sources = video.triplets(idx)
             if flip:  # half the triplets mirrored left-right (Monodepth2's augmentation)
-                mirror = (torch.rand(cfg.batch_size) < 0.5).view(-1, 1, 1, 1)
+                mirror = (torch.rand(cfg.batch_size) < 0.5).view(-1, 1, 1, 1)[rank * local:(rank + 1) * local]
                 target = torch.where(mirror, target.flip(-1), target)
                 sources = torch.where(mirror.unsqueeze(1), sources.flip(-1), sources)
             seen = colour_jitter(target) if cfg.jitter else None
@@ -302,7 +330,7 @@ def train(cfg: DepthConfig) -> dict:
             if time.perf_counter() - last_ck >= cfg.checkpoint_seconds:
                 save(elapsed + time.perf_counter() - t0)
                 last_ck = time.perf_counter()
-        interrupted = stop["flag"]
+        interrupted = bool(all_max(float(stop["flag"]), world))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -314,10 +342,25 @@ def train(cfg: DepthConfig) -> dict:
     metrics = {"steps": step, "train_loss": history, "train_seconds": seconds, "interrupted": interrupted,
                "frames": int(video.images.shape[0]), "triplets": int(video.targets.numel()),
                "size": list(cfg.size), "config": _config_dict(cfg)}
-    atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
-    if not interrupted:
-        _training_figure(depth_net, poser, video, camera, cfg, out / "training.png")
+    if world > 1:  # sanity check: DDP must leave every rank with the same weights
+        import torch.distributed as dist
+
+        flat = torch.cat([p.detach().reshape(-1) for p in _module(depth_net).parameters()])
+        gathered = [torch.empty_like(flat) for _ in range(world)]
+        dist.all_gather(gathered, flat)
+        metrics["distributed"] = {"world_size": world,
+                                  "max_param_diff_between_ranks": max(float((g - flat).abs().max()) for g in gathered)}
+    if rank == 0:
+        atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
+        if not interrupted:
+            _training_figure(_module(depth_net), poser, video, camera, cfg, out / "training.png")
+    finish(world)
     return metrics
+
+
+def _module(net):
+    """The network inside a DistributedDataParallel wrapper (or the network itself)."""
+    return getattr(net, "module", net)
 
 
 def _true_depth(video: Video, frame: int, size: tuple[int, int]) -> Tensor | None:

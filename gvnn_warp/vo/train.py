@@ -34,6 +34,7 @@ from ..progress import progress_bar
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, atomic_save, network_spec, rng_state, set_rng_state
 from .config import ConfigError, VOConfig, check_config, default_config
 from .data import PairSet, read_split, render_split, split_seeds
+from .distributed import finish, setup
 from .evaluation import METRICS, evaluate, evaluate_and_report, even_subset, predict_pairs
 from .loss import photometric_loss, pose_loss, warp_live
 from .model import CascadeVO
@@ -43,15 +44,6 @@ __all__ = ["CHECKPOINT", "METRICS", "VOConfig", "check_config", "default_config"
 
 
 # ----------------------------------------------------------------------------- distributed
-
-
-def _dist_setup() -> tuple[int, int]:
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("gloo")
-    if dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size()
-    return 0, 1
 
 
 def _log(rank: int, msg: str) -> None:
@@ -148,7 +140,7 @@ class _StopFlag:
 def train(cfg: VOConfig) -> dict:
     """Run (or resume) training and evaluation; returns the metrics dict (rank 0; others get {})."""
     t_start = time.perf_counter()
-    rank, world = _dist_setup()
+    rank, world = setup()
     out = Path(cfg.out)
     threads = cfg.threads or max(1, (os.cpu_count() or 2) // world)
     torch.set_num_threads(threads)
@@ -297,7 +289,7 @@ def train(cfg: VOConfig) -> dict:
         save_checkpoint(train_seconds)
     if interrupted:
         _log(rank, f"interrupted at step {step}; checkpoint saved in {ckpt_path} (continue with --resume)")
-        _finish_dist(world)
+        finish(world)
         return {"interrupted": True, "step": step}
 
     ddp = {"world_size": world}
@@ -312,12 +304,5 @@ def train(cfg: VOConfig) -> dict:
             cfg, model, history, snapshots, train_set, train_gt, train_valid, eval_set, eval_gt, eval_valid,
             eval_idx, panel_idx, t_data, train_seconds, time.perf_counter() - t_start, step, ddp,
         )
-    _finish_dist(world)
+    finish(world)
     return metrics
-
-
-def _finish_dist(world: int) -> None:
-    if world > 1 and dist.is_initialized():
-        dist.barrier()
-        dist.destroy_process_group()
-

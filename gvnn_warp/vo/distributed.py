@@ -1,0 +1,37 @@
+"""Data-parallel training under ``torchrun``: process-group set-up and tear-down (gloo, CPU), shared by
+``gvnn-warp vo`` and ``gvnn-warp depth train``. Without ``WORLD_SIZE`` > 1 everything is a no-op."""
+
+from __future__ import annotations
+
+import os
+
+import torch
+import torch.distributed as dist
+
+__all__ = ["all_max", "finish", "setup"]
+
+
+def setup() -> tuple[int, int]:
+    """(rank, world size): the process group of ``torchrun`` (``RANK``/``WORLD_SIZE``), made once."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("gloo")
+    if dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def all_max(value: float, world: int) -> float:
+    """The largest ``value`` over the ranks (e.g. a stop flag every rank must agree on)."""
+    if world <= 1:
+        return float(value)
+    t = torch.tensor([float(value)], dtype=torch.float64)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return float(t.item())
+
+
+def finish(world: int) -> None:
+    """Wait for every rank, then tear the process group down."""
+    if world > 1 and dist.is_initialized():
+        dist.barrier()
+        dist.destroy_process_group()
