@@ -79,12 +79,14 @@ class Open3DAligner:
 
     name = "Open3D 0.20 Intensity"
 
-    def __init__(self, K: np.ndarray, depth_scale: float):
+    def __init__(self, K: np.ndarray, depth_scale: float, method: str = "Intensity"):
         # Open3D is an optional extra (``.[bench]``): an ImportError here skips it (see main)
         import open3d as o3d
 
         self.o3d = o3d
         self.odo = o3d.t.pipelines.odometry
+        self.method = getattr(self.odo.Method, method)  # Intensity, Hybrid or PointToPlane
+        self.name = f"Open3D 0.20 {method}"
         self.K = o3d.core.Tensor(np.asarray(K, dtype=np.float64))
         self.depth_scale = float(depth_scale)
 
@@ -98,7 +100,7 @@ class Open3DAligner:
         try:
             result = self.odo.rgbd_odometry_multi_scale(
                 ref, live, self.K, self.o3d.core.Tensor(init), self.depth_scale, OPEN3D_DEPTH_MAX,
-                method=self.odo.Method.Intensity,
+                method=self.method,
             )
         except RuntimeError:  # "Singular 6x6 linear system detected, tracking failed."
             return init, {"converged": False}

@@ -19,6 +19,8 @@ from ..geometry.lens import dispatch
 from . import hashing
 from .hashing import BLOCK, BLOCK_VOXELS, find_block, find_voxel, voxel_block, voxel_offset
 
+wp.set_module_options({"enable_backward": False})  # (no gradients here: half the compile time)
+
 SENTINEL = wp.constant(-(2**31))  # an unused candidate slot (x coordinate)
 FULL = wp.constant(0.999)  # |tsdf| at or above this is truncated: no surface between such voxels
 
