@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.geometry import lens as _lens
-from ..kernels.sampling.remap import RemapTable, remap
+from ..kernels.sampling.remap import RemapTable, remap, remap_rgbd
 from .inputs import as_numpy, fail
 
 __all__ = ["UndistortingAligner", "ideal_camera", "lens_positions"]
@@ -87,12 +87,13 @@ class UndistortingAligner:
         if img.shape[1:] != (self.height, self.width):
             fail("UndistortingAligner.prepare", ValueError, f"argument 'image' must be (C, {self.height}, "
                                                             f"{self.width}), got {img.shape}")
-        out_img = remap(img, self.table, (self.height, self.width))
-        out_depth = None
-        if depth is not None:
-            d = as_numpy("UndistortingAligner.prepare", "depth", depth, (3,))
-            out_depth = remap(d, self.table, (self.height, self.width), nearest=True)
-        return out_img, out_depth
+        if depth is None:
+            return remap(img, self.table, (self.height, self.width)), None
+        d = as_numpy("UndistortingAligner.prepare", "depth", depth, (3,))
+        if d.shape != (1, self.height, self.width):
+            fail("UndistortingAligner.prepare", ValueError, f"argument 'depth' must be (1, {self.height}, "
+                                                            f"{self.width}), got {d.shape}")
+        return remap_rgbd(img, d, self.table, (self.height, self.width))
 
     def prepare(self, image, depth=None):
         return self.aligner.prepare(*self.undistort(image, depth))

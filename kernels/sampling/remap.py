@@ -9,7 +9,7 @@ from ..core.launch import launch_chunks
 
 wp.set_module_options({"enable_backward": False})  # (no gradients here: half the compile time)
 
-__all__ = ["RemapTable", "remap", "remap_bilinear", "remap_nearest"]
+__all__ = ["RemapTable", "remap", "remap_bilinear", "remap_frame", "remap_nearest", "remap_rgbd"]
 
 
 @wp.kernel
@@ -40,6 +40,34 @@ def remap_nearest(offset: int, src: wp.array(dtype=wp.float32), index: wp.array(
         if wp.isfinite(v):
             value = v
     out[k] = value
+
+
+@wp.kernel
+def remap_frame(offset: int, image: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), C: int,
+                base: wp.array(dtype=wp.int32), weights: wp.array(dtype=wp.vec2), index: wp.array(dtype=wp.int32),
+                W: int, out_image: wp.array(dtype=wp.float32), out_depth: wp.array(dtype=wp.float32)):
+    """An RGB-D frame in one pass: each of the C image planes as :func:`remap_bilinear`, the depth as
+    :func:`remap_nearest` (planes of ``image`` W * H apart; of the output, N apart)."""
+    k = offset + wp.tid()
+    n = index.shape[0]
+    plane = image.shape[0] // C
+    b = base[k]
+    w = weights[k]
+    for c in range(C):
+        value = float(0.0)
+        if b >= 0:
+            o = c * plane + b
+            top = (1.0 - w[0]) * image[o] + w[0] * image[o + 1]
+            bottom = (1.0 - w[0]) * image[o + W] + w[0] * image[o + W + 1]
+            value = (1.0 - w[1]) * top + w[1] * bottom
+        out_image[c * n + k] = value
+    i = index[k]
+    d = float(0.0)
+    if i >= 0:
+        v = depth[i]
+        if wp.isfinite(v):
+            d = v
+    out_depth[k] = d
 
 
 class RemapTable:
@@ -82,3 +110,25 @@ def remap(src: np.ndarray, table: RemapTable, out_shape: tuple[int, int], neares
                         (remap_bilinear, [s, table.base, table.weights, W, o]))
         launch_chunks(kernel, n, args)
     return out.reshape(C, *out_shape)
+
+
+def remap_rgbd(image: np.ndarray, depth: np.ndarray, table: RemapTable, out_shape: tuple[int, int]):
+    """An RGB-D frame, ``image`` (C, H, W) bilinear and ``depth`` (1, H, W) nearest, resampled
+    through ``table`` in one launch: ((C, H', W'), (1, H', W')) float32."""
+    C, H, W = image.shape
+    if (H, W) != (table.height, table.width) or depth.shape != (1, H, W):
+        raise ValueError(f"remap_rgbd: image {image.shape} and depth {depth.shape} must be (C, {table.height}, "
+                         f"{table.width}) and (1, {table.height}, {table.width})")
+    n = out_shape[0] * out_shape[1]
+    if table.n != n:
+        raise ValueError(f"remap_rgbd: {table.n} positions for an output of {out_shape}")
+    img = wp.array(np.ascontiguousarray(image, dtype=np.float32).reshape(-1), dtype=wp.float32, device="cpu",
+                   copy=False)
+    dep = wp.array(np.ascontiguousarray(depth, dtype=np.float32).reshape(-1), dtype=wp.float32, device="cpu",
+                   copy=False)
+    out_img = np.empty(C * n, np.float32)
+    out_dep = np.empty(n, np.float32)
+    launch_chunks(remap_frame, n, [img, dep, C, table.base, table.weights, table.index, W,
+                                   wp.array(out_img, dtype=wp.float32, device="cpu", copy=False),
+                                   wp.array(out_dep, dtype=wp.float32, device="cpu", copy=False)])
+    return out_img.reshape(C, *out_shape), out_dep.reshape(1, *out_shape)
