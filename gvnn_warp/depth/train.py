@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import signal
 import time
@@ -71,6 +72,9 @@ class DepthConfig:
     steps: int | None = None  # or stop after this many steps
     batch_size: int = 8
     lr: float = 5e-4
+    # the learning rate's cosine decay over the run (time, or steps when given), to this fraction of
+    # ``lr`` at the end; 1: constant
+    lr_final: float = 1.0
     seed: int = 0
     min_depth: float = 0.1  # metres: the networks' depth range
     max_depth: float = 10.0
@@ -322,6 +326,12 @@ def train(cfg: DepthConfig) -> dict:
                 loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, depth_input=seen)
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            if cfg.lr_final != 1.0:
+                done_frac = (min(1.0, step / cfg.steps) if cfg.steps is not None else
+                             min(1.0, (elapsed + time.perf_counter() - t0) / budget))
+                scale = cfg.lr_final + (1 - cfg.lr_final) * 0.5 * (1 + math.cos(math.pi * done_frac))
+                for group in opt.param_groups:
+                    group["lr"] = cfg.lr * scale
             opt.step()
             step += 1
             history.append(float(loss.detach()))
