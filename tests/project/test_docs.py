@@ -49,7 +49,7 @@ README = DOCS.parent / "README.md"
 # the pages whose Python blocks are run and whose shell blocks are checked: the README and the guides
 # of docs/ (datasets.md and vo_checkpoint.md show calls on files the reader has, api.md is generated)
 PAGES = (README, *(DOCS / f"{name}.md" for name in ("install", "layers", "cameras", "odometry", "vo", "depth", "cli",
-                                                     "performance", "architecture")))
+                                                     "performance", "architecture", "fusion")))
 
 
 def readme_blocks(page: Path = README) -> list[tuple[str, str, bool]]:
@@ -66,9 +66,10 @@ def readme_blocks(page: Path = README) -> list[tuple[str, str, bool]]:
     return blocks
 
 
-def test_readme_python_blocks_run():
+def test_readme_python_blocks_run(tmp_path, monkeypatch):
     """Every Python block runs as pasted (the pure-Warp one in a torch-free process, in
-    test_pure_warp.py; the others here)."""
+    test_pure_warp.py; the others here), in an empty folder (some write files)."""
+    monkeypatch.chdir(tmp_path)
     blocks = [(code, marked) for lang, code, marked in readme_blocks() if lang == "python"]
     assert sum(marked for _, marked in blocks) == 1 and len(blocks) >= 2
     for page in PAGES:
@@ -99,6 +100,7 @@ def test_readme_shell_commands_are_valid():
     from packaging.requirements import Requirement
 
     from gvnn_warp import cli
+    from gvnn_warp.cli import depth as depth_cli
     from gvnn_warp.cli import vo
 
     ci = (DOCS.parent / ".ci" / "run").read_text()
@@ -122,6 +124,11 @@ def test_readme_shell_commands_are_valid():
             prog = cmd[0].removeprefix(".venv/bin/")
             if prog == "gvnn-warp":
                 cli.build_parser().parse_args(cmd[1:])
+            elif prog == "torchrun" and cmd[4] == "gvnn_warp.cli.depth":
+                assert cmd[1:4] == ["--standalone", "--nproc_per_node=2", "-m"]
+                parser = __import__("argparse").ArgumentParser()
+                depth_cli.add_parser(parser.add_subparsers())
+                parser.parse_args(["depth", *cmd[5:]])
             elif prog == "torchrun":
                 assert cmd[1:4] == ["--standalone", "--nproc_per_node=2", "-m"] and cmd[4] == "gvnn_warp.cli.vo"
                 parser = __import__("argparse").ArgumentParser()
