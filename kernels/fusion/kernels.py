@@ -459,6 +459,46 @@ def corner_value(table: wp.array(dtype=wp.vec4i), mask: int, blk: int,
     return k, ok
 
 
+@wp.func
+def voxel_of_element(coords: wp.array(dtype=wp.vec3i), e: int):
+    """(block index, block coordinates, voxel inside the block (x fastest)) of voxel element ``e``."""
+    blk = e // BLOCK_VOXELS
+    local = e - blk * BLOCK_VOXELS
+    return blk, coords[blk], wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
+
+
+@wp.func
+def edge_crossing(table: wp.array(dtype=wp.vec4i), mask: int, blk: int, b: wp.vec3i, li: wp.vec3i, a: int,
+                  tw: wp.array(dtype=wp.vec2)):
+    """(index of the neighbour along axis ``a``, whether the edge from voxel ``li`` to it holds a
+    vertex): both ends usable and of opposite signs (``li`` itself must be usable)."""
+    step = wp.vec3i(0, 0, 0)
+    step[a] = 1
+    k1, ok1 = corner_value(table, mask, blk, b, li + step, tw)
+    k0 = blk * BLOCK_VOXELS + li[0] + BLOCK * (li[1] + BLOCK * li[2])
+    crossing = bool(False)
+    if ok1:
+        crossing = (tw[k0][0] >= 0.0) != (tw[k1][0] >= 0.0)
+    return k1, crossing
+
+
+@wp.func
+def cell_case(table: wp.array(dtype=wp.vec4i), mask: int, blk: int, b: wp.vec3i, li: wp.vec3i,
+              tw: wp.array(dtype=wp.vec2)):
+    """(marching-cubes case, usable) of the cell whose origin is voxel ``li`` of block ``b``: bit c
+    set where corner CORNER[c] has a TSDF >= 0; usable if all eight corners are (:func:`corner_value`)."""
+    case = int(0)
+    usable = bool(True)
+    for c in range(8):
+        corner = wp.vec3i(CORNER[c, 0], CORNER[c, 1], CORNER[c, 2])
+        kc, okc = corner_value(table, mask, blk, b, li + corner, tw)
+        if not okc:
+            usable = False
+        elif tw[kc][0] >= 0.0:
+            case = case | (1 << c)
+    return case, usable
+
+
 @wp.kernel
 def mesh_count(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
                coords: wp.array(dtype=wp.vec3i), tw: wp.array(dtype=wp.vec2), mc_range: wp.array(dtype=wp.int32),
@@ -467,29 +507,16 @@ def mesh_count(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     (both ends usable, signs differ) and the triangles of the cell it is the origin of (all eight
     corners usable)."""
     e = offset + wp.tid()
-    blk = e // BLOCK_VOXELS
-    local = e - blk * BLOCK_VOXELS
-    b = coords[blk]
-    li = wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
+    blk, b, li = voxel_of_element(coords, e)
     k0, ok0 = corner_value(table, mask, blk, b, li, tw)
     nv = int(0)
     if ok0:
         for a in range(3):
-            step = wp.vec3i(0, 0, 0)
-            step[a] = 1
-            k1, ok1 = corner_value(table, mask, blk, b, li + step, tw)
-            if ok1 and ((tw[k0][0] >= 0.0) != (tw[k1][0] >= 0.0)):
+            _k1, crossing = edge_crossing(table, mask, blk, b, li, a, tw)
+            if crossing:
                 nv += 1
     vertices[e] = nv
-    case = int(0)
-    usable = bool(ok0)
-    for c in range(8):
-        corner = wp.vec3i(CORNER[c, 0], CORNER[c, 1], CORNER[c, 2])
-        kc, okc = corner_value(table, mask, blk, b, li + corner, tw)
-        if not okc:
-            usable = False
-        elif tw[kc][0] >= 0.0:
-            case = case | (1 << c)
+    case, usable = cell_case(table, mask, blk, b, li, tw)
     nt = int(0)
     if usable:
         nt = (mc_range[case + 1] - mc_range[case]) // 3
@@ -499,39 +526,31 @@ def mesh_count(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
 @wp.kernel
 def mesh_vertices(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
                   coords: wp.array(dtype=wp.vec3i), tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4),
-                  voxel: float,
-                  first: wp.array(dtype=wp.int32), edge_vertex: wp.array(dtype=wp.int32),
+                  voxel: float, first: wp.array(dtype=wp.int32), edge_vertex: wp.array(dtype=wp.int32),
                   points: wp.array(dtype=wp.vec3), point_colours: wp.array(dtype=wp.vec3)):
     """Second pass, per voxel: its edges' vertices (where the linear interpolation of the TSDF is
     zero; colour interpolated alike) from index ``first[e]`` on, and their indices in ``edge_vertex``
     (3 per voxel, -1 where none)."""
     e = offset + wp.tid()
-    blk = e // BLOCK_VOXELS
-    local = e - blk * BLOCK_VOXELS
-    b = coords[blk]
-    li = wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
+    blk, b, li = voxel_of_element(coords, e)
     k0, ok0 = corner_value(table, mask, blk, b, li, tw)
     n = first[e]
     gi = b * BLOCK + li
     for a in range(3):
         edge_vertex[3 * e + a] = -1
         if ok0:
-            step = wp.vec3i(0, 0, 0)
-            step[a] = 1
-            k1, ok1 = corner_value(table, mask, blk, b, li + step, tw)
-            f0 = tw[k0][0]
-            if ok1:
-                f1 = tw[k1][0]
-                if (f0 >= 0.0) != (f1 >= 0.0):
-                    s = f0 / (f0 - f1)
-                    pos = voxel * wp.vec3(float(gi[0]), float(gi[1]), float(gi[2]))
-                    pos[a] = pos[a] + s * voxel
-                    points[n] = pos
-                    c0 = colour[k0]
-                    c1 = colour[k1]
-                    point_colours[n] = (1.0 - s) * wp.vec3(c0[0], c0[1], c0[2]) + s * wp.vec3(c1[0], c1[1], c1[2])
-                    edge_vertex[3 * e + a] = n
-                    n += 1
+            k1, crossing = edge_crossing(table, mask, blk, b, li, a, tw)
+            if crossing:
+                f0 = tw[k0][0]
+                s = f0 / (f0 - tw[k1][0])
+                pos = voxel * wp.vec3(float(gi[0]), float(gi[1]), float(gi[2]))
+                pos[a] = pos[a] + s * voxel
+                points[n] = pos
+                c0 = colour[k0]
+                c1 = colour[k1]
+                point_colours[n] = (1.0 - s) * wp.vec3(c0[0], c0[1], c0[2]) + s * wp.vec3(c1[0], c1[1], c1[2])
+                edge_vertex[3 * e + a] = n
+                n += 1
 
 
 @wp.kernel
@@ -542,19 +561,8 @@ def mesh_faces(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     """Third pass, per voxel: the triangles of its cell from index ``first[e]`` on, each corner the
     vertex of the edge it lies on (owned by the edge's lower voxel, maybe in another block)."""
     e = offset + wp.tid()
-    blk = e // BLOCK_VOXELS
-    local = e - blk * BLOCK_VOXELS
-    b = coords[blk]
-    li = wp.vec3i(local % BLOCK, (local // BLOCK) % BLOCK, local // (BLOCK * BLOCK))
-    case = int(0)
-    usable = bool(True)
-    for c in range(8):
-        corner = wp.vec3i(CORNER[c, 0], CORNER[c, 1], CORNER[c, 2])
-        kc, okc = corner_value(table, mask, blk, b, li + corner, tw)
-        if not okc:
-            usable = False
-        elif tw[kc][0] >= 0.0:
-            case = case | (1 << c)
+    blk, b, li = voxel_of_element(coords, e)
+    case, usable = cell_case(table, mask, blk, b, li, tw)
     if not usable:
         return
     start = mc_range[case]
