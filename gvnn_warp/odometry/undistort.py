@@ -1,4 +1,4 @@
-"""A lens camera tracked at pinhole speed: each frame resampled once into the ideal pinhole image.
+"""A lens camera tracked with the pinhole's kernels: each frame resampled once into an ideal pinhole image.
 
 :class:`UndistortingAligner` wraps a pinhole :class:`~.aligner.DirectAligner`: ``prepare`` resamples
 each frame once - colour bilinearly, depth from the nearest pixel (no depth is invented across an
