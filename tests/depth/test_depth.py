@@ -185,7 +185,7 @@ def test_ddp_two_ranks_train_the_same_network(folders, tmp_path):
     out = tmp_path / "ddp"
     cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.cli.depth", "train", "--data",
            *map(str, folders), "--out", str(out), "--size", "64x64", "--steps", "2", "--batch-size", "4", "--gap", "1",
-           "--no-progress"]
+           "--no-progress", "--supervised"]  # (--supervised: the same data-parallel loop, no Warp kernels to load)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stderr[-3000:]
