@@ -57,7 +57,10 @@ def render() -> str:
             obj = getattr(mod, name)
             if not (inspect.isfunction(obj) or inspect.isclass(obj)):
                 continue
-            sig = str(inspect.signature(obj)).replace("torch.Tensor", "Tensor")
+            try:
+                sig = str(inspect.signature(obj)).replace("torch.Tensor", "Tensor")
+            except ValueError:  # (an exception class: no signature of its own)
+                sig = ""
             out += [f"### `{name}{sig}`", "", inspect.cleandoc(obj.__doc__ or "(undocumented)"), ""]
             if inspect.isclass(obj) and getattr(obj, "forward", None) and obj.forward.__doc__:
                 out += [inspect.cleandoc(obj.forward.__doc__), ""]

@@ -104,6 +104,8 @@ def run_train(args: argparse.Namespace) -> int:
         seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )
     m = train(cfg)  # (a folder or checkpoint that cannot be used: one line, status 1, by the runner)
+    if not m:  # a rank other than 0 of a data-parallel run: rank 0 reports
+        return 0
     if m["interrupted"]:
         return 130
     loss = m["train_loss"]

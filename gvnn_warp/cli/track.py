@@ -231,6 +231,9 @@ def check_method(args: argparse.Namespace):
             raise UsageError(f"--model tracks with the direct aligner (--method direct), not --method {method}")
         if getattr(args, "keyframes", False):
             raise UsageError("--model tracks against the model, not keyframes: use one of --model, --keyframes")
+        if getattr(args, "color", False) or getattr(args, "init", "identity") != "identity":
+            raise UsageError("--model aligns grey images from the identity (the model's raycast is the reference): "
+                             "not with --color or --init velocity")
     voxel = getattr(args, "voxel", None) or FUSE_VOXEL
     if fusing and getattr(args, "truncation", None) is not None and args.truncation < voxel:
         raise UsageError(f"--truncation {args.truncation:g} is less than a voxel ({voxel:g} m)")
@@ -314,19 +317,20 @@ def run(args: argparse.Namespace) -> int:
 
 def _fuse_and_mesh(args, seq, report, volume, tracker) -> int:
     """--fuse / --model after tracking: integrate (--fuse), then OUT/mesh.ply and OUT/mesh.png, and
-    the fusion's numbers added to metrics.json and the summary. A map that outgrows --fuse-memory is
-    one line, status 1 (the trajectory and metrics are written already)."""
+    the fusion's numbers added to metrics.json and the summary. With --fuse, a map that outgrows
+    --fuse-memory is one line, status 1 (the trajectory and metrics are written already); with
+    --model it stops the tracking, whose results so far are written (TrackingStopped)."""
     import json
     import time
 
-    from ..fusion import write_ply
+    from ..fusion import MapFull, write_ply
     from ..fusion.sequence import camera_of, fuse_sequence, render_picture
     from ..odometry.sequence import frames_text
 
     try:
         fused = tracker.fuse if tracker is not None else fuse_sequence(volume, seq, report.result.poses,
                                                                        progress=not args.no_progress)
-    except ValueError as e:
+    except MapFull as e:
         print(f"gvnn-warp track: error: {e} (--voxel, --fuse-memory); {args.out} holds the trajectory and metrics, "
               "not the mesh", file=sys.stderr)
         return 1

@@ -36,7 +36,7 @@ from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
 from ..odometry.aligner import DirectAligner
 from ..progress import progress_bar
 from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
-from ..vo.distributed import all_max, finish, setup
+from ..vo.distributed import all_max, average_gradients, finish, setup
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
 from .data import Video, read_video
@@ -237,7 +237,8 @@ def _config_dict(cfg: DepthConfig) -> dict:
 
 def train(cfg: DepthConfig) -> dict:
     """Train (see the module docstring); returns the metrics written to ``OUT/metrics.json``:
-    ``steps``, ``train_loss`` (per step), ``train_seconds``, ``interrupted``."""
+    ``steps``, ``train_loss`` (per step), ``train_seconds``, ``interrupted`` (rank 0; the other
+    ranks of a data-parallel run get {})."""
     rank, world = setup()
     if world > 1:  # the cores shared between the ranks (torch's and gvnn_warp's threads)
         from ..kernels.core.threads import set_num_threads
@@ -269,9 +270,6 @@ def train(cfg: DepthConfig) -> dict:
         params = list(depth_net.parameters())
     if world > 1:  # (the same initial weights on every rank: the same seed; DDP averages the gradients)
         depth_net = torch.nn.parallel.DistributedDataParallel(depth_net)
-        if cfg.pose == "network":
-            pose_net = torch.nn.parallel.DistributedDataParallel(pose_net)
-            poser = network_poses(pose_net.module)
     opt = torch.optim.Adam(params, lr=cfg.lr)
     local = cfg.batch_size // world
     step, history, elapsed = 0, [], 0.0
@@ -326,9 +324,11 @@ def train(cfg: DepthConfig) -> dict:
                 loss = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, depth_input=seen)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            if cfg.lr_final != 1.0:
-                done_frac = (min(1.0, step / cfg.steps) if cfg.steps is not None else
-                             min(1.0, (elapsed + time.perf_counter() - t0) / budget))
+            if world > 1 and cfg.pose == "network":  # (DDP averages only what runs through its forward)
+                average_gradients(_module(pose_net), world)
+            if cfg.lr_final != 1.0:  # (the ranks' clocks differ: the largest fraction, the same on every rank)
+                done_frac = all_max(min(1.0, step / cfg.steps) if cfg.steps is not None else
+                                    min(1.0, (elapsed + time.perf_counter() - t0) / budget), world)
                 scale = cfg.lr_final + (1 - cfg.lr_final) * 0.5 * (1 + math.cos(math.pi * done_frac))
                 for group in opt.param_groups:
                     group["lr"] = cfg.lr * scale
@@ -355,7 +355,8 @@ def train(cfg: DepthConfig) -> dict:
     if world > 1:  # sanity check: DDP must leave every rank with the same weights
         import torch.distributed as dist
 
-        flat = torch.cat([p.detach().reshape(-1) for p in _module(depth_net).parameters()])
+        nets = [_module(depth_net)] + ([_module(pose_net)] if cfg.pose == "network" else [])
+        flat = torch.cat([p.detach().reshape(-1) for net in nets for p in net.parameters()])
         gathered = [torch.empty_like(flat) for _ in range(world)]
         dist.all_gather(gathered, flat)
         metrics["distributed"] = {"world_size": world,
@@ -365,7 +366,7 @@ def train(cfg: DepthConfig) -> dict:
         if not interrupted:
             _training_figure(_module(depth_net), poser, video, camera, cfg, out / "training.png")
     finish(world)
-    return metrics
+    return metrics if rank == 0 else {}
 
 
 def _module(net):

@@ -19,9 +19,10 @@ import numpy as np
 
 from ..datasets.images import to_gray
 from ..datasets.tum import TUMSequence
-from ..odometry.tracking import TrackResult, info_converged, info_valid_fraction
+from ..errors import InputError
+from ..odometry.tracking import TrackingStopped, TrackResult, info_converged, info_valid_fraction
 from ..progress import progress_bar
-from .volume import IntegrateReport, TSDFVolume
+from .volume import IntegrateReport, MapFull, TSDFVolume
 
 __all__ = ["FuseReport", "ModelTracker", "camera_of", "fuse_sequence", "render_picture"]
 
@@ -71,7 +72,8 @@ class ModelTracker:
     :class:`TrackResult` over the first ``n`` frames of ``seq``, with ``volume`` holding the model
     at the end and ``fuse`` its integration statistics. ``aligner``: a ``DirectAligner`` for the
     sequence's camera (grey images); ``seconds`` per frame count the raycast, the alignment and the
-    integration."""
+    integration. A frame that cannot be read, or a map that outgrows the volume's memory, raises
+    ``TrackingStopped`` with the result of the frames before it."""
 
     def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume):
         self.seq, self.aligner, self.volume = seq, aligner, volume
@@ -85,29 +87,42 @@ class ModelTracker:
         converged, finite = np.ones(n, bool), np.ones(n, bool)
         valid, seconds = np.full(n, np.nan), np.zeros(n)
         infos: list = [None]
+        def result(m: int) -> TrackResult:  # the first m frames
+            return TrackResult(poses[:m].copy(), np.arange(-1, m - 1), converged[:m].copy(), finite[:m].copy(),
+                               valid[:m].copy(), seconds[:m].copy(), list(range(max(m - 1, 1))), infos[:m])
+
         rgb, depth = seq.image(0), seq.depth(0)
         s = time.perf_counter()
-        self.fuse.add(0, vol.integrate(depth, rgb, camera, start_pose), time.perf_counter() - s)
+        try:
+            self.fuse.add(0, vol.integrate(depth, rgb, camera, start_pose), time.perf_counter() - s)
+        except MapFull as e:
+            raise TrackingStopped(1, result(1), InputError(str(e))) from e
         with progress_bar(total=n, initial=1, unit="frame", desc="track (model)", disable=not progress) as bar:
             for i in range(1, n):
-                rgb, depth = seq.image(i), seq.depth(i)
+                try:  # (a frame that cannot be read, or a map beyond the memory given: the frames before it stand)
+                    rgb, depth = seq.image(i), seq.depth(i)
+                except InputError as e:
+                    raise TrackingStopped(i, result(i), e) from e
                 s = time.perf_counter()
                 ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W)
-                T, info = self.aligner.align(to_gray(ref_colour), ref_depth[None], to_gray(rgb))
+                # (the live depth too: the aligner's occlusion test and depth term use it)
+                T, info = self.aligner.align(to_gray(ref_colour), ref_depth[None], to_gray(rgb), depth)
                 T = np.asarray(T, dtype=np.float64)
                 if not np.all(np.isfinite(T)):
                     finite[i], T = False, np.eye(4)
                 poses[i] = poses[i - 1] @ np.linalg.inv(T)
                 converged[i], valid[i] = info_converged(info), info_valid_fraction(info)
                 t = time.perf_counter()
-                self.fuse.add(i, vol.integrate(depth, rgb, camera, poses[i]), time.perf_counter() - t)
+                try:
+                    self.fuse.add(i, vol.integrate(depth, rgb, camera, poses[i]), time.perf_counter() - t)
+                except MapFull as e:
+                    raise TrackingStopped(i, result(i), InputError(str(e))) from e
                 seconds[i] = time.perf_counter() - s
                 infos.append(info)
                 bar.update(1)
                 if i % 10 == 0 or i == n - 1:
                     bar.set_postfix_str(f"{1000 * seconds[1:i + 1].mean():.0f} ms/frame", refresh=False)
-        return TrackResult(poses, np.arange(-1, n - 1), converged, finite, valid, seconds, list(range(max(n - 1, 1))),
-                           infos)
+        return result(n)
 
 
 def render_picture(volume: TSDFVolume, camera, T_world_cam: np.ndarray, height: int, width: int,

@@ -32,12 +32,16 @@ from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
 from ..odometry.inputs import as_numpy, fail, lens_camera, real_number
 
-__all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "TSDFVolume"]
+__all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "MapFull", "TSDFVolume"]
 
 BYTES_PER_BLOCK = BLOCK_VOXELS * (8 + 16)  # per voxel: TSDF and weight, colour and its weight (float32)
 _FIRST_BLOCKS = 1024  # blocks allocated at first (10 MiB); doubled as needed
 _TILE = 8  # pixels per side of the tiles of the raycast's depth range
 _NORMAL_JUMP = 0.05  # a raycast normal needs its neighbours' depths within 5% (else it is a depth edge)
+
+
+class MapFull(ValueError):
+    """The map needs more blocks than ``max_memory_mb`` holds (the message says how many and what to change)."""
 
 
 @dataclass
@@ -63,11 +67,14 @@ class TSDFVolume:
         truncation: metres, the band around the surface that a depth updates (default 4 voxels;
             at least one voxel).
         max_memory_mb: the most memory the voxels may take; :meth:`integrate` refuses a frame that
-            would need more (a ValueError saying how much the map holds and what to change).
+            would need more (:class:`MapFull`, a ValueError saying how much the map holds and what
+            to change).
         min_depth, max_depth: metres; depths outside (and 0, NaN, negative) are not used.
         pixel_stride: every ``pixel_stride``-th pixel on each axis decides which blocks a frame
             allocates (every pixel updates the voxels: a block is 8 voxels, tens of pixels wide at
-            room distances, so 2 misses none that matter and halves the cost of finding them).
+            room distances, so 2 misses none that matter and halves the cost of finding them); it
+            is lowered for a frame whose blocks would span fewer than 2 sampled pixels at
+            ``max_depth`` (fine voxels).
     """
 
     def __init__(self, voxel_size: float = 0.01, truncation: float | None = None, *, max_memory_mb: float = 2048.0,
@@ -101,7 +108,7 @@ class TSDFVolume:
         self._mc_tables = (wp.array(np.asarray(K_.MC_RANGE, np.int32), dtype=wp.int32, device="cpu"),
                            wp.array(np.asarray(K_.MC_TRI, np.int32), dtype=wp.int32, device="cpu"))
         self._allocate_blocks(min(_FIRST_BLOCKS, self.max_blocks))
-        self._allocate_table(4 * _FIRST_BLOCKS)  # (a quarter full at most, then grown 2x: lookups stay short)
+        self._allocate_table(4 * _FIRST_BLOCKS)  # (grown 2x whenever it would be more than half full)
         self.counts = wp.zeros(3, dtype=wp.int32, device="cpu")
 
     # ------------------------------------------------------------------------------ storage
@@ -217,11 +224,12 @@ class TSDFVolume:
         depth_w = wp.array(dn.reshape(-1), dtype=wp.float32, device="cpu")
         R_wc, t_wc = T[:3, :3], T[:3, 3]
         R_cw, t_cw = R_wc.T, -R_wc.T @ t_wc
+        block_len = self.voxel_size * BLOCK
 
         # 1. the blocks the frame's truncation band passes through (sampled pixels)
-        s = self.pixel_stride
+        # a block must span 2 sampled pixels even at max_depth, or sampled pixels skip blocks (fine voxels)
+        s = max(1, min(self.pixel_stride, int(min(fx, fy) * block_len / (2 * self.max_depth))))
         n_samp = (-(-W // s)) * (-(-H // s))
-        block_len = self.voxel_size * BLOCK
         scale = self._ray_scale[id(rays)]
         samples = max(2, math.ceil(2 * self.truncation * scale / (0.5 * block_len)) + 1)
         cand = wp.empty(n_samp * samples, dtype=wp.vec3i, device="cpu")
@@ -244,9 +252,9 @@ class TSDFVolume:
                 self._allocate_table(4 * (self.mask + 1) // 2)
                 continue
             if self.capacity >= self.max_blocks:
-                fail(_name(fn), ValueError,
+                fail(_name(fn), MapFull,
                      f"the map needs more than {self.max_blocks} blocks of {BLOCK}^3 voxels "
-                     f"({self.max_blocks * BYTES_PER_BLOCK / 2**20:.0f} MiB, max_memory_mb) at a voxel size of "
+                     f"({self.max_blocks * BYTES_PER_BLOCK / 2**20:.3g} MiB, max_memory_mb) at a voxel size of "
                      f"{self.voxel_size:g} m: use larger voxels or allow more memory")
             self._allocate_blocks(min(self.max_blocks, 2 * self.capacity))
         # 3. update every voxel of those blocks

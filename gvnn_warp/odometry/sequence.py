@@ -268,7 +268,7 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         rows += [("ATE RMSE", f"{100 * m.ate_rmse_m:.2f} cm ({aligned_by})"),
                  ("RPE trans RMSE", f"{100 * m.rpe_trans_rmse_m:.3f} cm per frame{scaled}"),
                  ("RPE rot RMSE", f"{m.rpe_rot_rmse_deg:.4f} deg per frame"),
-                 ("RPE per second", "none (the sequence is shorter than 1 s)" if per_second is None else
+                 ("RPE per second", "none (no 1 s step with ground truth at both ends)" if per_second is None else
                   f"{100 * per_second[0]:.3f} cm/s, {per_second[1]:.4f} deg/s ({per_second[2]} steps of 1 s, "
                   "as TUM's evaluate_rpe.py)"),
                  ("ground truth", GT_INTERPOLATED if interpolate_gt else GT_NEAREST),

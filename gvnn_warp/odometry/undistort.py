@@ -46,8 +46,9 @@ def lens_positions(K: np.ndarray, dist, width: int, height: int, K_ideal: np.nda
 
 
 def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> np.ndarray:
-    """``K`` with its focal lengths scaled by the smallest factor in [1, 3] (steps of 0.5%) whose
-    ideal pixels all fall inside the lens image (see the module docstring)."""
+    """``K`` with its focal lengths scaled by the smallest factor in [1, 3) (steps of 0.5%) whose
+    ideal pixels all fall inside the lens image (see the module docstring); for a lens so strong that
+    none does, the largest (the pixels outside have no data)."""
     K = np.asarray(K, dtype=np.float64)
     for scale in np.arange(1.0, 3.0, 0.005):
         Ki = K.copy()

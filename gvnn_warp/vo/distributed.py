@@ -8,7 +8,7 @@ import os
 import torch
 import torch.distributed as dist
 
-__all__ = ["all_max", "finish", "setup"]
+__all__ = ["all_max", "average_gradients", "finish", "setup"]
 
 
 def setup() -> tuple[int, int]:
@@ -28,6 +28,18 @@ def all_max(value: float, world: int) -> float:
     t = torch.tensor([float(value)], dtype=torch.float64)
     dist.all_reduce(t, op=dist.ReduceOp.MAX)
     return float(t.item())
+
+
+def average_gradients(module: torch.nn.Module, world: int) -> None:
+    """Average ``module``'s gradients over the ranks (for a network whose forward does not run through
+    a DistributedDataParallel wrapper, e.g. one called through another method)."""
+    if world <= 1:
+        return
+    for p in module.parameters():
+        if p.grad is None:
+            p.grad = torch.zeros_like(p)
+        dist.all_reduce(p.grad)
+        p.grad /= world
 
 
 def finish(world: int) -> None:

@@ -19,9 +19,16 @@ MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is neve
 
 @wp.func
 def block_hash(b: wp.vec3i, mask: int):
-    """Slot where the search for block ``b`` starts (three large primes, xor-ed: Teschner et al. 2003)."""
+    """Slot where the search for block ``b`` starts: three large primes, xor-ed (Teschner et al. 2003),
+    then MurmurHash3's 32-bit finaliser, which spreads the low bits a power-of-two table keeps (walls
+    of blocks otherwise cluster: 4-5 probes on average, 60+ at worst)."""
     h = (wp.uint32(b[0]) * wp.uint32(73856093)) ^ (wp.uint32(b[1]) * wp.uint32(19349669)) ^ (
         wp.uint32(b[2]) * wp.uint32(83492791))
+    h = h ^ (h >> wp.uint32(16))
+    h = h * wp.uint32(0x85EBCA6B)
+    h = h ^ (h >> wp.uint32(13))
+    h = h * wp.uint32(0xC2B2AE35)
+    h = h ^ (h >> wp.uint32(16))
     return wp.int32(h & wp.uint32(mask))
 
 

@@ -66,7 +66,10 @@ def depth_bilinear(depth: wp.array(dtype=wp.float32), u: float, v: float, W: int
         d = depth[(y0 + 1) * W + x0 + 1]
         lo = wp.min(wp.min(a, b), wp.min(c, d))
         hi = wp.max(wp.max(a, b), wp.max(c, d))
-        if lo > min_depth and hi < max_depth and hi - lo < 0.05 * nearest:
+        # (each one tested: min and max drop a NaN)
+        valid = a > min_depth and b > min_depth and c > min_depth and d > min_depth and a < max_depth and (
+            b < max_depth and c < max_depth and d < max_depth)
+        if valid and hi - lo < 0.05 * nearest:
             fx = u - float(x0)
             fy = v - float(y0)
             out = (1.0 - fy) * ((1.0 - fx) * a + fx * b) + fy * ((1.0 - fx) * c + fx * d)

@@ -189,6 +189,7 @@ def test_ddp_two_ranks_train_the_same_network(folders, tmp_path):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.count("depth train:") == 1  # (rank 0 reports)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["distributed"] == {"world_size": 2, "max_param_diff_between_ranks": 0.0}
     assert metrics["steps"] == 2 and len(metrics["train_loss"]) == 2

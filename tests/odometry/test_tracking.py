@@ -482,6 +482,26 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "the map needs more than" in err[0] and "--fuse-memory" in err[0]
     assert (out / "trajectory.txt").exists() and not (out / "mesh.ply").exists()
+    # with --model the map is the tracking's reference: it stops there (here at the first frame: one
+    # line, nothing to write)
+    out = tmp_path / "small_model"
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--model", "--voxel", "0.002",
+                 "--fuse-memory", "0.1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the map needs more than" in err[0] and not out.exists(), err
+    # an unreadable frame mid-run: the model tracking so far is written, marked partial
+    images = sorted((data / "rgb").glob("*.png"))
+    images[2].write_bytes(images[2].read_bytes()[: len(images[2].read_bytes()) // 2])
+    out = tmp_path / "partial_model"
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--model", "--voxel", "0.02"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and images[2].name in err[0] and "stopped at frame 2" in err[0], err
+    assert json.loads((out / "metrics.json").read_text())["partial"]
+    for argv, message in ((["--model", "--color"], "not with --color"), (["--model", "--init", "velocity"],
+                                                                          "not with --color or --init velocity")):
+        with pytest.raises(SystemExit) as e:
+            main(["track", str(data), "--out", str(tmp_path / "o"), *argv])
+        assert e.value.code == 2 and message in capsys.readouterr().err
 
 
 def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
