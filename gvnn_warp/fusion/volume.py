@@ -73,8 +73,7 @@ class TSDFVolume:
         pixel_stride: every ``pixel_stride``-th pixel on each axis decides which blocks a frame
             allocates (every pixel updates the voxels: a block is 8 voxels, tens of pixels wide at
             room distances, so 2 misses none that matter and halves the cost of finding them); it
-            is lowered for a frame whose blocks would span fewer than 2 sampled pixels at
-            ``max_depth`` (fine voxels).
+            is lowered where a block at ``max_depth`` would be narrower than the stride (fine voxels).
     """
 
     def __init__(self, voxel_size: float = 0.01, truncation: float | None = None, *, max_memory_mb: float = 2048.0,
@@ -227,8 +226,9 @@ class TSDFVolume:
         block_len = self.voxel_size * BLOCK
 
         # 1. the blocks the frame's truncation band passes through (sampled pixels)
-        # a block must span 2 sampled pixels even at max_depth, or sampled pixels skip blocks (fine voxels)
-        s = max(1, min(self.pixel_stride, int(min(fx, fy) * block_len / (2 * self.max_depth))))
+        # a block must span a sampled pixel on each axis even at max_depth, or the samples skip blocks
+        # (fine voxels): the stride at most the block's width in pixels there
+        s = max(1, min(self.pixel_stride, int(min(fx, fy) * block_len / self.max_depth)))
         n_samp = (-(-W // s)) * (-(-H // s))
         scale = self._ray_scale[id(rays)]
         samples = max(2, math.ceil(2 * self.truncation * scale / (0.5 * block_len)) + 1)
