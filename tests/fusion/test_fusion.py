@@ -265,3 +265,17 @@ def test_ply_round_trip_and_header(tmp_path):
     assert f3 is None and c3 is None and np.array_equal(v3, v)
     with pytest.raises(ValueError, match="face indices"):
         write_ply(tmp_path / "bad.ply", v, f + 5)
+
+
+def test_fuse_sequence_skips_frames_without_a_pose_or_depth(tmp_path):
+    from gvnn_warp.cli import main
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.fusion.sequence import fuse_sequence
+
+    assert main(["render", "--out", str(tmp_path / "seq"), "--frames", "3", "--size", "32x24", "--no-progress"]) == 0
+    seq = read_tum(tmp_path / "seq")
+    poses = seq.gt_poses.copy()
+    poses[1] = np.nan
+    vol = TSDFVolume(0.05, max_depth=10.0)
+    report = fuse_sequence(vol, seq, poses, progress=False)
+    assert report.skipped == [1] and report.integrated == 2 and vol.n_blocks > 0
