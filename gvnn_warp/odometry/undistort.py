@@ -17,7 +17,11 @@ lens pixels outside the ideal image (its corners are cut at the narrowest edge) 
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 
+from ..kernels.core.kinds import vec8d
+from ..kernels.core.launch import launch
+from ..kernels.geometry import kernels as geometry_kernels
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.remap import RemapTable, remap, remap_rgbd
 from .inputs import as_numpy, fail
@@ -28,21 +32,23 @@ __all__ = ["UndistortingAligner", "ideal_camera", "lens_positions"]
 def lens_positions(K: np.ndarray, dist, width: int, height: int, K_ideal: np.ndarray | None = None) -> np.ndarray:
     """(H * W, 2) float32 positions (u, v) in the lens image (intrinsics ``K``, radial-tangential
     ``dist`` = k1, k2, p1, p2, k3) of the pixels of the ideal pinhole camera ``K_ideal`` (default
-    ``K``); (-1, -1) beyond the model's domain."""
+    ``K``); (-1, -1) beyond the model's domain. Each ideal pixel is re-expressed in ``K`` (the same
+    ray) and distorted by the lens model's own kernel (``lens.distort_pixel``)."""
     K = np.asarray(K, dtype=np.float64)
     Ki = K if K_ideal is None else np.asarray(K_ideal, dtype=np.float64)
-    k1, k2, p1, p2, k3 = (float(v) for v in dist)
-    limit = _lens.pack_dist(_lens.MODEL_IDS["radtan"], dist)[5]  # the domain's bound on r^2
     x, y = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    xn, yn = (x - Ki[0, 2]) / Ki[0, 0], (y - Ki[1, 2]) / Ki[1, 1]
-    r2 = xn * xn + yn * yn
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
-    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
-    u, v = K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]
-    outside = r2 > limit
-    u[outside], v[outside] = -1.0, -1.0
-    return np.stack([u, v], -1).reshape(-1, 2).astype(np.float32)
+    rays = np.stack([(x - Ki[0, 2]) / Ki[0, 0], (y - Ki[1, 2]) / Ki[1, 1]], -1).reshape(-1, 2)
+    n = rays.shape[0]
+    pixels = wp.array(rays * np.diag(K)[:2] + K[:2, 2], dtype=wp.vec2d, device="cpu")
+    model = _lens.MODEL_IDS["radtan"]
+    out = wp.empty(n, dtype=wp.vec2d, device="cpu")
+    valid = wp.empty(n, dtype=bool, device="cpu")
+    launch(geometry_kernels.distort_pixels_lens()[wp.float64], n,
+           [pixels, wp.array(K[None], dtype=wp.mat33d, device="cpu"),
+            wp.array(_lens.pack_dist(model, dist)[None], dtype=vec8d, device="cpu"), n, model], [out, valid])
+    positions = out.numpy()
+    positions[~valid.numpy()] = -1.0
+    return positions.astype(np.float32)
 
 
 def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> np.ndarray:
