@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datasets.images import to_gray
 from ..datasets.tum import TUMSequence, write_trajectory
 from ..errors import InputError
 from .evaluation import (
@@ -159,7 +160,8 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
     def read_frame(i: int):
         if predictor is None:
             return seq.image(i, gray=gray), seq.depth(i)
-        return seq.image(i, gray=gray), predictor(seq.image(i))
+        rgb = seq.image(i)  # (read once: the network takes the colour, the aligner its grey)
+        return (to_gray(rgb) if gray else rgb), predictor(rgb)
 
     stopped = None
     try:
