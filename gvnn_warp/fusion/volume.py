@@ -102,8 +102,7 @@ class TSDFVolume:
         self.pixel_stride = pixel_stride
         self.max_blocks = int(mem * 2**20 // BYTES_PER_BLOCK)
         self._calls = 0
-        self._rays: dict = {}
-        self._ray_scale: dict = {}
+        self._rays: dict = {}  # (camera, size) -> (rays, the longest ray's length)
         self._mc_tables = (wp.array(np.asarray(K_.MC_RANGE, np.int32), dtype=wp.int32, device="cpu"),
                            wp.array(np.asarray(K_.MC_TRI, np.int32), dtype=wp.int32, device="cpu"))
         self._allocate_blocks(min(_FIRST_BLOCKS, self.max_blocks))
@@ -147,8 +146,9 @@ class TSDFVolume:
     # ------------------------------------------------------------------------------ inputs
 
     def _camera(self, fn: str, camera, height: int, width: int):
-        """(fx, fy, cx, cy, model id, dist vec8d, rays wp.array (H * W vec3)) of ``camera``: a (3, 3)
-        K, a ``(K, dist)`` pair (radial-tangential, 5 coefficients) or a camera of ``gvnn_warp.cameras``."""
+        """(fx, fy, cx, cy, model id, dist vec8d, rays wp.array (H * W vec3), the longest ray's length:
+        metres per unit of depth at most) of ``camera``: a (3, 3) K, a ``(K, dist)`` pair
+        (radial-tangential, 5 coefficients) or a camera of ``gvnn_warp.cameras``."""
         dist = None
         if isinstance(camera, tuple) and len(camera) == 2:
             camera, dist = camera
@@ -158,8 +158,8 @@ class TSDFVolume:
         mid = _lens.MODEL_IDS[model]
         packed = np.zeros(8) if packed is None else packed
         key = (K.tobytes(), packed.tobytes(), mid, height, width)
-        rays = self._rays.get(key)
-        if rays is None:
+        cached = self._rays.get(key)
+        if cached is None:
             if mid == 0:
                 x, y = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
                 r = np.stack([(x - K[0, 2]) / K[0, 0], (y - K[1, 2]) / K[1, 1], np.ones_like(x)], -1)
@@ -170,12 +170,10 @@ class TSDFVolume:
                 rays = pixel_rays(Kw, dw, height, width, mid).flatten()
             if len(self._rays) > 8:
                 self._rays.clear()
-                self._ray_scale.clear()
-            self._rays[key] = rays
-            r = rays.numpy()  # the longest ray (xn, yn, 1): metres per unit of depth, at most
-            self._ray_scale[id(rays)] = float(np.max(np.linalg.norm(r[r[:, 2] > 0], axis=1), initial=1.0))
+            r = rays.numpy()
+            cached = self._rays[key] = (rays, float(np.max(np.linalg.norm(r[r[:, 2] > 0], axis=1), initial=1.0)))
         d8 = wp.types.vector(8, wp.float64)(*packed.tolist())
-        return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), mid, d8, rays
+        return (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), mid, d8, *cached)
 
     @staticmethod
     def _pose(fn: str, T) -> np.ndarray:
@@ -215,7 +213,7 @@ class TSDFVolume:
         else:
             image = wp.zeros(3, dtype=wp.float32, device="cpu")
         T = self._pose(fn, T_world_cam)
-        fx, fy, cx, cy, model, dist, rays = self._camera(fn, camera, H, W)
+        fx, fy, cx, cy, model, dist, rays, scale = self._camera(fn, camera, H, W)
         dn = np.ascontiguousarray(d, np.float32)
         valid = int(np.count_nonzero((dn > self.min_depth) & (dn < self.max_depth)))
         if valid == 0:
@@ -230,7 +228,6 @@ class TSDFVolume:
         # (fine voxels): the stride at most the block's width in pixels there
         s = max(1, min(self.pixel_stride, int(min(fx, fy) * block_len / self.max_depth)))
         n_samp = (-(-W // s)) * (-(-H // s))
-        scale = self._ray_scale[id(rays)]
         samples = max(2, math.ceil(2 * self.truncation * scale / (0.5 * block_len)) + 1)
         cand = wp.empty(n_samp * samples, dtype=wp.vec3i, device="cpu")
         launch_chunks(K_.touched_blocks, n_samp, [depth_w, rays, wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), W, s,
@@ -277,7 +274,7 @@ class TSDFVolume:
             fail(_name(fn), ValueError, f"arguments 'height' and 'width' must be integers >= 2, got {height!r}, "
                                         f"{width!r}")
         T = self._pose(fn, T_world_cam)
-        fx, fy, cx, cy, model, _, rays = self._camera(fn, camera, height, width)
+        fx, fy, cx, cy, model, _, rays, _ = self._camera(fn, camera, height, width)
         n = height * width
         depth = wp.empty(n, dtype=wp.float32, device="cpu")
         colour = wp.empty(3 * n, dtype=wp.float32, device="cpu")
