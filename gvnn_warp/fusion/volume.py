@@ -27,6 +27,7 @@ import warp as wp
 
 from ..kernels.core.launch import launch_chunks, wp_launch
 from ..kernels.fusion import kernels as K_
+from ..kernels.fusion import marching
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
@@ -103,8 +104,8 @@ class TSDFVolume:
         self.max_blocks = int(mem * 2**20 // BYTES_PER_BLOCK)
         self._calls = 0
         self._rays: dict = {}  # (camera, size) -> (rays, the longest ray's length)
-        self._mc_tables = (wp.array(np.asarray(K_.MC_RANGE, np.int32), dtype=wp.int32, device="cpu"),
-                           wp.array(np.asarray(K_.MC_TRI, np.int32), dtype=wp.int32, device="cpu"))
+        self._mc_tables = (wp.array(np.asarray(marching.MC_RANGE, np.int32), dtype=wp.int32, device="cpu"),
+                           wp.array(np.asarray(marching.MC_TRI, np.int32), dtype=wp.int32, device="cpu"))
         self._allocate_blocks(min(_FIRST_BLOCKS, self.max_blocks))
         self._allocate_table(4 * _FIRST_BLOCKS)  # (grown 2x whenever it would be more than half full)
         self.counts = wp.zeros(3, dtype=wp.int32, device="cpu")
@@ -310,7 +311,7 @@ class TSDFVolume:
         nv = wp.empty(n, dtype=wp.int32, device="cpu")
         nt = wp.empty(n, dtype=wp.int32, device="cpu")
         table = [self.table, self.mask, self.coords, self.tw]
-        launch_chunks(K_.mesh_count, n, [*table, mc_range, nv, nt])
+        launch_chunks(marching.mesh_count, n, [*table, mc_range, nv, nt])
         counts_v, counts_t = nv.numpy(), nt.numpy()
         first_v = np.concatenate([[0], np.cumsum(counts_v, dtype=np.int64)[:-1]]).astype(np.int32)
         first_t = np.concatenate([[0], np.cumsum(counts_t, dtype=np.int64)[:-1]]).astype(np.int32)
@@ -318,11 +319,11 @@ class TSDFVolume:
         points = wp.empty(max(total_v, 1), dtype=wp.vec3, device="cpu")
         colours = wp.empty(max(total_v, 1), dtype=wp.vec3, device="cpu")
         edge_vertex = wp.empty(3 * n, dtype=wp.int32, device="cpu")
-        launch_chunks(K_.mesh_vertices, n, [*table, self.colour, self.voxel_size,
+        launch_chunks(marching.mesh_vertices, n, [*table, self.colour, self.voxel_size,
                                         wp.array(first_v, dtype=wp.int32, device="cpu"), edge_vertex, points, colours])
         faces = wp.empty(max(total_t, 1), dtype=wp.vec3i, device="cpu")
-        launch_chunks(K_.mesh_faces, n, [*table, mc_range, mc_tri, wp.array(first_t, dtype=wp.int32, device="cpu"),
-                                     edge_vertex, faces])
+        launch_chunks(marching.mesh_faces, n, [*table, mc_range, mc_tri,
+                                               wp.array(first_t, dtype=wp.int32, device="cpu"), edge_vertex, faces])
         return points.numpy()[:total_v], faces.numpy()[:total_t].astype(np.int32), colours.numpy()[:total_v]
 
     def extract_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
