@@ -71,6 +71,7 @@ import warp as wp
 
 from ..kernels import pyramid as _pyramid
 from ..kernels.geometry.camera import MIN_DEPTH
+from ..kernels.sampling.remap import RemapTable
 from .frame import Frame, PyramidBuffers, recycle
 from .inputs import as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
 from .solver import LMState
@@ -114,6 +115,10 @@ class DirectAligner:
             normalized coordinates, so they hold for every level's intrinsics).
         dist: the model's coefficients: (k1, k2, p1, p2, k3) for "radtan" (OpenCV's), (k1, k2,
             k3, k4) for "fisheye" (cv2.fisheye's); giving them without ``model`` means "radtan".
+        resample: None, or a ``gvnn_warp.kernels.sampling.remap.RemapTable`` (one position per
+            source pixel): the frames given to ``prepare`` are another camera's images of the
+            table's size, resampled through it into the pinhole camera ``K`` in the same pass that
+            makes the pyramid's base level (:class:`~.undistort.UndistortingAligner`'s lens frames).
         levels: pyramid levels (1 = no pyramid); fewer are used if a level would have a side
             below 4 pixels. None (default): as many as keep the coarsest level's shorter side at
             6 pixels or more (6 levels at 320x240, 7 at 640x480), which gives the widest basin.
@@ -178,9 +183,17 @@ class DirectAligner:
         depth_tolerance: float = _pyramid.DEPTH_TOLERANCE,
         model: str | None = None,
         dist=None,
+        resample=None,
     ):
         fn = "DirectAligner"
         K, self.model, self.dist = lens_camera(fn, K, model, dist)
+        if resample is not None:
+            if not isinstance(resample, RemapTable) or resample.n != resample.width * resample.height:
+                fail(fn, TypeError, "argument 'resample' must be None or a RemapTable with one position per source "
+                                    f"pixel, got {type(resample).__name__}")
+            if self.model != "pinhole":
+                fail(fn, ValueError, f"argument 'resample' resamples into a pinhole camera; model is {self.model!r}")
+        self.resample = resample
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             fail(fn, ValueError, f"argument 'K' must be finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
         self.K = K
@@ -280,6 +293,9 @@ class DirectAligner:
         if H < _MIN_SIDE or W < _MIN_SIDE:
             fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
                   f"got shape {tuple(np.shape(image))}{hint}")
+        if self.resample is not None and (H, W) != (self.resample.height, self.resample.width):
+            fail(fn, ValueError, f"argument '{image_name}' must be {self.resample.width}x{self.resample.height} "
+                                 f"pixels (the resampling table's source), got shape {tuple(np.shape(image))}")
         if depth is not None:
             d = as_numpy(fn, depth_name, depth, (4,) if batched else (3,))
             if not batched:
@@ -302,7 +318,7 @@ class DirectAligner:
         pool = self._frame_pool.setdefault(key, [])
         pyr = pool.pop() if pool else PyramidBuffers(B, C, H, W, depth is not None, levels=self._levels_for(H, W),
                                                      weights=self._channel_weights(C), color=self.color,
-                                                     depth_tolerance=self.depth_tolerance)
+                                                     depth_tolerance=self.depth_tolerance, resample=self.resample)
         pyr.fill(np.ascontiguousarray(img, dtype=np.float32),
                  None if depth is None else np.ascontiguousarray(d, dtype=np.float32))
         frame = Frame(images=pyr.images, depths=pyr.depths, batched=batched, torch=torch_in)

@@ -77,10 +77,12 @@ def _out_view(a: wp.array, lanes: bool) -> wp.array:
 
 class PyramidBuffers:
     """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
-    once (a recorded launch replays in a few microseconds); reused through the aligner's pool."""
+    once (a recorded launch replays in a few microseconds); reused through the aligner's pool.
+    ``resample``: a :class:`~gvnn_warp.kernels.sampling.remap.RemapTable` (source frames of its size,
+    the (H, W) output) through which each frame is resampled in the base level's pass."""
 
     def __init__(self, B: int, C: int, H: int, W: int, with_depth: bool, *, levels: int, weights: wp.array,
-                 color: bool, depth_tolerance: float):
+                 color: bool, depth_tolerance: float, resample=None):
         Co = C if color else 1
         self.key = (B, C, H, W, with_depth)
         self.shapes = _pyramid.pyramid_shapes(H, W, levels)
@@ -92,13 +94,23 @@ class PyramidBuffers:
         f32 = wp.float32
         self.weights = weights
         # the 8-lane kernels where the rows are whole vectors (one output channel for the base level)
-        lanes0 = self.lanes0 = Co == 1 and W % 8 == 0
-        self.level0 = _launch.RecordedLaunch(
-            _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
-            [empty, self.weights.flatten(), empty, *([_out_view(empty, True)] if lanes0 else []), H, W,
-             int(with_depth), depth_tolerance],
-            [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
-        )
+        lanes0 = self.lanes0 = Co == 1 and W % 8 == 0 and resample is None
+        if resample is not None:  # the frame resampled through a RemapTable as the base level is made
+            t, lanes = resample, Co == 1 and W % 8 == 0
+            table = [t.base, t.planes[0], t.planes[1], t.index] if lanes else [t.base, t.weights, t.index]
+            self.level0 = _launch.RecordedLaunch(
+                _pyramid.level0_remap_lanes_kernel(C)[f32] if lanes else _pyramid.level0_remap_kernel(C, Co)[f32],
+                B * H, [empty, self.weights.flatten(), empty, *table, H, W, t.width, t.width * t.height,
+                        int(with_depth), depth_tolerance],
+                [_out_view(self.images[0], lanes), _out_view(depths[0], lanes)], work=W, grain=_GRAIN,
+            )
+        else:
+            self.level0 = _launch.RecordedLaunch(
+                _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
+                [empty, self.weights.flatten(), empty, *([_out_view(empty, True)] if lanes0 else []), H, W,
+                 int(with_depth), depth_tolerance],
+                [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
+            )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]

@@ -3,8 +3,11 @@
 :class:`UndistortingAligner` wraps a pinhole :class:`~.aligner.DirectAligner`: ``prepare`` resamples
 each frame once - colour bilinearly, depth from the nearest pixel (no depth is invented across an
 edge) - at the positions where the pixels of an ideal pinhole camera fall in the lens image
-(``u = K distort(K_ideal^-1 [x, y, 1])``, computed once per camera), and the aligner then runs on
-pinhole images, whose fused kernels use the pinhole's row-linear fast path. ``K_ideal`` is the
+(``u = K distort(K_ideal^-1 [x, y, 1])``, computed once per camera, a
+:class:`~gvnn_warp.kernels.sampling.remap.RemapTable`), in the same pass that makes the pyramid's
+base level (``DirectAligner(K_ideal, resample=table)``), and the aligner then runs on pinhole
+images, whose fused kernels use the pinhole's row-linear fast path. :meth:`UndistortingAligner.undistort`
+gives the resampled frame itself. ``K_ideal`` is the
 lens's K with the focal lengths scaled by the smallest factor (>= 1) that keeps every ideal pixel
 inside the lens image and the model's domain (OpenCV's ``getOptimalNewCameraMatrix`` with alpha 0):
 an ideal image with no empty border, whose edge the aligner would otherwise take for the scene's.
@@ -84,9 +87,9 @@ class UndistortingAligner:
         K = np.asarray(K, dtype=np.float64)
         self.K, self.dist = K, dist
         self.K_ideal = ideal_camera(K, dist, self.width, self.height)
-        self.aligner = DirectAligner(self.K_ideal, **kwargs)
         self.table = RemapTable(lens_positions(K, dist, self.width, self.height, self.K_ideal), self.width,
                                 self.height)
+        self.aligner = DirectAligner(self.K_ideal, resample=self.table, **kwargs)
 
     def undistort(self, image, depth=None):
         """(image, depth) of a lens frame ((C, H, W), (1, H, W)) as the ideal pinhole camera's."""
@@ -103,7 +106,8 @@ class UndistortingAligner:
         return remap_rgbd(img, d, self.table, (self.height, self.width))
 
     def prepare(self, image, depth=None):
-        return self.aligner.prepare(*self.undistort(image, depth))
+        """The pyramid of a lens frame, resampled into the ideal camera as its base level is made."""
+        return self.aligner.prepare(image, depth)
 
     def align_frames(self, ref, live, init=None):
         return self.aligner.align_frames(ref, live, init)

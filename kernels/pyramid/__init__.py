@@ -31,8 +31,8 @@ output channel and widths a multiple of 8) are made on first use for their chann
 host functions (:mod:`.pipeline`) launch the scalar ones.
 """
 
-from .kernels import downsample_kernel, level0_kernel
-from .lanes_kernels import downsample_lanes_kernel, level0_lanes_kernel
+from .kernels import downsample_kernel, level0_kernel, level0_remap_kernel
+from .lanes_kernels import downsample_lanes_kernel, level0_lanes_kernel, level0_remap_lanes_kernel
 from .pipeline import DEPTH_TOLERANCE, downsample, prepare_level0, pyramid_shapes, scale_intrinsics
 
 __all__ = [
@@ -41,6 +41,8 @@ __all__ = [
     "downsample_kernel",
     "downsample_lanes_kernel",
     "level0_kernel",
+    "level0_remap_kernel",
+    "level0_remap_lanes_kernel",
     "level0_lanes_kernel",
     "prepare_level0",
     "pyramid_shapes",

@@ -122,6 +122,97 @@ def level0_kernel(C: int, Co: int) -> FloatKernel:
     ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any"}, grain=row_grain)
 
 
+@wp.func
+def _nearest_depth(depth: wp.array(dtype=Any), index: wp.array(dtype=wp.int32), q0: int, p: int):
+    """The source depth at ``index[p]`` (of the item starting at ``q0``); 0 where there is none."""
+    i = index[p]
+    return wp.where(i >= 0, depth[q0 + wp.max(i, 0)], depth.dtype(0.0))
+
+
+@specialise("pyramid.level0_remap")
+def level0_remap_kernel(C: int, Co: int) -> FloatKernel:
+    """:func:`level0_kernel` (C input and Co output channels) for a frame resampled through a fixed table in
+    the same pass (a lens image into its ideal pinhole image, see
+    :class:`gvnn_warp.kernels.sampling.remap.RemapTable`): output pixel p's channels are bilinear
+    between the source pixels ``base[p]``, +1, +Ws, +Ws + 1 with weights ``frac[p]`` = (wx, wy) (0
+    where base[p] < 0), its depth the source's at ``index[p]`` (the nearest pixel; none where < 0);
+    then the base level's rules, the depth-edge test among the resampled depths. One element per
+    output row (B * H); arguments: (offset, image, weights, depth, base, frac, index, H, W, Ws, HWs,
+    has_depth, tolerance, out_image, out_depth), flat arrays, the source items HWs pixels apart.
+    Made on first use."""
+
+    def level0_remap(
+        offset: int,
+        image: wp.array(dtype=Any),
+        weights: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        base: wp.array(dtype=wp.int32),
+        frac: wp.array(dtype=wp.vec2),
+        index: wp.array(dtype=wp.int32),
+        H: int,
+        W: int,
+        Ws: int,
+        HWs: int,
+        has_depth: int,
+        tolerance: float,
+        out_image: wp.array(dtype=Any),
+        out_depth: wp.array(dtype=Any),
+    ):
+        row = wp.tid() + offset  # flat (b, y)
+        b = row // H
+        y = row - b * H
+        p0 = y * W
+        o0 = b * H * W  # (the item's first pixel of the depth; of the image, o0 * Co)
+        q0 = b * HWs
+        zero = out_image.dtype(0.0)
+        one = out_image.dtype(1.0)
+        tol = out_image.dtype(tolerance)
+        # the depths of the row's pixels x - 1, x, x + 1 slide along the row (0: none, or outside)
+        left = out_depth.dtype(0.0)
+        here = out_depth.dtype(0.0)
+        if has_depth != 0:
+            here = _nearest_depth(depth, index, q0, p0)
+        for x in range(W):
+            p = p0 + x
+            k = base[p]
+            f = frac[p]
+            fx = out_image.dtype(f[0])
+            fy = out_image.dtype(f[1])
+            finite = bool(True)  # noqa: UP018 - a typed variable Warp may reassign inside the loop
+            for co in range(Co):
+                v = out_image.dtype(0.0)
+                if k >= 0:
+                    for c in range(C):
+                        o = (b * C + c) * HWs + k
+                        top = (one - fx) * image[o] + fx * image[o + 1]
+                        bottom = (one - fx) * image[o + Ws] + fx * image[o + Ws + 1]
+                        v += weights[co * C + c] * ((one - fy) * top + fy * bottom)
+                ok = wp.isfinite(v)
+                finite = finite and ok
+                out_image[o0 * Co + co * H * W + p] = wp.where(ok, v, zero)
+            if has_depth != 0:
+                right = out_depth.dtype(0.0)
+                if x < W - 1:
+                    right = _nearest_depth(depth, index, q0, p + 1)
+                up = out_depth.dtype(0.0)
+                if y > 0:
+                    up = _nearest_depth(depth, index, q0, p - W)
+                down = out_depth.dtype(0.0)
+                if y < H - 1:
+                    down = _nearest_depth(depth, index, q0, p + W)
+                d = here
+                edge = (_depth_jump(d, left, True, tol) or _depth_jump(d, right, True, tol)
+                        or _depth_jump(d, up, True, tol) or _depth_jump(d, down, True, tol))
+                out_depth[o0 + p] = wp.where(finite and _valid_depth(d) and not edge, d, zero)
+                left = here
+                here = right
+
+    kernel = wp.kernel(level0_remap, module="unique", enable_backward=False)
+    return FloatKernel(
+        kernel, image="scalar", weights="scalar", depth="scalar", out_image="scalar", out_depth="scalar"
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any"}, grain=row_grain)
+
+
 @specialise("pyramid.downsample")
 def downsample_kernel(C: int) -> FloatKernel:
     """The 2x2 downsampling kernel for C channels (see the package docstring), one element per

@@ -20,7 +20,7 @@ import warp as wp
 from ..core import lanes
 from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
-from .kernels import row_grain
+from .kernels import _nearest_depth, row_grain
 
 wp.set_module_options({"enable_backward": False})
 
@@ -157,6 +157,116 @@ def level0_lanes_kernel(C: int) -> FloatKernel:
     return FloatKernel(
         kernel, image="scalar", weights="scalar", depth="scalar", depth8="vec8", out_image="vec8", out_depth="vec8"
     ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any", "depth8": "any"}, grain=row_grain)
+
+
+@wp.func
+def _gather8(a: wp.array(dtype=Any), o: int, i: Any):
+    """(a[o + i[0]], ..., a[o + i[7]]): 8 scalar reads (indices >= 0, the caller's guarantee)."""
+    return wp.vector(a[o + i[0]], a[o + i[1]], a[o + i[2]], a[o + i[3]], a[o + i[4]], a[o + i[5]], a[o + i[6]],
+                     a[o + i[7]])
+
+
+@wp.func
+def _nearest8(depth: wp.array(dtype=Any), index: wp.array(dtype=wp.int32), q0: int, p: int):
+    """The source depths at index[p], ..., index[p + 7] (of the item starting at ``q0``); 0 where
+    an index is negative (no source): :func:`.kernels._nearest_depth` per lane."""
+    i = lanes.row8(index, p)
+    zero = depth.dtype(0.0)
+    d = _gather8(depth, q0, wp.max(i, lanes.splat8(0)))
+    return wp.vector(wp.where(i[0] >= 0, d[0], zero), wp.where(i[1] >= 0, d[1], zero),
+                     wp.where(i[2] >= 0, d[2], zero), wp.where(i[3] >= 0, d[3], zero),
+                     wp.where(i[4] >= 0, d[4], zero), wp.where(i[5] >= 0, d[5], zero),
+                     wp.where(i[6] >= 0, d[6], zero), wp.where(i[7] >= 0, d[7], zero))
+
+
+@specialise("pyramid.level0_remap_lanes")
+def level0_remap_lanes_kernel(C: int) -> FloatKernel:
+    """:func:`.kernels.level0_remap_kernel` for C input channels and one output channel, 8 pixels
+    per step (W % 8 == 0): the table's reads and the arithmetic as vectors, the source reads
+    scalar; the same results bit for bit. Its arguments as that kernel's, but the table's weights
+    as two planes ``wx``, ``wy`` (of the kernel's float type) in place of ``frac``, and the outputs as vec8 views (as
+    in :func:`level0_lanes_kernel`). Made on first use."""
+
+    def level0_remap_lanes(
+        offset: int,
+        image: wp.array(dtype=Any),
+        weights: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        base: wp.array(dtype=wp.int32),
+        wx: wp.array(dtype=Any),
+        wy: wp.array(dtype=Any),
+        index: wp.array(dtype=wp.int32),
+        H: int,
+        W: int,
+        Ws: int,
+        HWs: int,
+        has_depth: int,
+        tolerance: float,
+        out_image: wp.array(dtype=Any),
+        out_depth: wp.array(dtype=Any),
+    ):
+        row = wp.tid() + offset  # flat (b, y)
+        b = row // H
+        y = row - b * H
+        p0 = y * W
+        q0 = b * HWs
+        zero = weights.dtype(0.0)
+        one = weights.dtype(1.0)
+        tol = weights.dtype(tolerance)
+        zeros = lanes.splat8(zero)
+        ones = lanes.splat8(one)
+        for k8 in range(W // 8):
+            p = p0 + k8 * 8
+            k = lanes.row8(base, p)
+            source = wp.vector(lanes.flag(k[0] >= 0, one), lanes.flag(k[1] >= 0, one), lanes.flag(k[2] >= 0, one),
+                               lanes.flag(k[3] >= 0, one), lanes.flag(k[4] >= 0, one), lanes.flag(k[5] >= 0, one),
+                               lanes.flag(k[6] >= 0, one), lanes.flag(k[7] >= 0, one))
+            k = wp.max(k, lanes.splat8(0))  # (lanes with no source read pixel 0 and are dropped)
+            fx = lanes.row8(wx, p)
+            fy = lanes.row8(wy, p)
+            gx = ones - fx
+            gy = ones - fy
+            v = lanes.splat8(zero)
+            for c in range(C):
+                o = (b * C + c) * HWs
+                top = wp.cw_mul(gx, _gather8(image, o, k)) + wp.cw_mul(fx, _gather8(image, o + 1, k))
+                bottom = wp.cw_mul(gx, _gather8(image, o + Ws, k)) + wp.cw_mul(fx, _gather8(image, o + Ws + 1, k))
+                v = v + (wp.cw_mul(gy, top) + wp.cw_mul(fy, bottom)) * weights[c]
+            v = lanes.select8(source, v, zeros)
+            finite = lanes.open_mask8(wp.max(v, -v), -one, weights.dtype(wp.inf))  # |v| < inf: finite, not NaN
+            q = (b * H * W + p) // 8
+            out_image[q] = lanes.select8(finite, v, zeros)
+            if has_depth != 0:
+                d = _nearest8(depth, index, q0, p)
+                # the neighbours (as the scalar kernel's; one outside the image is the pixel itself,
+                # never a jump): the block shifted by a lane, the rows above and below
+                x = k8 * 8
+                side_l = d[0]
+                if x > 0:
+                    side_l = _nearest_depth(depth, index, q0, p - 1)
+                side_r = d[7]
+                if x + 8 < W:
+                    side_r = _nearest_depth(depth, index, q0, p + 8)
+                up = d
+                if y > 0:
+                    up = _nearest8(depth, index, q0, p - W)
+                down = d
+                if y < H - 1:
+                    down = _nearest8(depth, index, q0, p + W)
+                left = type(d)(side_l, d[0], d[1], d[2], d[3], d[4], d[5], d[6])
+                right = type(d)(d[1], d[2], d[3], d[4], d[5], d[6], d[7], side_r)
+                smooth = wp.cw_mul(
+                    wp.cw_mul(_no_jump8(d, left, tol), _no_jump8(d, right, tol)),
+                    wp.cw_mul(_no_jump8(d, up, tol), _no_jump8(d, down, tol)),
+                )
+                out_depth[q] = lanes.select8(wp.cw_mul(wp.cw_mul(finite, _valid8(d)), smooth), d, zeros)
+
+    kernel = wp.kernel(level0_remap_lanes, module="unique", enable_backward=False,
+                       module_options=LANES_MODULE_OPTIONS)
+    return FloatKernel(
+        kernel, image="scalar", weights="scalar", depth="scalar", wx="scalar", wy="scalar", out_image="vec8",
+        out_depth="vec8"
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any", "wx": "any", "wy": "any"}, grain=row_grain)
 
 
 @specialise("pyramid.downsample_lanes")

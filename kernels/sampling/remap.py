@@ -89,6 +89,8 @@ class RemapTable:
         index = np.where(near, iv * width + iu, -1).astype(np.int32)
         self.base = wp.array(base, dtype=wp.int32, device="cpu")
         self.weights = wp.array(weights, dtype=wp.vec2, device="cpu")
+        # the same weights as two planes (wx, then wy), for kernels that read 8 pixels' at once
+        self.planes = wp.array(np.ascontiguousarray(weights.T), dtype=wp.float32, device="cpu")
         self.index = wp.array(index, dtype=wp.int32, device="cpu")
 
 

@@ -764,6 +764,49 @@ def test_a_lens_sequence_tracks_the_same_resampled_as_exact(tmp_path):
         assert t_err.max() < 0.004 and r_err.max() < 0.15, mode
 
 
+@pytest.mark.parametrize("C, W, color", [(1, 64, False), (3, 64, False), (1, 60, False), (3, 60, True)])
+def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color):
+    # the lens frame resampled as the pyramid's base level is made (one pass) gives, bit for bit, the
+    # pyramid of the frame resampled first (remap_rgbd) then prepared as a pinhole frame: NaN
+    # intensities, missing depths, depth edges and positions with no source included; the 8-lane
+    # kernel (one intensity, W % 8 == 0) and the scalar one (colour, other widths)
+    from gvnn_warp.kernels.sampling.remap import RemapTable
+
+    from gvnn_warp.datasets.intrinsics import DISTORTION_PRESETS
+    from gvnn_warp.odometry.aligner import DirectAligner
+    from gvnn_warp.odometry.undistort import UndistortingAligner, lens_positions
+
+    H = 48
+    K = np.array([[60.0, 0, (W - 1) / 2], [0, 60.0, 23.5], [0, 0, 1]])
+    dist = DISTORTION_PRESETS["fr1"]
+    rng = np.random.default_rng(C)
+    img = rng.uniform(size=(2, C, H, W)).astype(np.float32)
+    img[0, 0, 3, 4] = np.nan
+    dep = (1 + rng.uniform(size=(2, 1, H, W))).astype(np.float32)
+    dep[:, 0, 10:20, 10:20] *= 3  # a depth edge
+    dep[0, 0, 1, 1], dep[1, 0, 2, 2], dep[1, 0, 30, 40] = np.nan, 0, -1
+    pos = lens_positions(K, dist, W, H)  # with the lens's own K the corners fall outside the image
+    pos[5] = -1
+    assert (pos[:, 0] > W - 1).any() or (pos.min(1) < 0).sum() > 1
+    table = RemapTable(pos, W, H)
+    fused = DirectAligner(K, resample=table, color=color).prepare(img, dep)
+    undistorting = UndistortingAligner(K, dist, (W, H))
+    undistorting.table = table
+    pairs = [undistorting.undistort(img[b], dep[b]) for b in range(2)]
+    first = DirectAligner(K, color=color).prepare(np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs]))
+    assert fused.images[0].shape[1] == (C if color else 1)
+    assert len(fused.images) == len(first.images) > 2
+    for a, b in zip(fused.images + fused.depths, first.images + first.depths):
+        np.testing.assert_array_equal(a.numpy(), b.numpy())
+    assert (fused.depths[0].numpy() == 0).sum() > 100  # (the edge, the holes and the empty corners)
+    with pytest.raises(ValueError, match="the resampling table's source"):
+        DirectAligner(K, resample=table).prepare(img[:, :, :40], dep[:, :, :40])
+    with pytest.raises(TypeError, match="DirectAligner: argument 'resample' must be None or a RemapTable"):
+        DirectAligner(K, resample=pos)
+    with pytest.raises(ValueError, match="argument 'resample' resamples into a pinhole camera"):
+        DirectAligner(K, resample=table, dist=dist)
+
+
 def test_remap_is_bilinear_and_nearest_with_empty_outside():
     from gvnn_warp.kernels.sampling.remap import RemapTable, remap
 
