@@ -3,14 +3,14 @@ evaluate the depth.
 
 Usage::
 
-    gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G]
+    gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
                           [--pose direct|network] [--steps N] [--batch-size B] [--lr LR] [--seed S]
                           [--supervised] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
 them; TUM RGB-D downloads are read the same way, with the fr1/fr2 lens distortion), never their depth
-files, and trains a depth network and a pose network together on triplets (t - 1, t, t + 1) through
+files, and trains a depth network (and a pose network) on triplets (t - g, t, t + g) through
 the fused self-supervised objective (``gvnn_warp.reprojection_loss`` at four scales plus
 edge-aware smoothness: Monodepth2's). It writes ``OUT/checkpoint.pt`` (atomically, every minute, on
 Ctrl-C / SIGTERM and at the end; ``--resume`` continues from it), ``OUT/metrics.json`` (the loss per
@@ -63,8 +63,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="network input size, multiples of 32 (default: 128x96)")
     t.add_argument("--minutes", type=positive_float, default=8.0, metavar="M", help="training time (default: 8)")
     t.add_argument("--gap", type=bounded_int(1, 100), default=None, metavar="G",
-                   help="a triplet is frames (t - G, t, t + G): a wider baseline, more parallax (default: "
-                        f"{_DEFAULT_GAP})")
+                   help="a triplet is frames (t - g, t, t + g), g drawn for each triplet from 1..G: baselines "
+                        f"of every length up to G (default: {_DEFAULT_GAP})")
+    t.add_argument("--fixed-gap", action="store_true", help="g = G for every triplet")
     t.add_argument("--pose", choices=_POSES, default=_POSES[0],
                    help="where each triplet's poses come from: direct (the direct aligner on the predicted depth, "
                         "no gradient) or network (a pose network trained with the depth network, Monodepth2's)")
@@ -100,7 +101,8 @@ def run_train(args: argparse.Namespace) -> int:
 
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
-        gap=args.gap or _DEFAULT_GAP, pose=args.pose, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, pose=args.pose, steps=args.steps,
+        batch_size=args.batch_size, lr=args.lr,
         seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )
     m = train(cfg)  # (a folder or checkpoint that cannot be used: one line, status 1, by the runner)

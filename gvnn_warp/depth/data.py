@@ -50,10 +50,12 @@ class Video:
         """The camera for ``gvnn_warp.reprojection_loss``: K, or a ``RadTanCamera`` with distortion."""
         return self.K if self.dist is None else RadTanCamera(self.K, self.dist)
 
-    def triplets(self, idx: Tensor) -> tuple[Tensor, Tensor]:
-        """target (B, 3, H, W) and sources (B, 2, 3, H, W) (frames t - gap, t + gap) of triplets ``idx``."""
+    def triplets(self, idx: Tensor, gaps: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """target (B, 3, H, W) and sources (B, 2, 3, H, W) (frames t - g, t + g) of triplets ``idx``;
+        g is ``gap``, or each triplet's own in ``gaps`` (B,) (integers in [1, gap])."""
         t = self.targets[idx]
-        return self.images[t], torch.stack([self.images[t - self.gap], self.images[t + self.gap]], 1)
+        g = self.gap if gaps is None else gaps
+        return self.images[t], torch.stack([self.images[t - g], self.images[t + g]], 1)
 
 
 def read_video(roots, size: tuple[int, int], *, gap: int = 1, with_depth: bool = False,

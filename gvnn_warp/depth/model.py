@@ -1,8 +1,10 @@
 """The depth and pose networks (random initialisation; nothing is downloaded).
 
-:class:`DepthNet`: a U-Net (five stride-2 stages of two 3x3 convolutions, a decoder with skip
-connections) whose heads give a sigmoid disparity at four scales (full, 1/2, 1/4, 1/8 resolution),
-mapped to depth in [min_depth, max_depth] by :func:`disp_to_depth` as Monodepth2 does.
+:class:`DepthNet`: a U-Net (five stride-2 stages of two 3x3 convolutions, each followed by batch
+normalisation and an ELU; a decoder with skip connections) whose heads give a sigmoid disparity
+at four scales (full, 1/2, 1/4, 1/8 resolution), mapped to depth in [min_depth, max_depth] by
+:func:`disp_to_depth` as Monodepth2 does. ``norm="none"`` leaves the normalisation out (the first
+version; measured in benchmarks/RESULTS.md: it generalised far worse to unseen rooms).
 :class:`PoseNet`: the frame pair stacked (6 channels), five stride-2 stages, a 1x1 convolution to
 six numbers averaged over the image and scaled by 0.01 (Monodepth2's), read as [omega, t] (axis-angle
 and translation) and made a (B, 3, 4) pose by ``gvnn_warp.se3_to_matrix``: the motion that maps
@@ -17,15 +19,25 @@ from torch import Tensor, nn
 
 from ..functional.lie import se3_to_matrix
 
-__all__ = ["DepthNet", "PoseNet", "disp_to_depth"]
+__all__ = ["NORMS", "DepthNet", "PoseNet", "disp_to_depth"]
 
 MEAN, STD = 0.45, 0.225  # input normalisation (Monodepth2's)
 
 
-def _block(c_in: int, c_out: int, stride: int = 1) -> nn.Sequential:
+NORMS = ("batch", "none")
+
+
+def _block(c_in: int, c_out: int, stride: int = 1, norm: str = "batch") -> nn.Sequential:
+    """Two 3x3 convolutions (the first with ``stride``), each followed by ``norm`` and an ELU."""
+    if norm not in NORMS:
+        raise ValueError(f"DepthNet: argument 'norm' must be one of {list(NORMS)}, got {norm!r}")
+
+    def normalise(c: int) -> nn.Module:
+        return nn.BatchNorm2d(c) if norm == "batch" else nn.Identity()
+
     return nn.Sequential(
-        nn.Conv2d(c_in, c_out, 3, stride, 1), nn.ELU(inplace=True),
-        nn.Conv2d(c_out, c_out, 3, 1, 1), nn.ELU(inplace=True),
+        nn.Conv2d(c_in, c_out, 3, stride, 1), normalise(c_out), nn.ELU(inplace=True),
+        nn.Conv2d(c_out, c_out, 3, 1, 1), normalise(c_out), nn.ELU(inplace=True),
     )
 
 
@@ -40,15 +52,16 @@ class DepthNet(nn.Module):
     (B, 1, H / 2^s, W / 2^s) in [0, 1] for s = 0, 1, 2, 3."""
 
     def __init__(self, widths: tuple[int, ...] = (16, 32, 64, 128, 256), min_depth: float = 0.1,
-                 max_depth: float = 10.0):
+                 max_depth: float = 10.0, norm: str = "batch"):
         super().__init__()
         self.widths, self.min_depth, self.max_depth = tuple(widths), float(min_depth), float(max_depth)
+        self.norm = norm
         c = [3, *widths]
-        self.encoder = nn.ModuleList(_block(c[i], c[i + 1], 2) for i in range(len(widths)))
+        self.encoder = nn.ModuleList(_block(c[i], c[i + 1], 2, norm) for i in range(len(widths)))
         dec = [widths[-1], *reversed(widths[:-1]), widths[0]]  # 256 -> 128 -> 64 -> 32 -> 16 -> 16
-        self.up = nn.ModuleList(_block(dec[i], dec[i + 1]) for i in range(len(widths)))
+        self.up = nn.ModuleList(_block(dec[i], dec[i + 1], 1, norm) for i in range(len(widths)))
         skips = [*reversed(widths[:-1]), 0]
-        self.fuse = nn.ModuleList(_block(dec[i + 1] + skips[i], dec[i + 1]) for i in range(len(widths)))
+        self.fuse = nn.ModuleList(_block(dec[i + 1] + skips[i], dec[i + 1], 1, norm) for i in range(len(widths)))
         self.heads = nn.ModuleList(nn.Conv2d(dec[i + 1], 1, 3, 1, 1)
                                    for i in range(len(widths) - 4, len(widths)))
 
@@ -79,11 +92,11 @@ class PoseNet(nn.Module):
     """(first (B, 3, H, W), second (B, 3, H, W)) -> (B, 3, 4) pose mapping points of the first
     frame's camera into the second's."""
 
-    def __init__(self, widths: tuple[int, ...] = (16, 32, 64, 128, 256)):
+    def __init__(self, widths: tuple[int, ...] = (16, 32, 64, 128, 256), norm: str = "batch"):
         super().__init__()
         self.widths = tuple(widths)
         c = [6, *widths]
-        self.encoder = nn.Sequential(*(_block(c[i], c[i + 1], 2) for i in range(len(widths))))
+        self.encoder = nn.Sequential(*(_block(c[i], c[i + 1], 2, norm) for i in range(len(widths))))
         self.head = nn.Conv2d(widths[-1], 6, 1)
 
     def xi(self, first: Tensor, second: Tensor) -> Tensor:

@@ -1,9 +1,10 @@
 """Training the depth network on video through the fused self-supervised objective.
 
-Per step, a batch of triplets (t - gap, t, t + gap): the depth network's four disparities of frame
-t, each upsampled to full resolution and made depth (``disp_to_depth``; divided by its mean per
-frame with ``normalize``), and the motion of t into each neighbour (``pose``: "direct", the direct
-aligner through the predicted depth; "network", a pose network trained with it) give
+Per step, a batch of triplets (t - g, t, t + g) (g = ``gap``, or with ``vary_gap`` each triplet's
+own in 1..gap): the depth network's four disparities of frame t, each upsampled to full resolution
+and made depth (``disp_to_depth``; divided by its mean per frame with ``normalize``), and the
+motion of t into each neighbour (``pose``: "direct", the direct aligner through the predicted depth;
+"network", a pose network trained with it) give
 :func:`gvnn_warp.reprojection_loss` at every scale, plus ``smoothness`` x
 :func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the mean over the
 scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``). Launched by
@@ -56,7 +57,10 @@ class DepthConfig:
     out: str
     size: tuple[int, int] = (128, 96)  # (W, H), multiples of 32
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
-    gap: int = 3  # a triplet is frames (t - gap, t, t + gap)
+    gap: int = 3  # a triplet is frames (t - g, t, t + g), g = gap
+    # or g drawn for each triplet from 1..gap: baselines of every length (measured on unseen rooms,
+    # RESULTS.md: better than any one gap)
+    vary_gap: bool = True
     pose: str = "direct"  # "direct": DirectAligner on the predicted depth; "network": PoseNet (Monodepth2)
     # the warp uses each item's depth over its mean (Wang et al. 2018, who pair a depth network with
     # direct alignment): monocular depth has no scale, and without this the depth drifts to the far
@@ -81,6 +85,7 @@ class DepthConfig:
     smoothness: float = 1e-3
     alpha: float = 0.85
     widths: tuple[int, ...] = (8, 16, 32, 64, 128)  # half of (16, ..., 256): 0.30 s a step, not 0.53
+    norm: str = "batch"  # the networks' normalisation after each convolution ("batch" or "none")
     max_frames: int | None = None  # per folder
     checkpoint_seconds: float = 60.0
     resume: bool = False
@@ -88,9 +93,12 @@ class DepthConfig:
 
 
 # settings a resumed run must share with its checkpoint
-_SAME_ON_RESUME = ("data", "size", "widths", "min_depth", "max_depth", "max_frames", "gap", "pose", "normalize",
+_SAME_ON_RESUME = ("data", "size", "widths", "norm", "min_depth", "max_depth", "max_frames", "gap", "vary_gap",
+                   "pose", "normalize",
                    "supervised")
 
+# what checkpoints written before a setting existed did
+_BEFORE = {"norm": "none", "vary_gap": False}
 
 POSES = ("direct", "network")
 
@@ -189,7 +197,7 @@ def supervised_loss(depth_net: DepthNet, target: Tensor, true_depth: Tensor, cfg
 
 
 def _networks(cfg: DepthConfig) -> tuple[DepthNet, PoseNet]:
-    return DepthNet(cfg.widths, cfg.min_depth, cfg.max_depth), PoseNet(cfg.widths)
+    return DepthNet(cfg.widths, cfg.min_depth, cfg.max_depth, cfg.norm), PoseNet(cfg.widths, cfg.norm)
 
 
 def load_checkpoint(path: str | Path) -> dict:
@@ -213,7 +221,7 @@ def load_checkpoint(path: str | Path) -> dict:
 def load_depth_net(ck: dict) -> DepthNet:
     """The trained depth network of a checkpoint (:func:`load_checkpoint`), in eval mode."""
     c = ck["config"]
-    net = DepthNet(tuple(c["widths"]), c["min_depth"], c["max_depth"])
+    net = DepthNet(tuple(c["widths"]), c["min_depth"], c["max_depth"], c.get("norm", _BEFORE["norm"]))
     net.load_state_dict(ck["depth_net"])
     return net.eval()
 
@@ -224,8 +232,9 @@ def _resume(cfg: DepthConfig, path: Path) -> dict | None:
     ck = load_checkpoint(path)
     want = _config_dict(cfg)
     for key in _SAME_ON_RESUME:
-        if ck["config"].get(key) != want[key]:
-            raise CheckpointError(f"{path}: the run has {key}={ck['config'].get(key)!r}, this one {want[key]!r}; "
+        had = ck["config"].get(key, _BEFORE.get(key))
+        if had != want[key]:
+            raise CheckpointError(f"{path}: the run has {key}={had!r}, this one {want[key]!r}; "
                                   "resume with the same settings or start a new run in another directory")
     return ck
 
@@ -249,6 +258,10 @@ def train(cfg: DepthConfig) -> dict:
     if cfg.batch_size % world:
         finish(world)
         raise ValueError(f"depth train: the batch size {cfg.batch_size} must be divisible by the {world} ranks")
+    if cfg.norm == "batch" and (cfg.batch_size // world) * (cfg.size[0] // 32) * (cfg.size[1] // 32) < 2:
+        finish(world)  # (the deepest stage's statistics would be of one value per channel)
+        raise ValueError(f"depth train: batch normalisation needs at least 2 items per rank or a size above 32x32, "
+                         f"got {cfg.batch_size // world} item(s) of {cfg.size[0]}x{cfg.size[1]}")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     ck_path = out / "checkpoint.pt"
@@ -309,7 +322,9 @@ def train(cfg: DepthConfig) -> dict:
             # the same global batch on every rank (the same seed), each rank its share
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
             idx = idx[rank * local:(rank + 1) * local]
-            target, sources = video.triplets(idx)
+            gaps = torch.randint(1, cfg.gap + 1, (cfg.batch_size,))[rank * local:(rank + 1) * local] \
+                if cfg.vary_gap else None
+            target, sources = video.triplets(idx, gaps)
             if flip:  # half the triplets mirrored left-right (Monodepth2's augmentation)
                 mirror = (torch.rand(cfg.batch_size) < 0.5).view(-1, 1, 1, 1)[rank * local:(rank + 1) * local]
                 target = torch.where(mirror, target.flip(-1), target)

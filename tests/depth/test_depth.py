@@ -96,6 +96,9 @@ def test_wider_triplets_and_cli_defaults(folders):
     assert v.targets.tolist() == [2, 7]
     target, sources = v.triplets(torch.tensor([1]))
     torch.testing.assert_close(sources[0], v.images[[5, 9]])
+    target, sources = v.triplets(torch.tensor([0, 1, 1]), torch.tensor([1, 2, 1]))  # each triplet's own gap
+    torch.testing.assert_close(target, v.images[[2, 7, 7]])
+    torch.testing.assert_close(sources, torch.stack([v.images[[1, 3]], v.images[[5, 9]], v.images[[6, 8]]]))
     with pytest.raises(ValueError, match="at least 7"):
         read_video(folders, (64, 64), gap=3)
     assert cli_depth._DEFAULT_GAP == DepthConfig.gap
@@ -103,6 +106,24 @@ def test_wider_triplets_and_cli_defaults(folders):
     parsed = cli_depth.add_parser(__import__("argparse").ArgumentParser().add_subparsers()).parse_args(
         ["train", "--data", "x", "--out", "y"])
     assert parsed.lr == DepthConfig.lr and parsed.minutes == DepthConfig.minutes and parsed.size == DepthConfig.size
+    assert parsed.fixed_gap is not DepthConfig.vary_gap
+
+
+def test_batch_normalisation_and_checkpoints_without_it(folders, tmp_path):
+    net = DepthNet((4, 8, 8, 8, 8))
+    assert net.norm == "batch" and any(isinstance(m, torch.nn.BatchNorm2d) for m in net.modules())
+    plain = DepthNet((4, 8, 8, 8, 8), norm="none")
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in plain.modules())
+    with pytest.raises(ValueError, match="DepthNet: argument 'norm' must be one of"):
+        DepthNet((4, 8, 8, 8, 8), norm="group")
+    # a checkpoint written before the setting existed holds a network without normalisation
+    config = {"widths": [4, 8, 8, 8, 8], "min_depth": 0.1, "max_depth": 10.0}
+    loaded = load_depth_net({"config": config, "depth_net": plain.state_dict()})
+    image = torch.rand(1, 3, 64, 64)
+    torch.testing.assert_close(loaded.depth(image), plain.eval().depth(image))
+    # the deepest stage of one 32x32 item has one value per channel: refused, not a torch error
+    with pytest.raises(ValueError, match="batch normalisation needs at least 2 items"):
+        train(DepthConfig(**{**_cfg(folders, tmp_path / "bn").__dict__, "size": (32, 32), "batch_size": 1}))
 
 
 def _cfg(folders, out, **kw):
