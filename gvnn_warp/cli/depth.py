@@ -39,7 +39,7 @@ __all__ = ["add_parser", "run", "run_eval", "run_train"]
 
 REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
 _SIZE = image_size(64, 1024)
-_DEFAULT_GAP = 3  # DepthConfig's (not imported here: that would import torch for --help)
+_DEFAULT_GAP = 4  # DepthConfig's (not imported here: that would import torch for --help)
 _POSES = ("direct", "network")  # gvnn_warp.depth.train.POSES, the default first (a test checks they agree)
 
 

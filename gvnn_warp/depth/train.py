@@ -57,9 +57,9 @@ class DepthConfig:
     out: str
     size: tuple[int, int] = (128, 96)  # (W, H), multiples of 32
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
-    gap: int = 3  # a triplet is frames (t - g, t, t + g), g = gap
+    gap: int = 4  # a triplet is frames (t - g, t, t + g), g = gap
     # or g drawn for each triplet from 1..gap: baselines of every length (measured on unseen rooms,
-    # RESULTS.md: better than any one gap)
+    # RESULTS.md: better than one gap of 2 or 3)
     vary_gap: bool = True
     pose: str = "direct"  # "direct": DirectAligner on the predicted depth; "network": PoseNet (Monodepth2)
     # the warp uses each item's depth over its mean (Wang et al. 2018, who pair a depth network with
