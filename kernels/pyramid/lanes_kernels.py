@@ -86,6 +86,20 @@ def _no_jump8(d: Any, e: Any, tolerance: Any):
 
 
 @wp.func
+def _no_edge8(d: Any, side_l: Any, side_r: Any, up: Any, down: Any, tolerance: Any):
+    """1 - :func:`.kernels._at_depth_edge` per lane of the 8 depths ``d`` of a row: their left and
+    right neighbours are ``d`` shifted by a lane, with ``side_l`` / ``side_r`` the pixels either
+    side of the block; ``up``, ``down`` the 8 depths of the rows above and below (a neighbour
+    outside the image passed as the pixel itself)."""
+    left = type(d)(side_l, d[0], d[1], d[2], d[3], d[4], d[5], d[6])
+    right = type(d)(d[1], d[2], d[3], d[4], d[5], d[6], d[7], side_r)
+    return wp.cw_mul(
+        wp.cw_mul(_no_jump8(d, left, tolerance), _no_jump8(d, right, tolerance)),
+        wp.cw_mul(_no_jump8(d, up, tolerance), _no_jump8(d, down, tolerance)),
+    )
+
+
+@wp.func
 def _pairs8(a: wp.array(dtype=Any), p: int):
     """(a[p], a[p + 2], ..., a[p + 14]) and (a[p + 1], a[p + 3], ..., a[p + 15]) from 16 straight
     values."""
@@ -145,12 +159,7 @@ def level0_lanes_kernel(C: int) -> FloatKernel:
                 down = depth8[q + wp.where(y < H - 1, W // 8, 0)]
                 side_l = depth[e - wp.where(x > 0, 1, 0)]
                 side_r = depth[e + 7 + wp.where(x + 8 < W, 1, 0)]
-                left = type(d)(side_l, d[0], d[1], d[2], d[3], d[4], d[5], d[6])
-                right = type(d)(d[1], d[2], d[3], d[4], d[5], d[6], d[7], side_r)
-                smooth = wp.cw_mul(
-                    wp.cw_mul(_no_jump8(d, left, tol), _no_jump8(d, right, tol)),
-                    wp.cw_mul(_no_jump8(d, up, tol), _no_jump8(d, down, tol)),
-                )
+                smooth = _no_edge8(d, side_l, side_r, up, down, tol)
                 out_depth[q] = lanes.select8(wp.cw_mul(wp.cw_mul(finite, _valid8(d)), smooth), d, zeros)
 
     kernel = wp.kernel(level0_lanes, module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
@@ -253,12 +262,7 @@ def level0_remap_lanes_kernel(C: int) -> FloatKernel:
                 down = d
                 if y < H - 1:
                     down = _nearest8(depth, index, q0, p + W)
-                left = type(d)(side_l, d[0], d[1], d[2], d[3], d[4], d[5], d[6])
-                right = type(d)(d[1], d[2], d[3], d[4], d[5], d[6], d[7], side_r)
-                smooth = wp.cw_mul(
-                    wp.cw_mul(_no_jump8(d, left, tol), _no_jump8(d, right, tol)),
-                    wp.cw_mul(_no_jump8(d, up, tol), _no_jump8(d, down, tol)),
-                )
+                smooth = _no_edge8(d, side_l, side_r, up, down, tol)
                 out_depth[q] = lanes.select8(wp.cw_mul(wp.cw_mul(finite, _valid8(d)), smooth), d, zeros)
 
     kernel = wp.kernel(level0_remap_lanes, module="unique", enable_backward=False,
