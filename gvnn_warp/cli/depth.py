@@ -4,7 +4,7 @@ evaluate the depth.
 Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
-                          [--pose direct|network] [--steps N] [--batch-size B] [--lr LR] [--seed S]
+                          [--norm batch|none] [--pose direct|network] [--steps N] [--batch-size B] [--lr LR] [--seed S]
                           [--supervised] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
@@ -66,6 +66,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="a triplet is frames (t - g, t, t + g), g drawn for each triplet from 1..G: baselines "
                         f"of every length up to G (default: {_DEFAULT_GAP})")
     t.add_argument("--fixed-gap", action="store_true", help="g = G for every triplet")
+    t.add_argument("--norm", choices=("batch", "none"), default="batch",
+                   help="normalisation after each convolution (default: batch; none: the networks of checkpoints "
+                        "written before the option, to resume them)")
     t.add_argument("--pose", choices=_POSES, default=_POSES[0],
                    help="where each triplet's poses come from: direct (the direct aligner on the predicted depth, "
                         "no gradient) or network (a pose network trained with the depth network, Monodepth2's)")
@@ -101,8 +104,8 @@ def run_train(args: argparse.Namespace) -> int:
 
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
-        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, pose=args.pose, steps=args.steps,
-        batch_size=args.batch_size, lr=args.lr,
+        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, norm=args.norm, pose=args.pose,
+        steps=args.steps, batch_size=args.batch_size, lr=args.lr,
         seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )
     m = train(cfg)  # (a folder or checkpoint that cannot be used: one line, status 1, by the runner)

@@ -54,7 +54,12 @@ class Video:
         """target (B, 3, H, W) and sources (B, 2, 3, H, W) (frames t - g, t + g) of triplets ``idx``;
         g is ``gap``, or each triplet's own in ``gaps`` (B,) (integers in [1, gap])."""
         t = self.targets[idx]
-        g = self.gap if gaps is None else gaps
+        g = self.gap
+        if gaps is not None:
+            if gaps.shape != t.shape or bool(((gaps < 1) | (gaps > self.gap)).any()):
+                raise ValueError(f"Video.triplets: argument 'gaps' must be {tuple(t.shape)} integers in "
+                                 f"[1, {self.gap}], got {gaps.tolist()}")
+            g = gaps
         return self.images[t], torch.stack([self.images[t - g], self.images[t + g]], 1)
 
 

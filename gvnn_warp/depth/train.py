@@ -41,7 +41,7 @@ from ..vo.distributed import all_max, average_gradients, finish, setup
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
 from .data import Video, read_video
-from .model import DepthNet, PoseNet, disp_to_depth
+from .model import NORMS, DepthNet, PoseNet, disp_to_depth
 
 __all__ = ["CHECKPOINT_FORMAT", "POSES", "DepthConfig", "colour_jitter", "direct_poses", "load_checkpoint",
            "load_depth_net", "network_poses", "self_supervised_loss", "train"]
@@ -99,6 +99,9 @@ _SAME_ON_RESUME = ("data", "size", "widths", "norm", "min_depth", "max_depth", "
 
 # what checkpoints written before a setting existed did
 _BEFORE = {"norm": "none", "vary_gap": False}
+# the command-line options of settings a resumed run must repeat (for the error message)
+_OPTIONS = {"norm": "--norm", "vary_gap": "--fixed-gap when False", "gap": "--gap", "size": "--size", "pose": "--pose",
+            "supervised": "--supervised"}
 
 POSES = ("direct", "network")
 
@@ -234,7 +237,9 @@ def _resume(cfg: DepthConfig, path: Path) -> dict | None:
     for key in _SAME_ON_RESUME:
         had = ck["config"].get(key, _BEFORE.get(key))
         if had != want[key]:
-            raise CheckpointError(f"{path}: the run has {key}={had!r}, this one {want[key]!r}; "
+            option = _OPTIONS.get(key)
+            hint = f" (command line: {option})" if option else ""
+            raise CheckpointError(f"{path}: the run has {key}={had!r}{hint}, this one {want[key]!r}; "
                                   "resume with the same settings or start a new run in another directory")
     return ck
 
@@ -258,10 +263,14 @@ def train(cfg: DepthConfig) -> dict:
     if cfg.batch_size % world:
         finish(world)
         raise ValueError(f"depth train: the batch size {cfg.batch_size} must be divisible by the {world} ranks")
-    if cfg.norm == "batch" and (cfg.batch_size // world) * (cfg.size[0] // 32) * (cfg.size[1] // 32) < 2:
-        finish(world)  # (the deepest stage's statistics would be of one value per channel)
-        raise ValueError(f"depth train: batch normalisation needs at least 2 items per rank or a size above 32x32, "
-                         f"got {cfg.batch_size // world} item(s) of {cfg.size[0]}x{cfg.size[1]}")
+    if cfg.norm not in NORMS:
+        finish(world)
+        raise ValueError(f"depth train: norm must be one of {list(NORMS)}, got {cfg.norm!r}")
+    deepest = 2 ** len(cfg.widths)  # (the deepest stage's statistics must be of more than one value per channel)
+    if cfg.norm == "batch" and (cfg.batch_size // world) * (cfg.size[0] // deepest) * (cfg.size[1] // deepest) < 2:
+        finish(world)
+        raise ValueError(f"depth train: batch normalisation needs at least 2 items per rank or a size above "
+                         f"{deepest}x{deepest}, got {cfg.batch_size // world} item(s) of {cfg.size[0]}x{cfg.size[1]}")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     ck_path = out / "checkpoint.pt"
@@ -379,6 +388,7 @@ def train(cfg: DepthConfig) -> dict:
     if rank == 0:
         atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
         if not interrupted:
+            pose_net.eval()  # (the figure's poses, with pose="network": the running statistics)
             _training_figure(_module(depth_net), poser, video, camera, cfg, out / "training.png")
     finish(world)
     return metrics if rank == 0 else {}

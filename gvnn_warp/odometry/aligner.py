@@ -188,9 +188,11 @@ class DirectAligner:
         fn = "DirectAligner"
         K, self.model, self.dist = lens_camera(fn, K, model, dist)
         if resample is not None:
-            if not isinstance(resample, RemapTable) or resample.n != resample.width * resample.height:
-                fail(fn, TypeError, "argument 'resample' must be None or a RemapTable with one position per source "
-                                    f"pixel, got {type(resample).__name__}")
+            if not isinstance(resample, RemapTable):
+                fail(fn, TypeError, f"argument 'resample' must be None or a RemapTable, got {type(resample).__name__}")
+            if resample.n != resample.width * resample.height:
+                fail(fn, ValueError, f"argument 'resample' must have one position per source pixel "
+                                     f"({resample.width}x{resample.height}), got {resample.n}")
             if self.model != "pinhole":
                 fail(fn, ValueError, f"argument 'resample' resamples into a pinhole camera; model is {self.model!r}")
         self.resample = resample

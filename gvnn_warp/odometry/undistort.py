@@ -106,7 +106,12 @@ class UndistortingAligner:
         return remap_rgbd(img, d, self.table, (self.height, self.width))
 
     def prepare(self, image, depth=None):
-        """The pyramid of a lens frame, resampled into the ideal camera as its base level is made."""
+        """The pyramid of a lens frame (or a batch), resampled into the ideal camera as its base level
+        is made."""
+        for name, a in (("image", image), ("depth", depth)):
+            if a is not None and tuple(np.shape(a)[-2:]) != (self.height, self.width):
+                fail("UndistortingAligner.prepare", ValueError, f"argument '{name}' must be {self.width}x"
+                                                                f"{self.height} pixels, got shape {tuple(np.shape(a))}")
         return self.aligner.prepare(image, depth)
 
     def align_frames(self, ref, live, init=None):

@@ -99,6 +99,8 @@ def test_wider_triplets_and_cli_defaults(folders):
     target, sources = v.triplets(torch.tensor([0, 1, 1]), torch.tensor([1, 2, 1]))  # each triplet's own gap
     torch.testing.assert_close(target, v.images[[2, 7, 7]])
     torch.testing.assert_close(sources, torch.stack([v.images[[1, 3]], v.images[[5, 9]], v.images[[6, 8]]]))
+    with pytest.raises(ValueError, match=r"Video.triplets: argument 'gaps' must be \(2,\) integers in \[1, 2\]"):
+        v.triplets(torch.tensor([0, 1]), torch.tensor([1, 3]))  # (3 would read the other folder's frames)
     with pytest.raises(ValueError, match="at least 7"):
         read_video(folders, (64, 64), gap=3)
     assert cli_depth._DEFAULT_GAP == DepthConfig.gap
@@ -121,9 +123,42 @@ def test_batch_normalisation_and_checkpoints_without_it(folders, tmp_path):
     loaded = load_depth_net({"config": config, "depth_net": plain.state_dict()})
     image = torch.rand(1, 3, 64, 64)
     torch.testing.assert_close(loaded.depth(image), plain.eval().depth(image))
+    # a run from before the settings existed resumes with them as they were then (norm "none",
+    # one gap), and says which option to repeat otherwise
+    out = tmp_path / "old"
+    old = _cfg(folders, out, norm="none", vary_gap=False)
+    train(old)
+    ck = torch.load(out / "checkpoint.pt", weights_only=True)
+    del ck["config"]["norm"], ck["config"]["vary_gap"]
+    torch.save(ck, out / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"the run has norm='none' \(command line: --norm\), this one 'batch'"):
+        train(DepthConfig(**{**_cfg(folders, out).__dict__, "steps": 3, "resume": True, "vary_gap": False}))
+    assert train(DepthConfig(**{**old.__dict__, "steps": 3, "resume": True}))["steps"] == 3
     # the deepest stage of one 32x32 item has one value per channel: refused, not a torch error
     with pytest.raises(ValueError, match="batch normalisation needs at least 2 items"):
         train(DepthConfig(**{**_cfg(folders, tmp_path / "bn").__dict__, "size": (32, 32), "batch_size": 1}))
+
+
+@pytest.mark.parametrize("vary", [True, False])
+def test_training_draws_each_triplets_gap(folders, tmp_path, monkeypatch, vary):
+    from gvnn_warp.depth.data import Video
+
+    seen = []
+    triplets = Video.triplets
+
+    def spy(self, idx, gaps=None):
+        seen.append(gaps)
+        return triplets(self, idx, gaps)
+
+    monkeypatch.setattr(Video, "triplets", spy)
+    train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "gap": 2, "steps": 3, "batch_size": 8,
+                         "vary_gap": vary}))
+    drawn = seen[:3]  # (the steps' calls; the figure's comes after)
+    if vary:
+        assert all(g is not None and g.shape == (8,) and 1 <= g.min() and g.max() <= 2 for g in drawn)
+        assert len(torch.cat(drawn).unique()) == 2  # both gaps drawn in 24 triplets
+    else:
+        assert drawn == [None, None, None]
 
 
 def _cfg(folders, out, **kw):

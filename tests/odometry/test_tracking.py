@@ -803,6 +803,10 @@ def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color):
         DirectAligner(K, resample=table).prepare(img[:, :, :40], dep[:, :, :40])
     with pytest.raises(TypeError, match="DirectAligner: argument 'resample' must be None or a RemapTable"):
         DirectAligner(K, resample=pos)
+    with pytest.raises(ValueError, match="argument 'resample' must have one position per source pixel"):
+        DirectAligner(K, resample=RemapTable(pos[:-1], W, H))
+    with pytest.raises(ValueError, match="UndistortingAligner.prepare: argument 'depth' must be"):
+        undistorting.prepare(img[0], dep[0, :, :40])
     with pytest.raises(ValueError, match="argument 'resample' resamples into a pinhole camera"):
         DirectAligner(K, resample=table, dist=dist)
 
