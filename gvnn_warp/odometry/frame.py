@@ -94,23 +94,20 @@ class PyramidBuffers:
         f32 = wp.float32
         self.weights = weights
         # the 8-lane kernels where the rows are whole vectors (one output channel for the base level)
-        lanes0 = self.lanes0 = Co == 1 and W % 8 == 0 and resample is None
-        if resample is not None:  # the frame resampled through a RemapTable as the base level is made
-            t, lanes = resample, Co == 1 and W % 8 == 0
-            table = [t.base, t.planes[0], t.planes[1], t.index] if lanes else [t.base, t.weights, t.index]
-            self.level0 = _launch.RecordedLaunch(
-                _pyramid.level0_remap_lanes_kernel(C)[f32] if lanes else _pyramid.level0_remap_kernel(C, Co)[f32],
-                B * H, [empty, self.weights.flatten(), empty, *table, H, W, t.width, t.width * t.height,
-                        int(with_depth), depth_tolerance],
-                [_out_view(self.images[0], lanes), _out_view(depths[0], lanes)], work=W, grain=_GRAIN,
-            )
-        else:
-            self.level0 = _launch.RecordedLaunch(
-                _pyramid.level0_lanes_kernel(C)[f32] if lanes0 else _pyramid.level0_kernel(C, Co)[f32], B * H,
-                [empty, self.weights.flatten(), empty, *([_out_view(empty, True)] if lanes0 else []), H, W,
-                 int(with_depth), depth_tolerance],
-                [_out_view(self.images[0], lanes0), _out_view(depths[0], lanes0)], work=W, grain=_GRAIN,
-            )
+        lanes = Co == 1 and W % 8 == 0
+        self.lanes0 = lanes and resample is None  # (fill() then also passes the depth as vec8)
+        if resample is None:
+            kernel = _pyramid.level0_lanes_kernel(C) if lanes else _pyramid.level0_kernel(C, Co)
+            extra, source = [_out_view(empty, True)] if lanes else [], []
+        else:  # the frame resampled through a RemapTable as the base level is made
+            t = resample
+            kernel = _pyramid.level0_remap_lanes_kernel(C) if lanes else _pyramid.level0_remap_kernel(C, Co)
+            extra, source = [t.base, t.wx, t.wy, t.index], [t.width, t.width * t.height]
+        self.level0 = _launch.RecordedLaunch(
+            kernel[f32], B * H,
+            [empty, self.weights.flatten(), empty, *extra, H, W, *source, int(with_depth), depth_tolerance],
+            [_out_view(self.images[0], lanes), _out_view(depths[0], lanes)], work=W, grain=_GRAIN,
+        )
         self.down = []
         for k in range(1, len(self.shapes)):
             (h, w), (ho, wo) = self.shapes[k - 1], self.shapes[k]

@@ -93,16 +93,16 @@ class UndistortingAligner:
 
     def undistort(self, image, depth=None):
         """(image, depth) of a lens frame ((C, H, W), (1, H, W)) as the ideal pinhole camera's."""
-        img = as_numpy("UndistortingAligner.prepare", "image", image, (3,))
+        img = as_numpy("UndistortingAligner.undistort", "image", image, (3,))
         if img.shape[1:] != (self.height, self.width):
-            fail("UndistortingAligner.prepare", ValueError, f"argument 'image' must be (C, {self.height}, "
-                                                            f"{self.width}), got {img.shape}")
+            fail("UndistortingAligner.undistort", ValueError, f"argument 'image' must be (C, {self.height}, "
+                                                              f"{self.width}), got {img.shape}")
         if depth is None:
             return remap(img, self.table, (self.height, self.width)), None
-        d = as_numpy("UndistortingAligner.prepare", "depth", depth, (3,))
+        d = as_numpy("UndistortingAligner.undistort", "depth", depth, (3,))
         if d.shape != (1, self.height, self.width):
-            fail("UndistortingAligner.prepare", ValueError, f"argument 'depth' must be (1, {self.height}, "
-                                                            f"{self.width}), got {d.shape}")
+            fail("UndistortingAligner.undistort", ValueError, f"argument 'depth' must be (1, {self.height}, "
+                                                              f"{self.width}), got {d.shape}")
         return remap_rgbd(img, d, self.table, (self.height, self.width))
 
     def prepare(self, image, depth=None):

@@ -134,11 +134,12 @@ def level0_remap_kernel(C: int, Co: int) -> FloatKernel:
     """:func:`level0_kernel` (C input and Co output channels) for a frame resampled through a fixed table in
     the same pass (a lens image into its ideal pinhole image, see
     :class:`gvnn_warp.kernels.sampling.remap.RemapTable`): output pixel p's channels are bilinear
-    between the source pixels ``base[p]``, +1, +Ws, +Ws + 1 with weights ``frac[p]`` = (wx, wy) (0
+    between the source pixels ``base[p]``, +1, +Ws, +Ws + 1 with weights (``wx[p]``, ``wy[p]``) (0
     where base[p] < 0), its depth the source's at ``index[p]`` (the nearest pixel; none where < 0);
     then the base level's rules, the depth-edge test among the resampled depths. One element per
-    output row (B * H); arguments: (offset, image, weights, depth, base, frac, index, H, W, Ws, HWs,
-    has_depth, tolerance, out_image, out_depth), flat arrays, the source items HWs pixels apart.
+    output row (B * H); arguments: (offset, image, weights, depth, base, wx, wy, index, H, W, Ws, HWs,
+    has_depth, tolerance, out_image, out_depth), flat arrays, the source items HWs pixels apart
+    (``wx``, ``wy`` of the kernel's float type).
     Made on first use."""
 
     def level0_remap(
@@ -147,7 +148,8 @@ def level0_remap_kernel(C: int, Co: int) -> FloatKernel:
         weights: wp.array(dtype=Any),
         depth: wp.array(dtype=Any),
         base: wp.array(dtype=wp.int32),
-        frac: wp.array(dtype=wp.vec2),
+        wx: wp.array(dtype=Any),
+        wy: wp.array(dtype=Any),
         index: wp.array(dtype=wp.int32),
         H: int,
         W: int,
@@ -175,9 +177,8 @@ def level0_remap_kernel(C: int, Co: int) -> FloatKernel:
         for x in range(W):
             p = p0 + x
             k = base[p]
-            f = frac[p]
-            fx = out_image.dtype(f[0])
-            fy = out_image.dtype(f[1])
+            fx = wx[p]
+            fy = wy[p]
             finite = bool(True)  # noqa: UP018 - a typed variable Warp may reassign inside the loop
             for co in range(Co):
                 v = out_image.dtype(0.0)
@@ -209,8 +210,9 @@ def level0_remap_kernel(C: int, Co: int) -> FloatKernel:
 
     kernel = wp.kernel(level0_remap, module="unique", enable_backward=False)
     return FloatKernel(
-        kernel, image="scalar", weights="scalar", depth="scalar", out_image="scalar", out_depth="scalar"
-    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any"}, grain=row_grain)
+        kernel, image="scalar", weights="scalar", depth="scalar", wx="scalar", wy="scalar", out_image="scalar",
+        out_depth="scalar"
+    ).set_parallel(scopes={"image": "any", "weights": "any", "depth": "any", "wx": "any", "wy": "any"}, grain=row_grain)
 
 
 @specialise("pyramid.downsample")

@@ -192,9 +192,8 @@ def _nearest8(depth: wp.array(dtype=Any), index: wp.array(dtype=wp.int32), q0: i
 def level0_remap_lanes_kernel(C: int) -> FloatKernel:
     """:func:`.kernels.level0_remap_kernel` for C input channels and one output channel, 8 pixels
     per step (W % 8 == 0): the table's reads and the arithmetic as vectors, the source reads
-    scalar; the same results bit for bit. Its arguments as that kernel's, but the table's weights
-    as two planes ``wx``, ``wy`` (of the kernel's float type) in place of ``frac``, and the outputs as vec8 views (as
-    in :func:`level0_lanes_kernel`). Made on first use."""
+    scalar; the same results bit for bit. Its arguments as that kernel's, the outputs as vec8
+    views (as in :func:`level0_lanes_kernel`). Made on first use."""
 
     def level0_remap_lanes(
         offset: int,

@@ -14,17 +14,19 @@ __all__ = ["RemapTable", "remap", "remap_bilinear", "remap_frame", "remap_neares
 
 @wp.kernel
 def remap_bilinear(offset: int, src: wp.array(dtype=wp.float32), base: wp.array(dtype=wp.int32),
-                   weights: wp.array(dtype=wp.vec2), W: int, out: wp.array(dtype=wp.float32)):
-    """out[k]: bilinear between source pixels base[k], +1, +W, +W+1 with weights (wx, wy); 0 where
-    base[k] < 0 (no source)."""
+                   wx: wp.array(dtype=wp.float32), wy: wp.array(dtype=wp.float32), W: int,
+                   out: wp.array(dtype=wp.float32)):
+    """out[k]: bilinear between source pixels base[k], +1, +W, +W+1 with weights (wx[k], wy[k]); 0
+    where base[k] < 0 (no source)."""
     k = offset + wp.tid()
     b = base[k]
     value = 0.0
     if b >= 0:
-        w = weights[k]
-        top = (1.0 - w[0]) * src[b] + w[0] * src[b + 1]
-        bottom = (1.0 - w[0]) * src[b + W] + w[0] * src[b + W + 1]
-        value = (1.0 - w[1]) * top + w[1] * bottom
+        fx = wx[k]
+        fy = wy[k]
+        top = (1.0 - fx) * src[b] + fx * src[b + 1]
+        bottom = (1.0 - fx) * src[b + W] + fx * src[b + W + 1]
+        value = (1.0 - fy) * top + fy * bottom
     out[k] = value
 
 
@@ -44,22 +46,24 @@ def remap_nearest(offset: int, src: wp.array(dtype=wp.float32), index: wp.array(
 
 @wp.kernel
 def remap_frame(offset: int, image: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32), C: int,
-                base: wp.array(dtype=wp.int32), weights: wp.array(dtype=wp.vec2), index: wp.array(dtype=wp.int32),
-                W: int, out_image: wp.array(dtype=wp.float32), out_depth: wp.array(dtype=wp.float32)):
+                base: wp.array(dtype=wp.int32), wx: wp.array(dtype=wp.float32), wy: wp.array(dtype=wp.float32),
+                index: wp.array(dtype=wp.int32), W: int, out_image: wp.array(dtype=wp.float32),
+                out_depth: wp.array(dtype=wp.float32)):
     """An RGB-D frame in one pass: each of the C image planes as :func:`remap_bilinear`, the depth as
     :func:`remap_nearest` (planes of ``image`` W * H apart; of the output, N apart)."""
     k = offset + wp.tid()
     n = index.shape[0]
     plane = image.shape[0] // C
     b = base[k]
-    w = weights[k]
+    fx = wx[k]
+    fy = wy[k]
     for c in range(C):
         value = float(0.0)
         if b >= 0:
             o = c * plane + b
-            top = (1.0 - w[0]) * image[o] + w[0] * image[o + 1]
-            bottom = (1.0 - w[0]) * image[o + W] + w[0] * image[o + W + 1]
-            value = (1.0 - w[1]) * top + w[1] * bottom
+            top = (1.0 - fx) * image[o] + fx * image[o + 1]
+            bottom = (1.0 - fx) * image[o + W] + fx * image[o + W + 1]
+            value = (1.0 - fy) * top + fy * bottom
         out_image[c * n + k] = value
     i = index[k]
     d = float(0.0)
@@ -83,14 +87,13 @@ class RemapTable:
         x0 = np.clip(np.floor(u), 0, width - 2).astype(np.int64)
         y0 = np.clip(np.floor(v), 0, height - 2).astype(np.int64)
         base = np.where(inside, y0 * width + x0, -1).astype(np.int32)
-        weights = np.stack([u - x0, v - y0], 1).astype(np.float32)
+        frac = np.stack([u - x0, v - y0]).astype(np.float32)  # (2, N): wx, then wy
         iu, iv = np.floor(u + 0.5).astype(np.int64), np.floor(v + 0.5).astype(np.int64)
         near = (u >= -0.5) & (v >= -0.5) & (iu >= 0) & (iv >= 0) & (iu < width) & (iv < height)
         index = np.where(near, iv * width + iu, -1).astype(np.int32)
         self.base = wp.array(base, dtype=wp.int32, device="cpu")
-        self.weights = wp.array(weights, dtype=wp.vec2, device="cpu")
-        # the same weights as two planes (wx, then wy), for kernels that read 8 pixels' at once
-        self.planes = wp.array(np.ascontiguousarray(weights.T), dtype=wp.float32, device="cpu")
+        self.wx = wp.array(frac[0], dtype=wp.float32, device="cpu")  # (planes: 8 pixels' read as one vector)
+        self.wy = wp.array(frac[1], dtype=wp.float32, device="cpu")
         self.index = wp.array(index, dtype=wp.int32, device="cpu")
 
 
@@ -109,7 +112,7 @@ def remap(src: np.ndarray, table: RemapTable, out_shape: tuple[int, int], neares
         s = wp.array(flat[c], dtype=wp.float32, device="cpu", copy=False)
         o = wp.array(out[c], dtype=wp.float32, device="cpu", copy=False)
         kernel, args = ((remap_nearest, [s, table.index, o]) if nearest else
-                        (remap_bilinear, [s, table.base, table.weights, W, o]))
+                        (remap_bilinear, [s, table.base, table.wx, table.wy, W, o]))
         launch_chunks(kernel, n, args)
     return out.reshape(C, *out_shape)
 
@@ -130,7 +133,7 @@ def remap_rgbd(image: np.ndarray, depth: np.ndarray, table: RemapTable, out_shap
                    copy=False)
     out_img = np.empty(C * n, np.float32)
     out_dep = np.empty(n, np.float32)
-    launch_chunks(remap_frame, n, [img, dep, C, table.base, table.weights, table.index, W,
+    launch_chunks(remap_frame, n, [img, dep, C, table.base, table.wx, table.wy, table.index, W,
                                    wp.array(out_img, dtype=wp.float32, device="cpu", copy=False),
                                    wp.array(out_dep, dtype=wp.float32, device="cpu", copy=False)])
     return out_img.reshape(C, *out_shape), out_dep.reshape(1, *out_shape)
