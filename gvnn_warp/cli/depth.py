@@ -4,8 +4,8 @@ evaluate the depth.
 Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
-                          [--norm batch|none] [--pose direct|network] [--steps N] [--batch-size B] [--lr LR] [--seed S]
-                          [--supervised] [--resume] [--no-progress]
+                          [--norm batch|none] [--pose direct|network] [--ema DECAY] [--steps N] [--batch-size B]
+                          [--lr LR] [--seed S] [--supervised] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
@@ -51,6 +51,16 @@ def _multiple_of_32(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _decay(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be a number in [0, 1), got {text!r}")
+    return value
+
+
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("depth", help="learn depth and motion from video without labels, and evaluate it",
                               description=description(__doc__))
@@ -75,6 +85,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--supervised", action="store_true",
                    help="train on the folders' depth files instead (scale-invariant log loss): the upper bound "
                         "to compare the self-supervised network with")
+    t.add_argument("--ema", type=_decay, default=0.99, metavar="DECAY",
+                   help="the network kept is the exponential moving average of the trained one over the steps, "
+                        "with this decay per step (default: 0.99; 0: the last step's network)")
     t.add_argument("--steps", type=positive_int, default=None, metavar="N", help="or stop after N steps")
     t.add_argument("--batch-size", type=bounded_int(1, 1024), default=8, metavar="B", help="triplets per step "
                    "(default: 8)")
@@ -104,7 +117,7 @@ def run_train(args: argparse.Namespace) -> int:
 
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
-        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, norm=args.norm, pose=args.pose,
+        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, norm=args.norm, pose=args.pose, ema=args.ema,
         steps=args.steps, batch_size=args.batch_size, lr=args.lr,
         seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )

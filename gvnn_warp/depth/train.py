@@ -7,7 +7,11 @@ motion of t into each neighbour (``pose``: "direct", the direct aligner through 
 "network", a pose network trained with it) give
 :func:`gvnn_warp.reprojection_loss` at every scale, plus ``smoothness`` x
 :func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the mean over the
-scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``). Launched by
+scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``). The depth
+network kept (the checkpoint's ``depth_net``, which ``depth eval`` and ``track --depth predicted``
+load) is the exponential moving average of the trained one's weights and batch statistics over the
+steps (``ema``, torch's ``AveragedModel``; the trained one is kept beside it, ``depth_net_trained``,
+to resume from). Launched by
 ``torchrun`` (``RANK``/``WORLD_SIZE`` set) it trains data-parallel (DistributedDataParallel over
 gloo): every rank draws the same global batch and takes its share (``batch_size`` must be divisible
 by the ranks), the ranks agree on when to stop, and only rank 0 writes files and progress.
@@ -30,6 +34,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from ..datasets.tum import read_tum
 from ..functional.lie import se3_to_matrix
@@ -86,6 +91,9 @@ class DepthConfig:
     alpha: float = 0.85
     widths: tuple[int, ...] = (8, 16, 32, 64, 128)  # half of (16, ..., 256): 0.30 s a step, not 0.53
     norm: str = "batch"  # the networks' normalisation after each convolution ("batch" or "none")
+    # the depth network kept is the exponential moving average of the trained one's weights and
+    # batch statistics over the steps (this decay per step; 0: the last step's network)
+    ema: float = 0.99
     max_frames: int | None = None  # per folder
     checkpoint_seconds: float = 60.0
     resume: bool = False
@@ -98,7 +106,7 @@ _SAME_ON_RESUME = ("data", "size", "widths", "norm", "min_depth", "max_depth", "
                    "supervised")
 
 # what checkpoints written before a setting existed did
-_BEFORE = {"norm": "none", "vary_gap": False}
+_BEFORE = {"norm": "none", "vary_gap": False, "ema": 0.0}
 # the command-line options of settings a resumed run must repeat (for the error message)
 _OPTIONS = {"norm": "--norm", "vary_gap": "--fixed-gap when False", "gap": "--gap", "size": "--size", "pose": "--pose",
             "supervised": "--supervised"}
@@ -266,6 +274,9 @@ def train(cfg: DepthConfig) -> dict:
     if cfg.norm not in NORMS:
         finish(world)
         raise ValueError(f"depth train: norm must be one of {list(NORMS)}, got {cfg.norm!r}")
+    if not 0.0 <= cfg.ema < 1.0:
+        finish(world)
+        raise ValueError(f"depth train: ema must be a decay in [0, 1), got {cfg.ema!r}")
     deepest = 2 ** len(cfg.widths)  # (the deepest stage's statistics must be of more than one value per channel)
     if cfg.norm == "batch" and (cfg.batch_size // world) * (cfg.size[0] // deepest) * (cfg.size[1] // deepest) < 2:
         finish(world)
@@ -293,10 +304,16 @@ def train(cfg: DepthConfig) -> dict:
     if world > 1:  # (the same initial weights on every rank: the same seed; DDP averages the gradients)
         depth_net = torch.nn.parallel.DistributedDataParallel(depth_net)
     opt = torch.optim.Adam(params, lr=cfg.lr)
+    # (every rank has the same weights after each step, so the same average)
+    average = AveragedModel(_module(depth_net), multi_avg_fn=get_ema_multi_avg_fn(cfg.ema), use_buffers=True) \
+        if cfg.ema > 0 else None
     local = cfg.batch_size // world
     step, history, elapsed = 0, [], 0.0
     if ck is not None:
-        _module(depth_net).load_state_dict(ck["depth_net"])
+        _module(depth_net).load_state_dict(ck.get("depth_net_trained", ck["depth_net"]))
+        if average is not None:
+            average.module.load_state_dict(ck["depth_net"])
+            average.n_averaged.fill_(max(1, ck["step"]))
         _module(pose_net).load_state_dict(ck["pose_net"])
         opt.load_state_dict(ck["optimizer"])
         step, history, elapsed = ck["step"], list(ck["train_loss"]), ck["train_seconds"]
@@ -306,7 +323,8 @@ def train(cfg: DepthConfig) -> dict:
         if rank != 0:
             return
         atomic_save({"format": CHECKPOINT_FORMAT, "config": _config_dict(cfg), "step": step, "train_loss": history,
-                     "train_seconds": seconds, "depth_net": _module(depth_net).state_dict(),
+                     "train_seconds": seconds, "depth_net": _kept(depth_net, average).state_dict(),
+                     **({"depth_net_trained": _module(depth_net).state_dict()} if average is not None else {}),
                      "pose_net": _module(pose_net).state_dict(),
                      "optimizer": opt.state_dict(), "rng": rng_state(), "K": video.K,
                      "dist": video.dist if video.dist is not None else torch.zeros(0)}, ck_path)
@@ -357,6 +375,8 @@ def train(cfg: DepthConfig) -> dict:
                 for group in opt.param_groups:
                     group["lr"] = cfg.lr * scale
             opt.step()
+            if average is not None:
+                average.update_parameters(_module(depth_net))
             step += 1
             history.append(float(loss.detach()))
             bar.update()
@@ -389,9 +409,14 @@ def train(cfg: DepthConfig) -> dict:
         atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
         if not interrupted:
             pose_net.eval()  # (the figure's poses, with pose="network": the running statistics)
-            _training_figure(_module(depth_net), poser, video, camera, cfg, out / "training.png")
+            _training_figure(_kept(depth_net, average), poser, video, camera, cfg, out / "training.png")
     finish(world)
     return metrics if rank == 0 else {}
+
+
+def _kept(depth_net, average):
+    """The depth network a checkpoint keeps: the moving average (``DepthConfig.ema``) or the trained one."""
+    return average.module if average is not None else _module(depth_net)
 
 
 def _module(net):

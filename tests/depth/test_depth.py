@@ -190,6 +190,48 @@ def test_train_resume_and_eval(folders, tmp_path):
     assert (ev / "depth.png").stat().st_size > 0
 
 
+def test_the_network_kept_is_the_moving_average_of_the_trained_one(folders, tmp_path, monkeypatch):
+    # the trained network after each step, seen through the averaging's own update; the average
+    # computed here by hand from them: every float parameter and batch statistic
+    import gvnn_warp.depth.train as T
+
+    seen = []
+
+    class Spy(T.AveragedModel):
+        def update_parameters(self, model):
+            seen.append({k: v.detach().clone() for k, v in model.state_dict().items()})
+            super().update_parameters(model)
+
+    monkeypatch.setattr(T, "AveragedModel", Spy)
+    out = tmp_path / "run"
+    train(DepthConfig(**{**_cfg(folders, out, ema=0.75).__dict__, "steps": 3}))
+    ck = load_checkpoint(out / "checkpoint.pt")
+    assert len(seen) == 3
+    for key, kept in ck["depth_net"].items():
+        if not kept.is_floating_point():
+            continue
+        want = seen[0][key]
+        for later in seen[1:]:
+            want = 0.75 * want + 0.25 * later[key]
+        torch.testing.assert_close(kept, want, rtol=1e-5, atol=1e-6, msg=key)
+        torch.testing.assert_close(ck["depth_net_trained"][key], seen[-1][key], rtol=0, atol=0, msg=key)
+    # resumed: training goes on from the trained network, the average from the kept one
+    seen.clear()
+    train(DepthConfig(**{**_cfg(folders, out, ema=0.75, resume=True).__dict__, "steps": 4}))
+    assert len(seen) == 1
+    ck2 = load_checkpoint(out / "checkpoint.pt")
+    key = "encoder.0.0.weight"
+    torch.testing.assert_close(ck2["depth_net"][key], 0.75 * ck["depth_net"][key] + 0.25 * seen[0][key])
+    # ema 0: the last step's network, nothing beside it; a decay outside [0, 1) is refused
+    train(_cfg(folders, tmp_path / "last", ema=0.0))
+    assert "depth_net_trained" not in load_checkpoint(tmp_path / "last" / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"ema must be a decay in \[0, 1\)"):
+        train(_cfg(folders, tmp_path / "bad", ema=1.0))
+    with pytest.raises(SystemExit) as e:
+        main(["depth", "train", "--data", "x", "--out", str(tmp_path / "y"), "--ema", "1.5"])
+    assert e.value.code == 2
+
+
 def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, capsys):
     out = tmp_path / "run"
     train(_cfg(folders, out))
