@@ -4,8 +4,8 @@ evaluate the depth.
 Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
-                          [--norm batch|none] [--pose direct|network] [--ema DECAY] [--steps N] [--batch-size B]
-                          [--lr LR] [--seed S] [--supervised] [--resume] [--no-progress]
+                          [--norm batch|none] [--pose direct|network] [--supervised] [--ema DECAY] [--steps N]
+                          [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes

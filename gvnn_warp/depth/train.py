@@ -304,7 +304,8 @@ def train(cfg: DepthConfig) -> dict:
     if world > 1:  # (the same initial weights on every rank: the same seed; DDP averages the gradients)
         depth_net = torch.nn.parallel.DistributedDataParallel(depth_net)
     opt = torch.optim.Adam(params, lr=cfg.lr)
-    # (every rank has the same weights after each step, so the same average)
+    # (every rank has the same weights after each step, so the same averaged weights; the batch
+    # statistics are each rank's own, and rank 0's are saved, as the trained network's)
     average = AveragedModel(_module(depth_net), multi_avg_fn=get_ema_multi_avg_fn(cfg.ema), use_buffers=True) \
         if cfg.ema > 0 else None
     local = cfg.batch_size // world
@@ -313,7 +314,7 @@ def train(cfg: DepthConfig) -> dict:
         _module(depth_net).load_state_dict(ck.get("depth_net_trained", ck["depth_net"]))
         if average is not None:
             average.module.load_state_dict(ck["depth_net"])
-            average.n_averaged.fill_(max(1, ck["step"]))
+            average.n_averaged.fill_(ck["step"])  # (0: the next update copies)
         _module(pose_net).load_state_dict(ck["pose_net"])
         opt.load_state_dict(ck["optimizer"])
         step, history, elapsed = ck["step"], list(ck["train_loss"]), ck["train_seconds"]

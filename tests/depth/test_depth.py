@@ -215,7 +215,13 @@ def test_the_network_kept_is_the_moving_average_of_the_trained_one(folders, tmp_
             want = 0.75 * want + 0.25 * later[key]
         torch.testing.assert_close(kept, want, rtol=1e-5, atol=1e-6, msg=key)
         torch.testing.assert_close(ck["depth_net_trained"][key], seen[-1][key], rtol=0, atol=0, msg=key)
-    # resumed: training goes on from the trained network, the average from the kept one
+    # resumed: training goes on from the trained network, the average from the kept one (a resume
+    # with no step to take leaves both as they were)
+    train(DepthConfig(**{**_cfg(folders, out, ema=0.75, resume=True).__dict__, "steps": 3}))
+    again = load_checkpoint(out / "checkpoint.pt")
+    for name in ("depth_net", "depth_net_trained"):
+        for key, value in ck[name].items():
+            torch.testing.assert_close(again[name][key], value, rtol=0, atol=0, msg=f"{name} {key}")
     seen.clear()
     train(DepthConfig(**{**_cfg(folders, out, ema=0.75, resume=True).__dict__, "steps": 4}))
     assert len(seen) == 1
