@@ -102,12 +102,13 @@ def bounded_int_list(minimum: int, maximum: int | None = None) -> Callable[[str]
 
 
 def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: str = "",
-                 above_minimum: bool = False) -> Callable[[str], float]:
-    """``type=`` for a finite number in [minimum, maximum] (``above_minimum``: in (minimum,
-    maximum]; NaN and inf are refused)."""
+                 above_minimum: bool = False, below_maximum: bool = False) -> Callable[[str], float]:
+    """``type=`` for a finite number in [minimum, maximum] (``above_minimum``: > minimum;
+    ``below_maximum``: < maximum; NaN and inf are refused)."""
     u = f" {unit}" if unit else ""
-    if above_minimum:
-        expected = f"a number > {minimum:g} and <= {maximum:g}{u}"
+    if above_minimum or below_maximum:
+        expected = (f"a number {'>' if above_minimum else '>='} {minimum:g} and {'<' if below_maximum else '<='} "
+                    f"{maximum:g}{u}")
     elif math.isinf(minimum) and math.isinf(maximum):
         expected = "a finite number"
     elif math.isinf(maximum):
@@ -122,7 +123,8 @@ def finite_float(minimum: float = -math.inf, maximum: float = math.inf, unit: st
             v = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
-        if not (math.isfinite(v) and minimum <= v <= maximum) or (above_minimum and v == minimum):
+        if not (math.isfinite(v) and minimum <= v <= maximum) or (above_minimum and v == minimum) or (
+                below_maximum and v == maximum):
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return v
 

@@ -32,7 +32,16 @@ from pathlib import Path
 # Idle OpenMP threads sleep instead of spinning (see gvnn_warp.cli.vo); before torch is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from .args import bounded_int, description, image_size, output_dir, positive_float, positive_int, seed  # noqa: E402
+from .args import (  # noqa: E402
+    bounded_int,
+    description,
+    finite_float,
+    image_size,
+    output_dir,
+    positive_float,
+    positive_int,
+    seed,
+)
 from .runner import command_main  # noqa: E402
 
 __all__ = ["add_parser", "run", "run_eval", "run_train"]
@@ -49,16 +58,6 @@ def _multiple_of_32(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"each side must be a multiple of 32 (the network halves it 5 times), "
                                           f"got {text!r}")
     return w, h
-
-
-def _decay(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be a number in [0, 1), got {text!r}")
-    return value
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -85,7 +84,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--supervised", action="store_true",
                    help="train on the folders' depth files instead (scale-invariant log loss): the upper bound "
                         "to compare the self-supervised network with")
-    t.add_argument("--ema", type=_decay, default=0.99, metavar="DECAY",
+    t.add_argument("--ema", type=finite_float(0.0, 1.0, below_maximum=True), default=0.99, metavar="DECAY",
                    help="the network kept is the exponential moving average of the trained one over the steps, "
                         "with this decay per step (default: 0.99; 0: the last step's network)")
     t.add_argument("--steps", type=positive_int, default=None, metavar="N", help="or stop after N steps")

@@ -106,7 +106,7 @@ _SAME_ON_RESUME = ("data", "size", "widths", "norm", "min_depth", "max_depth", "
                    "supervised")
 
 # what checkpoints written before a setting existed did
-_BEFORE = {"norm": "none", "vary_gap": False, "ema": 0.0}
+_BEFORE = {"norm": "none", "vary_gap": False}
 # the command-line options of settings a resumed run must repeat (for the error message)
 _OPTIONS = {"norm": "--norm", "vary_gap": "--fixed-gap when False", "gap": "--gap", "size": "--size", "pose": "--pose",
             "supervised": "--supervised"}
