@@ -1,5 +1,7 @@
 """Data-parallel training under ``torchrun``: process-group set-up and tear-down (gloo, CPU), shared by
-``gvnn-warp vo`` and ``gvnn-warp depth train``. Without ``WORLD_SIZE`` > 1 everything is a no-op."""
+``gvnn-warp vo`` and ``gvnn-warp depth train``. Without ``WORLD_SIZE`` > 1 everything is a no-op. A process
+group that the caller has already made (a script that trains more than one thing under one ``torchrun``)
+is joined and left up; the one made here is torn down by :func:`finish`."""
 
 from __future__ import annotations
 
@@ -10,12 +12,17 @@ import torch.distributed as dist
 
 __all__ = ["all_max", "average_gradients", "finish", "setup"]
 
+_OWN_GROUP = False  # the process group was made by setup() (and so is torn down by finish())
+
 
 def setup() -> tuple[int, int]:
-    """(rank, world size): the process group of ``torchrun`` (``RANK``/``WORLD_SIZE``), made once."""
+    """(rank, world size): the process group of ``torchrun`` (``RANK``/``WORLD_SIZE``), made here unless
+    the caller made one."""
+    global _OWN_GROUP
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not dist.is_initialized():
         dist.init_process_group("gloo")
+        _OWN_GROUP = True
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1
@@ -43,7 +50,10 @@ def average_gradients(module: torch.nn.Module, world: int) -> None:
 
 
 def finish(world: int) -> None:
-    """Wait for every rank, then tear the process group down."""
+    """Wait for every rank, then tear the process group down if :func:`setup` made it."""
+    global _OWN_GROUP
     if world > 1 and dist.is_initialized():
         dist.barrier()
-        dist.destroy_process_group()
+        if _OWN_GROUP:
+            dist.destroy_process_group()
+            _OWN_GROUP = False

@@ -3,10 +3,6 @@ video triplets, and short runs of training, resuming and evaluation (the command
 
 import json
 import math
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -280,24 +276,6 @@ def test_cli_data_errors_are_one_line(folders, tmp_path, capsys):
                  "--steps", "1", "--no-progress"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing" in err[0]
-
-
-@pytest.mark.skipif(shutil.which("torchrun", path=str(Path(sys.executable).parent)) is None,
-                    reason="torchrun not installed")
-def test_ddp_two_ranks_train_the_same_network(folders, tmp_path):
-    torchrun = shutil.which("torchrun", path=str(Path(sys.executable).parent))
-    out = tmp_path / "ddp"
-    cmd = [torchrun, "--standalone", "--nproc_per_node=2", "-m", "gvnn_warp.cli.depth", "train", "--data",
-           *map(str, folders), "--out", str(out), "--size", "64x64", "--steps", "2", "--batch-size", "4", "--gap", "1",
-           "--no-progress", "--supervised"]  # (--supervised: the same data-parallel loop, no Warp kernels to load)
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=180)
-    assert res.returncode == 0, res.stderr[-3000:]
-    assert res.stdout.count("depth train:") == 1  # (rank 0 reports)
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["distributed"] == {"world_size": 2, "max_param_diff_between_ranks": 0.0}
-    assert metrics["steps"] == 2 and len(metrics["train_loss"]) == 2
-    assert load_checkpoint(out / "checkpoint.pt")["step"] == 2
 
 
 def test_cli_rejects_sizes_the_network_cannot_take(capsys):
