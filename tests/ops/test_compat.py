@@ -3,6 +3,7 @@ gvnn_warp/kernels/core/compat.py): these tests fail loudly if an upgrade changes
 backend's visibility (info(), the debug log) and the free-threaded fallback."""
 
 import ctypes
+import json
 import logging
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import threading
 import warnings
 from typing import Any
 
+import pytest
 import torch
 import warp as wp
 from gvnn_warp.kernels.core import compat as wcompat
@@ -172,38 +174,49 @@ def test_torch_custom_op_implementations():
     assert any(getattr(f, "__dynamo_disable", None) is not None for f in impls)
 
 
-def test_first_call_does_not_import_dynamo():
+FRESH_PROCESS = """if True:
+    import json, sys, numpy as np, torch, gvnn_warp as G
+    from gvnn_warp.odometry import DirectAligner
+    from gvnn_warp.kernels import lens
+    from gvnn_warp.kernels.core import cache
+    facts = {}
+    G.so3_exp(torch.zeros(2, 3))
+    facts["dynamo after the first call"] = 'torch._dynamo' in sys.modules
+    img = torch.rand(1, 1, 16, 16, requires_grad=True)
+    depth = torch.full((1, 1, 16, 16), 2.0, requires_grad=True)
+    K = torch.tensor([[20.0, 0, 7.5], [0, 20.0, 7.5], [0, 0, 1]])
+    G.warp_frame_depth(img, depth, torch.eye(4)[None], K)[0].sum().backward()
+    G.photometric_error(img, depth, img, torch.eye(4)[None], K)[0].backward()
+    DirectAligner(K.numpy()).align(img[0].detach().numpy(), depth[0].detach().numpy(), img[0].detach().numpy())
+    facts["lens after pinhole work"] = [any('lens' in e for e in cache.entries()), 'gvnn_warp.ops.lens' in sys.modules,
+                                        'project' in vars(lens)]
+    G.warp_frame_depth(img, depth, torch.eye(4)[None], G.RadTanCamera(K, torch.tensor([0.1, 0, 0, 0, 0])))
+    facts["lens after a distorted camera"] = 'geometry.lens_fronts()' in cache.entries()
+    print(json.dumps(facts))
+"""
+
+
+@pytest.fixture(scope="module")
+def fresh_process_facts():
+    """What a fresh process has imported and defined after a first op call, then pinhole work (a
+    pinhole warp_frame_depth fwd+bwd, photometric_error, a pinhole DirectAligner), then one distorted
+    camera (one process for the tests below: each pays torch's and the package's imports)."""
+    out = subprocess.run([sys.executable, "-c", FRESH_PROCESS], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_first_call_does_not_import_dynamo(fresh_process_facts):
     """The lazy __dynamo_disable is what torch calls: the first op call imports no torch._dynamo."""
-    code = (
-        "import sys, torch, gvnn_warp as G; G.so3_exp(torch.zeros(2, 3)); "
-        "print('torch._dynamo' in sys.modules)"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
-    assert out.stdout.strip().splitlines()[-1] == "False"
+    assert fresh_process_facts["dynamo after the first call"] is False
 
 
-def test_pinhole_work_does_not_define_the_lens_models():
+def test_pinhole_work_does_not_define_the_lens_models(fresh_process_facts):
     """The lens models' kernels cost seconds to define (Warp builds every custom adjoint's function
     then): import gvnn_warp, a pinhole warp_frame_depth fwd+bwd and a pinhole DirectAligner never
     define them; the first distorted camera does."""
-    code = """if True:
-        import sys, numpy as np, torch, gvnn_warp as G
-        from gvnn_warp.odometry import DirectAligner
-        from gvnn_warp.kernels import lens
-        from gvnn_warp.kernels.core import cache
-        img = torch.rand(1, 1, 16, 16, requires_grad=True)
-        depth = torch.full((1, 1, 16, 16), 2.0, requires_grad=True)
-        K = torch.tensor([[20.0, 0, 7.5], [0, 20.0, 7.5], [0, 0, 1]])
-        G.warp_frame_depth(img, depth, torch.eye(4)[None], K)[0].sum().backward()
-        G.photometric_error(img, depth, img, torch.eye(4)[None], K)[0].backward()
-        DirectAligner(K.numpy()).align(img[0].detach().numpy(), depth[0].detach().numpy(), img[0].detach().numpy())
-        lensed = (any('lens' in e for e in cache.entries()), 'gvnn_warp.ops.lens' in sys.modules,
-                  'project' in vars(lens))
-        G.warp_frame_depth(img, depth, torch.eye(4)[None], G.RadTanCamera(K, torch.tensor([0.1, 0, 0, 0, 0])))
-        print(lensed, 'geometry.lens_fronts()' in cache.entries())
-    """
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
-    assert out.stdout.strip().splitlines()[-1] == "(False, False, False) True", out.stdout
+    assert fresh_process_facts["lens after pinhole work"] == [False, False, False]
+    assert fresh_process_facts["lens after a distorted camera"] is True
 
 
 def test_torch_openmp_library():
