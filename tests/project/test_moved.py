@@ -3,6 +3,7 @@ as its new module, or, where the old module's names now live in several, as a mo
 each of their public names; old names reach the same objects as the new paths."""
 
 import importlib
+import json
 import subprocess
 import sys
 
@@ -47,23 +48,38 @@ def test_star_import_binds_the_front_and_no_subpackage_named_like_a_user_name():
     assert "nn" not in namespace and "vo" not in namespace  # `nn` would shadow torch.nn
 
 
-def test_submodule_of_a_replacing_package_loads_on_first_attribute_access():
-    # gk.photometric's __getattr__ serves the old module's names, but a submodule comes first
-    code = "import gvnn_warp.kernels as gk; print(gk.photometric.pipeline.__name__)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
-    assert out.stdout.strip() == "gvnn_warp.kernels.photometric.pipeline"
+FRESH_PROCESS = """if True:
+    import json, sys
+    import gvnn_warp as G
+    facts = {}
+    G.warp_frame_depth
+    others = ("functional.perpixel", "functional.photometric", "ops.perpixel", "ops.photometric", "nn.lie")
+    facts["loaded with warp_frame_depth"] = [m for m in others if f"gvnn_warp.{m}" in sys.modules]
+    facts["exports"] = ["PhotometricLoss" in G.__all__, "warp_frame_depth" in dir(G.functional)]
+    import gvnn_warp.kernels as gk
+    facts["submodule loaded before"] = "gvnn_warp.kernels.photometric.pipeline" in sys.modules
+    facts["submodule"] = gk.photometric.pipeline.__name__
+    print(json.dumps(facts))
+"""
 
 
-def test_a_public_name_loads_only_its_own_module():
+@pytest.fixture(scope="module")
+def fresh_process_facts():
+    """What a fresh process loads for one public name, then what a replacing package serves (one
+    process for both tests below)."""
+    out = subprocess.run([sys.executable, "-c", FRESH_PROCESS], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_a_public_name_loads_only_its_own_module(fresh_process_facts):
     # the front's packages serve their modules' names lazily (gvnn_warp/_exports.py): the 3D spatial
     # transformer does not load the per-pixel or photometric functions, nor their op registrations
-    code = """
-import sys
-import gvnn_warp as G
-G.warp_frame_depth
-others = ("functional.perpixel", "functional.photometric", "ops.perpixel", "ops.photometric", "nn.lie")
-loaded = [m for m in others if f"gvnn_warp.{m}" in sys.modules]
-print(loaded, "PhotometricLoss" in G.__all__, "warp_frame_depth" in dir(G.functional))
-"""
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
-    assert out.stdout.strip() == "[] True True", out.stdout
+    assert fresh_process_facts["loaded with warp_frame_depth"] == []
+    assert fresh_process_facts["exports"] == [True, True]
+
+
+def test_submodule_of_a_replacing_package_loads_on_first_attribute_access(fresh_process_facts):
+    # gk.photometric's __getattr__ serves the old module's names, but a submodule comes first
+    assert fresh_process_facts["submodule loaded before"] is False
+    assert fresh_process_facts["submodule"] == "gvnn_warp.kernels.photometric.pipeline"
