@@ -27,7 +27,10 @@ ATE and RPE are then those of the estimate after a similarity alignment (``evo_a
 voxels (``gvnn_warp.fusion``) whose marching-cubes mesh is written to ``OUT/mesh.ply`` with a
 picture of it from the first pose (``OUT/mesh.png``); with ``--model`` each frame is tracked
 against the model raycast at the previous pose instead of the previous frame, and integrated as it
-goes (KinectFusion's loop). It writes:
+goes (KinectFusion's loop). With ``--depth predicted`` too, the predicted depth is what is
+integrated, and ``--voxel`` and ``--truncation`` are in its units (the first frame's median depth
+is 1): the model averages the network's depth over the frames, which ``--model`` then tracks
+against (monocular dense tracking with learned depth). It writes:
 
 - ``OUT/trajectory.txt``: the estimate in the TUM format (``timestamp tx ty tz qx qy qz qw``,
   ``T_world_cam``), one pose per frame, starting at the ground truth's first pose (identity
@@ -237,8 +240,6 @@ def check_method(args: argparse.Namespace):
     voxel = getattr(args, "voxel", None) or FUSE_VOXEL
     if fusing and getattr(args, "truncation", None) is not None and args.truncation < voxel:
         raise UsageError(f"--truncation {args.truncation:g} is less than a voxel ({voxel:g} m)")
-    if fusing and getattr(args, "depth", "sensor") == "predicted":
-        raise UsageError("--fuse and --model integrate the sensor's depth: not with --depth predicted")
     if getattr(args, "depth", "sensor") == "predicted":
         if method != "direct":
             raise UsageError(f"--depth predicted tracks with --method direct only (this run is --method {method})")
@@ -297,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
         if args.model:
             from ..fusion.sequence import ModelTracker
 
-            tracker = ModelTracker(seq, aligner, volume)
+            tracker = ModelTracker(seq, aligner, volume, depth=predictor)
     # an image that cannot be read while tracking is one line naming it (and, past frame 1, where the
     # results of the frames before it were written), status 1: gvnn_warp.cli.runner prints InputErrors
     report = track_sequence(
@@ -308,14 +309,14 @@ def run(args: argparse.Namespace) -> int:
         interpolate_gt=getattr(args, "gt_interpolate", False), tracker=tracker, progress=not args.no_progress,
     )
     if volume is not None:
-        status = _fuse_and_mesh(args, seq, report, volume, tracker)
+        status = _fuse_and_mesh(args, seq, report, volume, tracker, predictor)
         if status:
             return status
     print(f"track {seq.root}:\n{_summary(report.rows)}\nwrote {args.out}")
     return 0
 
 
-def _fuse_and_mesh(args, seq, report, volume, tracker) -> int:
+def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
     """--fuse / --model after tracking: integrate (--fuse), then OUT/mesh.ply and OUT/mesh.png, and
     the fusion's numbers added to metrics.json and the summary. With --fuse, a map that outgrows
     --fuse-memory is one line, status 1 (the trajectory and metrics are written already); with
@@ -329,7 +330,7 @@ def _fuse_and_mesh(args, seq, report, volume, tracker) -> int:
 
     try:
         fused = tracker.fuse if tracker is not None else fuse_sequence(volume, seq, report.result.poses,
-                                                                       progress=not args.no_progress)
+                                                                       depth=predictor, progress=not args.no_progress)
     except MapFull as e:
         print(f"gvnn-warp track: error: {e} (--voxel, --fuse-memory); {args.out} holds the trajectory and metrics, "
               "not the mesh", file=sys.stderr)
@@ -344,14 +345,16 @@ def _fuse_and_mesh(args, seq, report, volume, tracker) -> int:
               "memory_mib": volume.memory_bytes / 2**20, "frames_integrated": fused.integrated,
               "frames_skipped": fused.skipped, "ms_per_frame_integrate": fused.ms_per_frame,
               "mesh_vertices": int(len(vertices)), "mesh_faces": int(len(faces)), "mesh_seconds": mesh_seconds,
-              "picture_coverage": seen}
+              "picture_coverage": seen,
+              "units": "metres" if predictor is None else "the predicted depth's (the first frame's median depth is 1)"}
     metrics_path = args.out / "metrics.json"
     metrics = json.loads(metrics_path.read_text())
     metrics["fusion"] = fusion
     if tracker is not None:
         metrics["ms_per_pair_note"] = "raycast of the model, alignment and integration; file reading excluded"
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
-    report.rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} m "
+    units = "m" if predictor is None else "(the predicted depth's units: the first frame's median depth is 1)"
+    report.rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} {units} "
                                   f"({volume.memory_bytes / 2**20:.0f} MiB), {fused.ms_per_frame:.1f} ms per frame to "
                                   "integrate"))
     if fused.skipped:

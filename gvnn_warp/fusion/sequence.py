@@ -8,6 +8,10 @@ against the model (what ``gvnn-warp track --fuse`` / ``--model`` run; no torch).
   every earlier frame, so the reference is less noisy than the previous frame and errors do not
   chain from frame to frame as they do in frame-to-frame odometry;
 - :func:`render_picture`: a PNG of the model raycast from a pose, its colour shaded by the normals.
+
+Both take each frame's depth from the sequence's depth files, or from ``depth``, a callable
+``image (3, H, W) RGB -> depth (1, H, W)`` (``gvnn_warp.depth.predict.DepthPredictor``: monocular
+depth, whose units are then the map's: voxel size and truncation are in them too).
 """
 
 from __future__ import annotations
@@ -51,18 +55,26 @@ class FuseReport:
         return 1000.0 * self.seconds / max(n, 1)
 
 
-def fuse_sequence(volume: TSDFVolume, seq: TUMSequence, poses: np.ndarray, *, progress: bool = True) -> FuseReport:
+def _frame(seq: TUMSequence, i: int, depth=None) -> tuple[np.ndarray, np.ndarray]:
+    """(colour (3, H, W), depth (1, H, W)) of frame ``i``: the depth file's, or ``depth(colour)``."""
+    rgb = seq.image(i)
+    return rgb, (seq.depth(i) if depth is None else depth(rgb))
+
+
+def fuse_sequence(volume: TSDFVolume, seq: TUMSequence, poses: np.ndarray, *, depth=None,
+                  progress: bool = True) -> FuseReport:
     """Integrate frames 0 .. len(poses) - 1 of ``seq`` at ``poses`` (N, 4, 4) ``T_world_cam``;
-    frames whose pose is not finite are skipped (reported), as are frames with no valid depth."""
+    frames whose pose is not finite are skipped (reported), as are frames with no valid depth.
+    ``depth``: see the module docstring."""
     report = FuseReport()
     camera = camera_of(seq)
     for i in progress_bar(range(len(poses)), desc="fuse", unit="frame", disable=not progress):
         if not np.all(np.isfinite(poses[i])):
             report.skipped.append(i)
             continue
-        depth, colour = seq.depth(i), seq.image(i)
+        colour, frame_depth = _frame(seq, i, depth)
         s = time.perf_counter()
-        r = volume.integrate(depth, colour, camera, poses[i])
+        r = volume.integrate(frame_depth, colour, camera, poses[i])
         report.add(i, r, time.perf_counter() - s)
     return report
 
@@ -73,10 +85,11 @@ class ModelTracker:
     at the end and ``fuse`` its integration statistics. ``aligner``: a ``DirectAligner`` for the
     sequence's camera (grey images); ``seconds`` per frame count the raycast, the alignment and the
     integration. A frame that cannot be read, or a map that outgrows the volume's memory, raises
-    ``TrackingStopped`` with the result of the frames before it."""
+    ``TrackingStopped`` with the result of the frames before it. ``depth``: see the module
+    docstring."""
 
-    def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume):
-        self.seq, self.aligner, self.volume = seq, aligner, volume
+    def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume, depth=None):
+        self.seq, self.aligner, self.volume, self.depth = seq, aligner, volume, depth
         self.fuse = FuseReport()
 
     def __call__(self, n: int, start_pose: np.ndarray, progress: bool = True) -> TrackResult:
@@ -91,7 +104,7 @@ class ModelTracker:
             return TrackResult(poses[:m].copy(), np.arange(-1, m - 1), converged[:m].copy(), finite[:m].copy(),
                                valid[:m].copy(), seconds[:m].copy(), list(range(max(m - 1, 1))), infos[:m])
 
-        rgb, depth = seq.image(0), seq.depth(0)
+        rgb, depth = _frame(seq, 0, self.depth)
         s = time.perf_counter()
         try:
             self.fuse.add(0, vol.integrate(depth, rgb, camera, start_pose), time.perf_counter() - s)
@@ -100,7 +113,7 @@ class ModelTracker:
         with progress_bar(total=n, initial=1, unit="frame", desc="track (model)", disable=not progress) as bar:
             for i in range(1, n):
                 try:  # (a frame that cannot be read, or a map beyond the memory given: the frames before it stand)
-                    rgb, depth = seq.image(i), seq.depth(i)
+                    rgb, depth = _frame(seq, i, self.depth)
                 except InputError as e:
                     raise TrackingStopped(i, result(i), e) from e
                 s = time.perf_counter()

@@ -257,6 +257,13 @@ def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, 
     assert metrics["settings"]["depth"] == "predicted" and metrics["ate_alignment"].startswith("Sim(3)")
     assert math.isfinite(metrics["ate_rmse_m"]) and metrics["alignment_scale"] > 0
     assert "Sim(3)-aligned" in capsys.readouterr().out
+    # against the model of the predicted depth (fused in its units)
+    assert main(["track", str(folders[0]), "--out", str(tmp_path / "model"), "--depth", "predicted", "--checkpoint",
+                 str(out / "checkpoint.pt"), "--model", "--voxel", "0.05", "--no-progress"]) == 0
+    metrics = json.loads((tmp_path / "model" / "metrics.json").read_text())
+    assert metrics["settings"]["mode"] == "frame-to-model" and metrics["settings"]["depth"] == "predicted"
+    assert metrics["fusion"]["frames_integrated"] == 5 and metrics["fusion"]["units"].startswith("the predicted")
+    assert "predicted depth's units" in capsys.readouterr().out and (tmp_path / "model" / "mesh.ply").exists()
     for argv, message in ((["--method", "vo"], "--method direct only"), ([], "needs --checkpoint"),
                           (["--depth-weight", "1"], "--depth-weight")):
         ck = [] if message == "needs --checkpoint" else ["--checkpoint", str(out / "checkpoint.pt")]

@@ -279,3 +279,46 @@ def test_fuse_sequence_skips_frames_without_a_pose_or_depth(tmp_path):
     vol = TSDFVolume(0.05, max_depth=10.0)
     report = fuse_sequence(vol, seq, poses, progress=False)
     assert report.skipped == [1] and report.integrated == 2 and vol.n_blocks > 0
+
+
+def test_model_tracking_with_a_depth_source_scales_with_its_units(tmp_path):
+    # a depth source (the CLI's --depth predicted passes the depth network) replaces the depth files
+    # in both the integration and the alignment: the same frames with every depth halved, tracked in
+    # a map of halved voxels, give the same rotations and halved translations (the depth files'
+    # depth in one of the two would break that)
+    from gvnn_warp.cli import main
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.fusion.sequence import ModelTracker, fuse_sequence
+    from gvnn_warp.odometry import DirectAligner
+
+    assert main(["render", "--out", str(tmp_path / "seq"), "--frames", "6", "--size", "96x72", "--seed", "4",
+                 "--no-progress"]) == 0
+    seq = read_tum(tmp_path / "seq")
+    frames = [seq.image(i) for i in range(len(seq))]
+    calls = []
+
+    def halved(rgb):  # (the frame found by its colour: a source sees only the image)
+        i = next(k for k, f in enumerate(frames) if np.array_equal(f, rgb))
+        calls.append(i)
+        return 0.5 * seq.depth(i)
+
+    runs = {}
+    for name, scale, depth in (("files", 1.0, None), ("halved", 0.5, halved)):
+        vol = TSDFVolume(0.02 * scale, max_depth=10.0)
+        tracker = ModelTracker(seq, DirectAligner(seq.K), vol, depth=depth)
+        runs[name] = tracker(len(seq), np.eye(4), progress=False).poses
+    assert calls == list(range(len(seq)))  # (each frame's depth asked for once)
+    files, halved_run = runs["files"], runs["halved"]
+    assert np.abs(files[-1][:3, 3]).max() > 0.02  # (the camera moved)
+    np.testing.assert_allclose(halved_run[:, :3, :3], files[:, :3, :3], atol=1e-4)
+    np.testing.assert_allclose(halved_run[:, :3, 3], 0.5 * files[:, :3, 3], atol=1e-4)
+    # fuse_sequence takes the source too: halved depth, halved poses' translations, halved voxels give
+    # the same TSDF (halving is exact in binary)
+    halved_poses = files.copy()
+    halved_poses[:, :3, 3] *= 0.5
+    vols = [TSDFVolume(0.02 * s, max_depth=10.0) for s in (1.0, 0.5)]
+    fuse_sequence(vols[0], seq, files, progress=False)
+    fuse_sequence(vols[1], seq, halved_poses, depth=halved, progress=False)
+    n = vols[0].n_blocks * 512
+    assert vols[1].n_blocks == vols[0].n_blocks > 0
+    assert np.array_equal(vols[1].tw.numpy()[:n], vols[0].tw.numpy()[:n])

@@ -469,7 +469,6 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys):
                           (["--model", "--keyframes"], "use one of --model, --keyframes"),
                           (["--fuse", "--model"], "not allowed with argument"),
                           (["--fuse", "--truncation", "0.001"], "less than a voxel"),
-                          (["--fuse", "--depth", "predicted"], "integrate the sensor's depth"),
                           (["--model", "--method", "vo"], "--model tracks with the direct aligner")):
         with pytest.raises(SystemExit) as e:
             main(["track", str(data), "--out", str(tmp_path / "o"), *argv])
