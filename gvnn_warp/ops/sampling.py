@@ -59,6 +59,25 @@ warp_frame_depth = warp_op(
     function="warp_frame_depth", layer="SpatialTransformer3D",
 )
 
+
+def _row_lanes_kernel(C, H, W, min_depth, padding):
+    if not sampling_kernels.fits_row_lanes(H, W):
+        raise ValueError(f"warp_frame_depth_lanes: needs W % 8 == 0 and H*W <= 2^24, got H={H}, W={W}")
+    return sampling_kernels.warp_frame_depth_lanes(C, padding)
+
+
+# the same values, 8 pixels of a row per thread (W % 8 == 0, H*W <= 2^24; SIMD arithmetic), a kernel
+# compiled per (C, padding); forward only: the backward is warp_frame_depth's
+warp_frame_depth_lanes = warp_op(
+    "warp_frame_depth_lanes", None, ["image", "depth", "pose", "K"],
+    [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"), Param("padding", "int")],
+    [Output("out", "vec8", lambda img, *_: tuple(img.shape)), _WARPED[1]],
+    lambda img, d, *_: d.numel() // sampling_kernels.sampler.LANES,
+    backward_from=warp_frame_depth, select=_row_lanes_kernel,
+    array_kinds={"image": "scalar", "depth": "vec8", "pose": "mat34", "K": "mat33", "out": "vec8"},
+    function="warp_frame_depth", layer="SpatialTransformer3D",  # its 8-lane forward fast path
+)
+
 # ----------------------------------------------------------------------------- through a lens model
 #
 # Their kernels take seconds to define (the lens models' custom adjoints): each registration gives a

@@ -15,7 +15,9 @@ registers before one write; :func:`.launch.launch` splits launches over threads 
 (see :meth:`.launch.FloatKernel.set_parallel`).
 :func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
 thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
-scalar); it gives the same values and shares the sampler's adjoint.
+scalar); it gives the same values and shares the sampler's adjoint. :func:`warp_frame_depth_lanes`
+does the same for the fused kernel's forward: 8 pixels of a row per thread, projected and sampled
+as vectors, bitwise :data:`warp_frame_depth`'s values, whose adjoint it shares.
 
 Through a lens model (radial-tangential, fisheye): :func:`pixel_rays_lens`, the pixel rays of a
 camera (:mod:`.geometry.lens.rays`), and :func:`warp_frame_depth_lens`, the twin of
@@ -191,6 +193,110 @@ warp_frame_depth = FloatKernel(
     scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
     grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
 )
+
+
+def fits_row_lanes(H: int, W: int) -> bool:
+    """Whether :func:`warp_frame_depth_lanes` applies: rows of whole 8-pixel blocks, and an H x W
+    plane's addresses exact as float32."""
+    return W % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
+
+
+@wp.func
+def usable_depth(d: Any, zmin: Any):
+    """``d`` where it is a usable depth (> zmin, < 1e30: not NaN or inf), else 1 (as the scalar
+    kernel replaces it before any arithmetic)."""
+    return wp.where(d > zmin and d < type(d)(1.0e30), d, type(d)(1.0))
+
+
+@wp.func
+def lane_flag(ok: bool, like: Any):
+    """1 where ``ok``, else 0, as the scalar type of ``like``."""
+    return wp.where(ok, type(like)(1.0), type(like)(0.0))
+
+
+@specialise("sampling.warp_frame_depth_lanes", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
+def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
+    """The forward of :data:`warp_frame_depth` with 8 pixels of a row per thread.
+
+    The same arguments; ``depth`` is read and ``out`` written as 8 lanes per element ("vec8"),
+    flat (b, y, block of 8 pixels) and (b, c, block); for :func:`fits_row_lanes` sizes. The
+    projection of the 8 pixels and the sampler's weights and tap addresses are length-8 vector
+    arithmetic (SIMD), the same operations in the same order as :func:`.camera.project_moved_ray`
+    and :func:`.sampler.sample_channels`, so the values and ``valid`` are bitwise those of
+    :data:`warp_frame_depth`, whose adjoint it shares (it has none of its own). Compiled for this
+    channel count (if at most ``sampler.UNROLLED_CHANNELS``; else read at run time: ``C`` None) and
+    ``padding`` (made on first use, one kernel per combination).
+    """
+    static_c = C or 0
+    static_padding = int(padding)
+
+    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
+    def _warp_frame_depth_lanes(
+        offset: int,
+        image: wp.array(dtype=Any),
+        depth: wp.array(dtype=Any),
+        pose: wp.array(dtype=Any),
+        K: wp.array(dtype=Any),
+        C: int,
+        H: int,
+        W: int,
+        min_depth: float,
+        padding: int,
+        out: wp.array(dtype=Any),
+        valid: wp.array(dtype=wp.bool),
+    ):
+        e = wp.tid() + offset  # flat (b, y, block of 8 pixels): depth[e] holds them
+        w8 = W // wp.static(sampler.LANES)
+        hw8 = H * w8
+        b = e // hw8
+        rest = e - b * hw8  # (y, block) in the batch item
+        py = rest // w8
+        px0 = (rest - py * w8) * wp.static(sampler.LANES)
+        Kb = K[b]
+        Tb = pose[b]
+        zmin = type(Kb[0, 0])(min_depth)
+        one = type(zmin)(1.0)
+        tol = type(zmin)(INSIDE_TOLERANCE)
+        umax = type(zmin)(W - 1) + tol
+        vmax = type(zmin)(H - 1) + tol
+        a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
+        t = lie.pose_translation(Tb)
+        d = depth[e]
+        # invalid depth (<= min, NaN, inf) replaced by 1 before any arithmetic, as the scalar kernel does
+        dd = type(d)(usable_depth(d[0], zmin), usable_depth(d[1], zmin), usable_depth(d[2], zmin),
+                     usable_depth(d[3], zmin), usable_depth(d[4], zmin), usable_depth(d[5], zmin),
+                     usable_depth(d[6], zmin), usable_depth(d[7], zmin))
+        fx0 = type(zmin)(px0)
+        x = type(d)(fx0, fx0 + one, fx0 + type(zmin)(2.0), fx0 + type(zmin)(3.0), fx0 + type(zmin)(4.0),
+                    fx0 + type(zmin)(5.0), fx0 + type(zmin)(6.0), fx0 + type(zmin)(7.0))
+        # camera.project_moved_ray on 8 lanes
+        q0 = wp.cw_mul(type(d)(a0[0]) + ax[0] * x, dd) + type(d)(t[0])
+        q1 = wp.cw_mul(type(d)(a0[1]) + ax[1] * x, dd) + type(d)(t[1])
+        q2 = wp.cw_mul(type(d)(a0[2]) + ax[2] * x, dd) + type(d)(t[2])
+        inv_z = wp.cw_div(type(d)(one), type(d)(
+            wp.where(q2[0] > zmin, q2[0], one), wp.where(q2[1] > zmin, q2[1], one),
+            wp.where(q2[2] > zmin, q2[2], one), wp.where(q2[3] > zmin, q2[3], one),
+            wp.where(q2[4] > zmin, q2[4], one), wp.where(q2[5] > zmin, q2[5], one),
+            wp.where(q2[6] > zmin, q2[6], one), wp.where(q2[7] > zmin, q2[7], one)))
+        xn = wp.cw_mul(q0, inv_z)
+        yn = wp.cw_mul(q1, inv_z)
+        u = Kb[0, 0] * xn + Kb[0, 1] * yn + type(d)(Kb[0, 2])
+        v = Kb[1, 1] * yn + type(d)(Kb[1, 2])
+        ok = type(d)()
+        first = e * wp.static(sampler.LANES)  # the first pixel's flat index
+        for k in range(wp.static(sampler.LANES)):
+            lane_ok = d[k] > zmin and d[k] < type(zmin)(1.0e30) and q2[k] > zmin
+            valid[first + k] = lane_ok and u[k] >= -tol and u[k] <= umax and v[k] >= -tol and v[k] <= vmax
+            ok[k] = lane_flag(lane_ok, zmin)
+        xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
+        nc = C
+        if wp.static(static_c > 0):
+            nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
+        sampler.sample_lanes(image, out, b * nc * H * W, b * nc * hw8 + rest, nc, H * W, hw8, H, W, xs, ys,
+                             wp.cw_mul(inside, ok))
+
+    return FloatKernel(_warp_frame_depth_lanes, image="scalar", depth="vec8", pose="mat34", K="mat33",
+                       out="vec8").set_parallel(grain=_GRAIN_PIXELS // sampler.LANES)
 
 
 # ----------------------------------------------------------------------------- through a lens model

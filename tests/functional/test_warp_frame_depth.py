@@ -209,3 +209,46 @@ def test_each_class_of_pixel_value_gradient_and_valid(padding_mode):
             torch.testing.assert_close(a.grad, b.grad, msg=name)
         if name == "outside" and padding_mode == "zeros":
             assert ours[0].grad.abs().sum() > 0 and ours[2].grad.abs().sum() > 0  # a loss here moves the pose
+
+
+def _bits(t):
+    return t.view(torch.int32 if t.dtype == torch.float32 else torch.int64)
+
+
+@pytest.mark.parametrize("C", [1, 4, 6])  # 4 = the channels the kernels unroll; 6: more
+@pytest.mark.parametrize("padding", [0, 1])
+@pytest.mark.parametrize("motion", ["identity", "small", "large"])
+def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
+    """The 8-pixels-a-thread forward kernel gives bitwise the values and ``valid`` of the
+    row kernel (whose adjoint it shares): inside, outside and on the edges of the image (the identity
+    pose puts the last column and row exactly there), behind the camera, for invalid depths (0,
+    negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels and a skewed K."""
+    from gvnn_warp.ops import sampling as _ops
+
+    B, H, W = 2, 6, 16
+    image, depth, pose, _ = scene(B=B, C=C, H=H, W=W, motion={"identity": 0.0, "small": 0.05, "large": 0.6}[motion],
+                                  seed=C, dtype=dtype)
+    if motion == "large":
+        pose[1, 2, 3] = -2.5  # (most of item 1's points behind the camera)
+    image[0, 0, 0, 0], image[1, -1, 2, 3] = float("nan"), float("inf")
+    depth[0, 0, 1, :7] = torch.tensor([0.0, -1.0, float("nan"), float("inf"), 1e-3, 1.0001e-3, 2e30], dtype=dtype)
+    K = torch.tensor([[14.0, 0.4, 7.5], [0, 12.0, 2.5], [0, 0, 1]], dtype=dtype).expand(B, 3, 3).contiguous()
+    args = (C, H, W, 1e-3, padding)
+    pose34 = pose[:, :3].contiguous()
+    lanes = _ops.warp_frame_depth_lanes(image, depth, pose34, K, *args)
+    scalar = _ops.warp_frame_depth(image, depth, pose34, K, *args)
+    assert torch.equal(_bits(lanes[0]), _bits(scalar[0])) and torch.equal(lanes[1], scalar[1])
+    if motion == "identity":
+        assert scalar[1][1].all()  # (every pixel, the last row and column included, valid)
+
+
+def test_warp_frame_depth_takes_the_lanes_kernel_where_rows_allow(monkeypatch):
+    from gvnn_warp.ops import sampling as _ops
+
+    calls = []
+    lanes = _ops.warp_frame_depth_lanes
+    monkeypatch.setattr(_ops, "warp_frame_depth_lanes", lambda *a: calls.append(a) or lanes(*a))
+    for W, expected in ((12, 0), (16, 1)):
+        image, depth, pose, K = scene(W=W)
+        G.warp_frame_depth(image, depth, pose, K)
+        assert len(calls) == expected

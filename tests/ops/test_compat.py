@@ -292,5 +292,6 @@ def test_lanes_compiler_flags_lift_warps_slp_depth_cap():
     # every 8-lane kernel family compiles with them
     for fk in (pek.error_lanes(0, 3, 320), nel.normal_equations_lanes(False, False, 1, 2, 320),
                nel.normal_equations_lanes_kernel(True, True, None, None, None),
-               sk.bilinear_sample_lanes(3, 0, 0), pyramid.level0_lanes_kernel(3), pyramid.downsample_lanes_kernel(1)):
+               sk.bilinear_sample_lanes(3, 0, 0), sk.warp_frame_depth_lanes(3, 0), pyramid.level0_lanes_kernel(3),
+               pyramid.downsample_lanes_kernel(1)):
         assert fk.kernel.module.options["cpu_compiler_flags"] == flags, fk
