@@ -158,9 +158,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                       help="track each frame against the raycast of the TSDF so far (frame-to-model), integrating "
                            "as it goes; writes the mesh as --fuse does")
     p.add_argument("--voxel", type=finite_float(0.001, 1.0, "m"), default=None, metavar="M",
-                   help=f"with --fuse/--model: voxel size, metres (default {FUSE_VOXEL:g})")
+                   help=f"with --fuse/--model: voxel size, metres (with --depth predicted in its units) "
+                        f"(default {FUSE_VOXEL:g})")
     p.add_argument("--truncation", type=positive_float, default=None, metavar="M",
-                   help="with --fuse/--model: truncation of the signed distance, metres (default 4 voxels)")
+                   help="with --fuse/--model: truncation of the signed distance, metres (with --depth predicted in "
+                        "its units) (default 4 voxels)")
     p.add_argument("--fuse-memory", type=positive_float, default=None, metavar="MB",
                    help=f"with --fuse/--model: the most memory the voxels may take (default {FUSE_MEMORY_MB:g} MiB)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -239,7 +241,7 @@ def check_method(args: argparse.Namespace):
                              "not with --color or --init velocity")
     voxel = getattr(args, "voxel", None) or FUSE_VOXEL
     if fusing and getattr(args, "truncation", None) is not None and args.truncation < voxel:
-        raise UsageError(f"--truncation {args.truncation:g} is less than a voxel ({voxel:g} m)")
+        raise UsageError(f"--truncation {args.truncation:g} is less than a voxel ({voxel:g})")
     if getattr(args, "depth", "sensor") == "predicted":
         if method != "direct":
             raise UsageError(f"--depth predicted tracks with --method direct only (this run is --method {method})")
@@ -346,12 +348,14 @@ def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
               "frames_skipped": fused.skipped, "ms_per_frame_integrate": fused.ms_per_frame,
               "mesh_vertices": int(len(vertices)), "mesh_faces": int(len(faces)), "mesh_seconds": mesh_seconds,
               "picture_coverage": seen,
-              "units": "metres" if predictor is None else "the predicted depth's (the first frame's median depth is 1)"}
+              "units": "metres" if predictor is None else ("the predicted depth's (the first frame's median depth "
+                                                           "is 1): voxel_m and truncation_m are in them")}
     metrics_path = args.out / "metrics.json"
     metrics = json.loads(metrics_path.read_text())
     metrics["fusion"] = fusion
     if tracker is not None:
-        metrics["ms_per_pair_note"] = "raycast of the model, alignment and integration; file reading excluded"
+        metrics["ms_per_pair_note"] = ("raycast of the model, alignment and integration; file reading"
+                                       + (" excluded" if predictor is None else " and depth prediction excluded"))
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     units = "m" if predictor is None else "(the predicted depth's units: the first frame's median depth is 1)"
     report.rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} {units} "
@@ -365,7 +369,8 @@ def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
                                     "mesh.ply, mesh.png (from the first pose)"))
     else:
         report.rows.append(("warning", "the mesh is empty: no surface was seen twice within the depth range "
-                                       "(check --depth-scale and the depth images)"))
+                                       + ("(check --depth-scale and the depth images)" if predictor is None else
+                                          "(check the depth network's predictions)")))
     return 0
 
 

@@ -20,9 +20,9 @@ def setup() -> tuple[int, int]:
     the caller made one."""
     global _OWN_GROUP
     world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
+    _OWN_GROUP = world > 1 and not dist.is_initialized()  # (joining a caller's group: never ours to tear down)
+    if _OWN_GROUP:
         dist.init_process_group("gloo")
-        _OWN_GROUP = True
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1

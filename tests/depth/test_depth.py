@@ -3,11 +3,13 @@ video triplets, and short runs of training, resuming and evaluation (the command
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from gvnn_warp.cli import main
 from gvnn_warp.datasets.tum import read_tum
@@ -257,13 +259,21 @@ def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, 
     assert metrics["settings"]["depth"] == "predicted" and metrics["ate_alignment"].startswith("Sim(3)")
     assert math.isfinite(metrics["ate_rmse_m"]) and metrics["alignment_scale"] > 0
     assert "Sim(3)-aligned" in capsys.readouterr().out
-    # against the model of the predicted depth (fused in its units)
-    assert main(["track", str(folders[0]), "--out", str(tmp_path / "model"), "--depth", "predicted", "--checkpoint",
-                 str(out / "checkpoint.pt"), "--model", "--voxel", "0.05", "--no-progress"]) == 0
-    metrics = json.loads((tmp_path / "model" / "metrics.json").read_text())
-    assert metrics["settings"]["mode"] == "frame-to-model" and metrics["settings"]["depth"] == "predicted"
-    assert metrics["fusion"]["frames_integrated"] == 5 and metrics["fusion"]["units"].startswith("the predicted")
-    assert "predicted depth's units" in capsys.readouterr().out and (tmp_path / "model" / "mesh.ply").exists()
+    # fused in its units, against the model of the predicted depth (--model) or after tracking (--fuse): on
+    # a copy of the folder whose depth files hold no valid depth, so every frame integrated is predicted
+    blank = tmp_path / "blank"
+    shutil.copytree(folders[0], blank)
+    for png in (blank / "depth").glob("*.png"):
+        Image.fromarray(np.zeros((64, 96), np.uint16)).save(png)
+    for mode in ("--model", "--fuse"):
+        res = tmp_path / mode.strip("-")
+        assert main(["track", str(blank), "--out", str(res), "--depth", "predicted", "--checkpoint",
+                     str(out / "checkpoint.pt"), mode, "--voxel", "0.05", "--no-progress"]) == 0
+        metrics = json.loads((res / "metrics.json").read_text())
+        assert metrics["settings"]["depth"] == "predicted" and metrics["fusion"]["frames_skipped"] == []
+        assert metrics["fusion"]["frames_integrated"] == 5 and metrics["fusion"]["units"].startswith("the predicted")
+        assert "predicted depth's units" in capsys.readouterr().out and (res / "mesh.ply").exists()
+    assert metrics["settings"]["mode"] == "frame-to-frame"  # (--fuse: tracked first, then fused)
     for argv, message in ((["--method", "vo"], "--method direct only"), ([], "needs --checkpoint"),
                           (["--depth-weight", "1"], "--depth-weight")):
         ck = [] if message == "needs --checkpoint" else ["--checkpoint", str(out / "checkpoint.pt")]

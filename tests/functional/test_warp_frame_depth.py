@@ -222,7 +222,8 @@ def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
     """The 8-pixels-a-thread forward kernel gives bitwise the values and ``valid`` of the
     row kernel (whose adjoint it shares): inside, outside and on the edges of the image (the identity
     pose puts the last column and row exactly there), behind the camera, for invalid depths (0,
-    negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels and a skewed K."""
+    negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels, a skewed K and another
+    K for the second batch item."""
     from gvnn_warp.ops import sampling as _ops
 
     B, H, W = 2, 6, 16
@@ -232,7 +233,8 @@ def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
         pose[1, 2, 3] = -2.5  # (most of item 1's points behind the camera)
     image[0, 0, 0, 0], image[1, -1, 2, 3] = float("nan"), float("inf")
     depth[0, 0, 1, :7] = torch.tensor([0.0, -1.0, float("nan"), float("inf"), 1e-3, 1.0001e-3, 2e30], dtype=dtype)
-    K = torch.tensor([[14.0, 0.4, 7.5], [0, 12.0, 2.5], [0, 0, 1]], dtype=dtype).expand(B, 3, 3).contiguous()
+    K = torch.tensor([[[14.0, 0.4, 7.5], [0, 12.0, 2.5], [0, 0, 1]],  # (each item its own K)
+                      [[16.0, 0.0, 8.0], [0, 13.0, 3.0], [0, 0, 1]]], dtype=dtype)
     args = (C, H, W, 1e-3, padding)
     pose34 = pose[:, :3].contiguous()
     lanes = _ops.warp_frame_depth_lanes(image, depth, pose34, K, *args)
