@@ -110,6 +110,21 @@ def affine_grid(B: int, H: int, W: int, dtype=torch.float32, seed: int = 1) -> t
     return torch.nn.functional.affine_grid(theta, (B, 1, H, W), align_corners=False).contiguous()
 
 
+def projected_grid(depth: torch.Tensor, pose: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """The sample positions of ``warp_frame_depth(image, depth, pose, K)`` as a ``grid_sample`` grid
+    (align_corners=True), computed in plain torch: every pixel unprojected with its depth, moved by
+    the pose (B, 3, 4), projected by K (B, 3, 3). For comparing the sampling step alone at the
+    same positions (the same memory access pattern)."""
+    B, _, H, W = depth.shape
+    with torch.no_grad():
+        ys, xs = torch.meshgrid(torch.arange(H, dtype=depth.dtype), torch.arange(W, dtype=depth.dtype), indexing="ij")
+        pixels = torch.stack([xs, ys, torch.ones_like(xs)]).reshape(1, 3, H * W)
+        points = (torch.linalg.inv(K) @ pixels) * depth.reshape(B, 1, H * W)
+        q = K @ (pose[:, :, :3] @ points + pose[:, :, 3:])
+        u, v = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+        return torch.stack([2 * u / (W - 1) - 1, 2 * v / (H - 1) - 1], -1).reshape(B, H, W, 2).contiguous()
+
+
 def random_grid(B: int, H: int, W: int, dtype=torch.float32, seed: int = 2) -> torch.Tensor:
     """Uniformly random sample positions in [-1.1, 1.1]^2: every sample a cache miss (worst case)."""
     g = torch.Generator().manual_seed(seed)

@@ -40,6 +40,7 @@ from benchmarks.common import (  # noqa: E402
     interleaved,
     leaves,
     machine,
+    projected_grid,
     random_grid,
     wfd_scene,
 )
@@ -86,6 +87,11 @@ def wfd_cases(B, C, H, W, forward_only=False, peers=("grid_sample", "kornia"), i
         cases.append(
             Case("grid_sample", lambda: F.grid_sample(*gs, align_corners=True).sum().backward(), clear_grads(gs))
         )
+    if "grid_sample_projected" in peers:  # the sampling step alone, at our own sample positions
+        same = leaves(image, projected_grid(depth, pose, K)) if image_grad else [image, *leaves(projected_grid(
+            depth, pose, K))]
+        cases.append(Case("grid_sample_projected", lambda: F.grid_sample(*same, align_corners=True).sum().backward(),
+                          clear_grads(same)))
     if "kornia" in peers:
         cases.append(
             Case(
@@ -226,6 +232,14 @@ def targets(args, R: int) -> list[dict]:
         res["kornia"])
     res_f = interleaved(wfd_cases(B, C, H, W, forward_only=True), R)
     row(1, "warp_frame_depth forward vs kornia forward", res_f["ours"], "kornia", res_f["kornia"])
+    for b, h, w in ((B, H, W), (4, 192, 640)):  # (and at Monodepth2's size, the training objective's)
+        res = interleaved(wfd_cases(b, C, h, w, peers=("grid_sample", "grid_sample_projected")), R)
+        size = f"B={b} {h}x{w}"
+        row(1, f"warp_frame_depth fwd+bwd vs grid_sample fwd+bwd at its own sample positions, {size}", res["ours"],
+            "grid_sample", res["grid_sample_projected"], note="the same memory access pattern; grads: image and grid")
+        if (b, h, w) != (B, H, W):
+            row(1, f"warp_frame_depth fwd+bwd vs grid_sample fwd+bwd (affine grid), {size}", res["ours"],
+                "grid_sample", res["grid_sample"])
 
     res = interleaved(bilinear_cases(B, C, H, W), R)
     row(2, "bilinear_sample fwd+bwd vs grid_sample fwd+bwd", res["ours"], "grid_sample", res["grid_sample"], 1.5,
