@@ -363,6 +363,23 @@ def test_openmp_can_be_turned_off_by_env_var(backend):
     assert _run(code, GVNN_WARP_OPENMP="0") == "python"
 
 
+def _child_status(pid: int, seconds: float) -> int | None:
+    """The exit status of forked child ``pid``, or None (the child killed) if it has not ended within
+    ``seconds`` (a hang)."""
+    import time
+
+    deadline = time.monotonic() + seconds
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return os.waitstatus_to_exitcode(status)
+        if time.monotonic() > deadline:
+            os.kill(pid, 9)
+            os.waitpid(pid, 0)
+            return None
+        time.sleep(0.02)
+
+
 @once
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 def test_forked_child_runs_threaded_launches(backend):
@@ -370,8 +387,6 @@ def test_forked_child_runs_threaded_launches(backend):
     give the parent's results. (torch's own parallel ops hang in such a child unless it sets
     torch.set_num_threads(1) first, as DataLoader workers do; so does this child.) Forked from the
     test's process, whose OpenMP team has run launches before (here, the parent's)."""
-    import time
-
     L.set_num_threads(2)
     omega = torch.randn(200_000, 3, generator=torch.Generator().manual_seed(0))
     parent = G.so3_exp(omega)
@@ -383,16 +398,7 @@ def test_forked_child_runs_threaded_launches(backend):
             code = 0 if torch.equal(G.so3_exp(omega), parent) and L.get_num_threads() == 2 else 3
         finally:
             os._exit(code)
-    deadline = time.monotonic() + 60
-    while True:
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done or time.monotonic() > deadline:
-            break
-        time.sleep(0.02)
-    if not done:
-        os.kill(pid, 9)
-        os.waitpid(pid, 0)
-    assert done and os.waitstatus_to_exitcode(status) == 0
+    assert _child_status(pid, 60) == 0
 
 
 @wp.kernel
@@ -581,7 +587,6 @@ def test_first_uses_of_many_kernels_from_several_threads_at_once_load_under_the_
 def test_a_fork_while_another_thread_loads_a_kernel_does_not_hang_the_child():
     # the child of a fork made while another thread held the first-launch lock gets a new lock
     import threading
-    import time
 
     holding, release = threading.Event(), threading.Event()
 
@@ -598,13 +603,8 @@ def test_a_fork_while_another_thread_loads_a_kernel_does_not_hang_the_child():
         if pid == 0:  # the child: the lock must be free
             ok = L._FIRST_LAUNCH_LOCK.acquire(timeout=5)
             os._exit(0 if ok else 1)
-        deadline = time.monotonic() + 30
-        while True:
-            done, status = os.waitpid(pid, os.WNOHANG)
-            if done or time.monotonic() > deadline:
-                break
-            time.sleep(0.05)
+        status = _child_status(pid, 30)
     finally:
         release.set()
         t.join()
-    assert done and os.waitstatus_to_exitcode(status) == 0
+    assert status == 0
