@@ -88,8 +88,8 @@ def wfd_cases(B, C, H, W, forward_only=False, peers=("grid_sample", "kornia"), i
             Case("grid_sample", lambda: F.grid_sample(*gs, align_corners=True).sum().backward(), clear_grads(gs))
         )
     if "grid_sample_projected" in peers:  # the sampling step alone, at our own sample positions
-        same = leaves(image, projected_grid(depth, pose, K)) if image_grad else [image, *leaves(projected_grid(
-            depth, pose, K))]
+        projected = projected_grid(depth, pose, K)
+        same = leaves(image, projected) if image_grad else [image, *leaves(projected)]
         cases.append(Case("grid_sample_projected", lambda: F.grid_sample(*same, align_corners=True).sum().backward(),
                           clear_grads(same)))
     if "kornia" in peers:

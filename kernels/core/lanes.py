@@ -87,15 +87,17 @@ def at_least(v: Any, lo: Any):
 
 
 @wp.func
+def above8(v: Any, lo: Any):
+    """1 where v > lo (NaN: 0), per lane (a select per lane, no ``and``: see :func:`open_mask8`)."""
+    return wp.vector(above(v[0], lo), above(v[1], lo), above(v[2], lo), above(v[3], lo),
+                     above(v[4], lo), above(v[5], lo), above(v[6], lo), above(v[7], lo))
+
+
+@wp.func
 def open_mask8(v: Any, lo: Any, hi: Any):
     """1 where lo < v < hi (NaN: 0), per lane. Products of per-lane selects, no ``and``: Warp
     turns ``and`` into branches, which LLVM does not vectorise."""
-    return wp.cw_mul(
-        wp.vector(above(v[0], lo), above(v[1], lo), above(v[2], lo), above(v[3], lo),
-                  above(v[4], lo), above(v[5], lo), above(v[6], lo), above(v[7], lo)),
-        wp.vector(above(-v[0], -hi), above(-v[1], -hi), above(-v[2], -hi), above(-v[3], -hi),
-                  above(-v[4], -hi), above(-v[5], -hi), above(-v[6], -hi), above(-v[7], -hi)),
-    )
+    return wp.cw_mul(above8(v, lo), above8(-v, -hi))
 
 
 @wp.func

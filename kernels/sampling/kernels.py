@@ -30,6 +30,7 @@ from typing import Any
 
 import warp as wp
 
+from ..core import lanes
 from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
@@ -201,19 +202,6 @@ def fits_row_lanes(H: int, W: int) -> bool:
     return W % sampler.LANES == 0 and H * W <= sampler.MAX_LANES_PLANE
 
 
-@wp.func
-def usable_depth(d: Any, zmin: Any):
-    """``d`` where it is a usable depth (> zmin, < 1e30: not NaN or inf), else 1 (as the scalar
-    kernel replaces it before any arithmetic)."""
-    return wp.where(d > zmin and d < type(d)(1.0e30), d, type(d)(1.0))
-
-
-@wp.func
-def lane_flag(ok: bool, like: Any):
-    """1 where ``ok``, else 0, as the scalar type of ``like``."""
-    return wp.where(ok, type(like)(1.0), type(like)(0.0))
-
-
 @specialise("sampling.warp_frame_depth_lanes", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
 def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
     """The forward of :data:`warp_frame_depth` with 8 pixels of a row per thread.
@@ -263,31 +251,24 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         t = lie.pose_translation(Tb)
         d = depth[e]
         # invalid depth (<= min, NaN, inf) replaced by 1 before any arithmetic, as the scalar kernel does
-        dd = type(d)(usable_depth(d[0], zmin), usable_depth(d[1], zmin), usable_depth(d[2], zmin),
-                     usable_depth(d[3], zmin), usable_depth(d[4], zmin), usable_depth(d[5], zmin),
-                     usable_depth(d[6], zmin), usable_depth(d[7], zmin))
-        fx0 = type(zmin)(px0)
-        x = type(d)(fx0, fx0 + one, fx0 + type(zmin)(2.0), fx0 + type(zmin)(3.0), fx0 + type(zmin)(4.0),
-                    fx0 + type(zmin)(5.0), fx0 + type(zmin)(6.0), fx0 + type(zmin)(7.0))
+        usable = lanes.open_mask8(d, zmin, type(zmin)(1.0e30))
+        dd = lanes.select8(usable, d, lanes.splat8(one))
+        x = lanes.iota8(px0, one)
         # camera.project_moved_ray on 8 lanes
-        q0 = wp.cw_mul(type(d)(a0[0]) + ax[0] * x, dd) + type(d)(t[0])
-        q1 = wp.cw_mul(type(d)(a0[1]) + ax[1] * x, dd) + type(d)(t[1])
-        q2 = wp.cw_mul(type(d)(a0[2]) + ax[2] * x, dd) + type(d)(t[2])
-        inv_z = wp.cw_div(type(d)(one), type(d)(
-            wp.where(q2[0] > zmin, q2[0], one), wp.where(q2[1] > zmin, q2[1], one),
-            wp.where(q2[2] > zmin, q2[2], one), wp.where(q2[3] > zmin, q2[3], one),
-            wp.where(q2[4] > zmin, q2[4], one), wp.where(q2[5] > zmin, q2[5], one),
-            wp.where(q2[6] > zmin, q2[6], one), wp.where(q2[7] > zmin, q2[7], one)))
+        q0 = wp.cw_mul(lanes.splat8(a0[0]) + ax[0] * x, dd) + lanes.splat8(t[0])
+        q1 = wp.cw_mul(lanes.splat8(a0[1]) + ax[1] * x, dd) + lanes.splat8(t[1])
+        q2 = wp.cw_mul(lanes.splat8(a0[2]) + ax[2] * x, dd) + lanes.splat8(t[2])
+        front = lanes.above8(q2, zmin)
+        inv_z = wp.cw_div(lanes.splat8(one), lanes.select8(front, q2, lanes.splat8(one)))
         xn = wp.cw_mul(q0, inv_z)
         yn = wp.cw_mul(q1, inv_z)
-        u = Kb[0, 0] * xn + Kb[0, 1] * yn + type(d)(Kb[0, 2])
-        v = Kb[1, 1] * yn + type(d)(Kb[1, 2])
-        ok = type(d)()
+        u = Kb[0, 0] * xn + Kb[0, 1] * yn + lanes.splat8(Kb[0, 2])
+        v = Kb[1, 1] * yn + lanes.splat8(Kb[1, 2])
+        ok = wp.cw_mul(usable, front)
+        flags = wp.cw_mul(ok, wp.cw_mul(lanes.closed_mask8(u, -tol, umax), lanes.closed_mask8(v, -tol, vmax)))
         first = e * wp.static(sampler.LANES)  # the first pixel's flat index
         for k in range(wp.static(sampler.LANES)):
-            lane_ok = d[k] > zmin and d[k] < type(zmin)(1.0e30) and q2[k] > zmin
-            valid[first + k] = lane_ok and u[k] >= -tol and u[k] <= umax and v[k] >= -tol and v[k] <= vmax
-            ok[k] = lane_flag(lane_ok, zmin)
+            valid[first + k] = flags[k] != type(zmin)(0.0)
         xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
         nc = C
         if wp.static(static_c > 0):
