@@ -108,7 +108,7 @@ def warp_frame_depth(
     pad = _PADDING[chk.option("padding_mode", padding_mode, tuple(_PADDING))]
     min_depth = chk.positive("min_depth", min_depth)
     _, C, H, W = image.shape
-    if cam.model == 0:  # the pinhole: its own kernel (the row-linear fast path; 8 pixels a thread where rows allow)
+    if cam.model == 0:  # the pinhole: its own kernel (the row-linear fast path; 8 pixels at a time where rows allow)
         op = _ops.warp_frame_depth_lanes if sampling_kernels.fits_row_lanes(H, W) else _ops.warp_frame_depth
         return op(image.contiguous(), depth.contiguous(), pose34.contiguous(), cam.K, C, H, W, min_depth, pad)
     rays, stride = cam.rays(H, W)

@@ -72,8 +72,7 @@ warp_frame_depth_lanes = warp_op(
     "warp_frame_depth_lanes", None, ["image", "depth", "pose", "K"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"), Param("padding", "int")],
     [Output("out", "vec8", lambda img, *_: tuple(img.shape)), _WARPED[1]],
-    lambda img, d, *_: d.numel() // sampling_kernels.sampler.LANES,
-    backward_from=warp_frame_depth, select=_row_lanes_kernel,
+    _image_rows, backward_from=warp_frame_depth, select=_row_lanes_kernel,
     array_kinds={"image": "scalar", "depth": "vec8", "pose": "mat34", "K": "mat33", "out": "vec8"},
     function="warp_frame_depth", layer="SpatialTransformer3D",  # its 8-lane forward fast path
 )

@@ -16,8 +16,8 @@ registers before one write; :func:`.launch.launch` splits launches over threads 
 :func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
 thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
 scalar); it gives the same values and shares the sampler's adjoint. :func:`warp_frame_depth_lanes`
-does the same for the fused kernel's forward: 8 pixels of a row per thread, projected and sampled
-as vectors, bitwise :data:`warp_frame_depth`'s values, whose adjoint it shares.
+does the same for the fused kernel's forward: one thread per row, whose pixels are projected and
+sampled 8 at a time as vectors, bitwise :data:`warp_frame_depth`'s values, whose adjoint it shares.
 
 Through a lens model (radial-tangential, fisheye): :func:`pixel_rays_lens`, the pixel rays of a
 camera (:mod:`.geometry.lens.rays`), and :func:`warp_frame_depth_lens`, the twin of
@@ -204,16 +204,17 @@ def fits_row_lanes(H: int, W: int) -> bool:
 
 @specialise("sampling.warp_frame_depth_lanes", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
 def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
-    """The forward of :data:`warp_frame_depth` with 8 pixels of a row per thread.
+    """The forward of :data:`warp_frame_depth` with the pixels of a row taken 8 at a time.
 
-    The same arguments; ``depth`` is read and ``out`` written as 8 lanes per element ("vec8"),
-    flat (b, y, block of 8 pixels) and (b, c, block); for :func:`fits_row_lanes` sizes. The
-    projection of the 8 pixels and the sampler's weights and tap addresses are length-8 vector
-    arithmetic (SIMD), the same operations in the same order as :func:`.camera.project_moved_ray`
-    and :func:`.sampler.sample_channels`, so the values and ``valid`` are bitwise those of
-    :data:`warp_frame_depth`, whose adjoint it shares (it has none of its own). Compiled for this
-    channel count (if at most ``sampler.UNROLLED_CHANNELS``; else read at run time: ``C`` None) and
-    ``padding`` (made on first use, one kernel per combination).
+    The same arguments and launch (one thread per row, B * H elements); ``depth`` is read and
+    ``out`` written as 8 lanes per element ("vec8"), flat (b, y, block of 8 pixels) and (b, c,
+    block); for :func:`fits_row_lanes` sizes. The projection of a block's 8 pixels and the
+    sampler's weights and tap addresses are length-8 vector arithmetic (SIMD), the same operations
+    in the same order as :func:`.camera.project_moved_ray` and :func:`.sampler.sample_channels`, so
+    the values and ``valid`` are bitwise those of :data:`warp_frame_depth`, whose adjoint it shares
+    (it has none of its own). Compiled for this channel count (if at most
+    ``sampler.UNROLLED_CHANNELS``; else read at run time: ``C`` None) and ``padding`` (made on
+    first use, one kernel per combination).
     """
     static_c = C or 0
     static_padding = int(padding)
@@ -233,13 +234,13 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         out: wp.array(dtype=Any),
         valid: wp.array(dtype=wp.bool),
     ):
-        e = wp.tid() + offset  # flat (b, y, block of 8 pixels): depth[e] holds them
+        # One thread per image row, as the row kernel (per-row work once; a thread per block of 8
+        # pixels was 1.6-2x slower: Warp's per-element entry costs as much as a block's work)
+        r = wp.tid() + offset  # flat (b, y)
+        b = r // H
+        py = r - b * H
         w8 = W // wp.static(sampler.LANES)
         hw8 = H * w8
-        b = e // hw8
-        rest = e - b * hw8  # (y, block) in the batch item
-        py = rest // w8
-        px0 = (rest - py * w8) * wp.static(sampler.LANES)
         Kb = K[b]
         Tb = pose[b]
         zmin = type(Kb[0, 0])(min_depth)
@@ -249,35 +250,37 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         vmax = type(zmin)(H - 1) + tol
         a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
         t = lie.pose_translation(Tb)
-        d = depth[e]
-        # invalid depth (<= min, NaN, inf) replaced by 1 before any arithmetic, as the scalar kernel does
-        usable = lanes.open_mask8(d, zmin, type(zmin)(1.0e30))
-        dd = lanes.select8(usable, d, lanes.splat8(one))
-        x = lanes.iota8(px0, one)
-        # camera.project_moved_ray on 8 lanes
-        q0 = wp.cw_mul(lanes.splat8(a0[0]) + ax[0] * x, dd) + lanes.splat8(t[0])
-        q1 = wp.cw_mul(lanes.splat8(a0[1]) + ax[1] * x, dd) + lanes.splat8(t[1])
-        q2 = wp.cw_mul(lanes.splat8(a0[2]) + ax[2] * x, dd) + lanes.splat8(t[2])
-        front = lanes.above8(q2, zmin)
-        inv_z = wp.cw_div(lanes.splat8(one), lanes.select8(front, q2, lanes.splat8(one)))
-        xn = wp.cw_mul(q0, inv_z)
-        yn = wp.cw_mul(q1, inv_z)
-        u = Kb[0, 0] * xn + Kb[0, 1] * yn + lanes.splat8(Kb[0, 2])
-        v = Kb[1, 1] * yn + lanes.splat8(Kb[1, 2])
-        ok = wp.cw_mul(usable, front)
-        flags = wp.cw_mul(ok, wp.cw_mul(lanes.closed_mask8(u, -tol, umax), lanes.closed_mask8(v, -tol, vmax)))
-        first = e * wp.static(sampler.LANES)  # the first pixel's flat index
-        for k in range(wp.static(sampler.LANES)):
-            valid[first + k] = flags[k] != type(zmin)(0.0)
-        xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
-        sampler.sample_lanes(image, out, b * nc * H * W, b * nc * hw8 + rest, nc, H * W, hw8, H, W, xs, ys,
-                             wp.cw_mul(inside, ok))
+        for block in range(w8):
+            e = r * w8 + block  # flat (b, y, block of 8 pixels): depth[e] holds them
+            d = depth[e]
+            # invalid depth (<= min, NaN, inf) replaced by 1 before any arithmetic, as the scalar kernel does
+            usable = lanes.open_mask8(d, zmin, type(zmin)(1.0e30))
+            dd = lanes.select8(usable, d, lanes.splat8(one))
+            x = lanes.iota8(block * wp.static(sampler.LANES), one)
+            # camera.project_moved_ray on 8 lanes
+            q0 = wp.cw_mul(lanes.splat8(a0[0]) + ax[0] * x, dd) + lanes.splat8(t[0])
+            q1 = wp.cw_mul(lanes.splat8(a0[1]) + ax[1] * x, dd) + lanes.splat8(t[1])
+            q2 = wp.cw_mul(lanes.splat8(a0[2]) + ax[2] * x, dd) + lanes.splat8(t[2])
+            front = lanes.above8(q2, zmin)
+            inv_z = wp.cw_div(lanes.splat8(one), lanes.select8(front, q2, lanes.splat8(one)))
+            xn = wp.cw_mul(q0, inv_z)
+            yn = wp.cw_mul(q1, inv_z)
+            u = Kb[0, 0] * xn + Kb[0, 1] * yn + lanes.splat8(Kb[0, 2])
+            v = Kb[1, 1] * yn + lanes.splat8(Kb[1, 2])
+            ok = wp.cw_mul(usable, front)
+            flags = wp.cw_mul(ok, wp.cw_mul(lanes.closed_mask8(u, -tol, umax), lanes.closed_mask8(v, -tol, vmax)))
+            first = e * wp.static(sampler.LANES)  # the first pixel's flat index
+            for k in range(wp.static(sampler.LANES)):
+                valid[first + k] = flags[k] != type(zmin)(0.0)
+            xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
+            sampler.sample_lanes(image, out, b * nc * H * W, b * nc * hw8 + py * w8 + block, nc, H * W, hw8, H, W, xs,
+                                 ys, wp.cw_mul(inside, ok))
 
     return FloatKernel(_warp_frame_depth_lanes, image="scalar", depth="vec8", pose="mat34", K="mat33",
-                       out="vec8").set_parallel(grain=_GRAIN_PIXELS // sampler.LANES)
+                       out="vec8").set_parallel(grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])))
 
 
 # ----------------------------------------------------------------------------- through a lens model

@@ -219,7 +219,7 @@ def _bits(t):
 @pytest.mark.parametrize("padding", [0, 1])
 @pytest.mark.parametrize("motion", ["identity", "small", "large"])
 def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
-    """The 8-pixels-a-thread forward kernel gives bitwise the values and ``valid`` of the
+    """The 8-lane forward kernel (a row per thread, 8 pixels at a time) gives bitwise the values and ``valid`` of the
     row kernel (whose adjoint it shares): inside, outside and on the edges of the image (the identity
     pose puts the last column and row exactly there), behind the camera, for invalid depths (0,
     negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels, a skewed K and another
