@@ -131,9 +131,10 @@ def warp_op(
     kernel computes the same values; its backward (its kernel's Warp adjoint) is used, and none
     is registered for this one (whose kernel may then be forward-only).
 
-    ``select(*params) -> FloatKernel``: the forward kernel for these scalar arguments (a variant
-    compiled for them), instead of ``fk``. With ``select`` and ``backward_from``, ``fk`` may be
-    None and ``array_kinds`` name the kinds of the kernels' arrays (none is built up front).
+    ``select(*params) -> FloatKernel``: the kernel for these scalar arguments (a variant compiled
+    for them), instead of ``fk``; its adjoint is the backward unless ``backward_from`` gives one.
+    With ``select``, ``fk`` may be None and ``array_kinds`` name the kinds of the kernels' arrays
+    (none is built up front).
     """
     # what an op that borrows another's backward must share with it (array kinds may differ: views)
     signature = (tuple(inputs), tuple(params), tuple((o.name, o.differentiable) for o in outputs))
@@ -241,7 +242,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
             descriptor(g, o.kind, ft) if g is not None else null_array(o.kind, ft) for g, o in zip(readable, outputs)
         ]
         launch(
-            (fk or spec.fk)[ft],
+            (select(*fargs[n_in:]) if select is not None else (fk or spec.fk))[ft],
             n,
             [*arrays, *fargs[n_in:]],
             out_arrays,

@@ -16,8 +16,9 @@ registers before one write; :func:`.launch.launch` splits launches over threads 
 :func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
 thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
 scalar); it gives the same values and shares the sampler's adjoint. :func:`warp_frame_depth_lanes`
-does the same for the fused kernel's forward: one thread per row, whose pixels are projected and
-sampled 8 at a time as vectors, bitwise :data:`warp_frame_depth`'s values, whose adjoint it shares.
+is the fused kernel with one thread per row whose pixels are projected and sampled 8 at a time
+(:mod:`.pinhole_block`): bitwise :data:`warp_frame_depth`'s values, and a hand-written adjoint on
+the same lanes (its gradients are the row kernel's up to the order of sums).
 
 Through a lens model (radial-tangential, fisheye): :func:`pixel_rays_lens`, the pixel rays of a
 camera (:mod:`.geometry.lens.rays`), and :func:`warp_frame_depth_lens`, the twin of
@@ -30,17 +31,14 @@ from typing import Any
 
 import warp as wp
 
-from ..core import lanes
 from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
-from . import lens_block, sampler
+from . import lens_block, pinhole_block, sampler
 
-# A projection counts as inside the image when it lies in [-tol, W - 1 + tol] x [-tol, H - 1 + tol]
-# (pixel units): all four bilinear taps are then real pixels, up to rounding (so the identity pose
-# keeps the last row and column valid).
-INSIDE_TOLERANCE = 1.0e-3
+# the ``valid`` flag's tolerance (see .scalar; the photometric kernels take it from here)
+INSIDE_TOLERANCE = sampler.INSIDE_TOLERANCE
 
 # Fewest pixels worth a separate chunk of a threaded launch (~0.2 ms of work: a chunk costs
 # ~20 us of launch and hand-over).
@@ -204,22 +202,21 @@ def fits_row_lanes(H: int, W: int) -> bool:
 
 @specialise("sampling.warp_frame_depth_lanes", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
 def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
-    """The forward of :data:`warp_frame_depth` with the pixels of a row taken 8 at a time.
+    """:data:`warp_frame_depth` with the pixels of a row taken 8 at a time, forward and backward.
 
     The same arguments and launch (one thread per row, B * H elements); ``depth`` is read and
     ``out`` written as 8 lanes per element ("vec8"), flat (b, y, block of 8 pixels) and (b, c,
-    block); for :func:`fits_row_lanes` sizes. The projection of a block's 8 pixels and the
-    sampler's weights and tap addresses are length-8 vector arithmetic (SIMD), the same operations
-    in the same order as :func:`.camera.project_moved_ray` and :func:`.sampler.sample_channels`, so
-    the values and ``valid`` are bitwise those of :data:`warp_frame_depth`, whose adjoint it shares
-    (it has none of its own). Compiled for this channel count (if at most
+    block); for :func:`fits_row_lanes` sizes. Each block is :func:`.pinhole_block.warp_block8`:
+    the values and ``valid`` are bitwise those of :data:`warp_frame_depth`, the gradients its own
+    (a hand-written adjoint on the lanes); the row's pose and intrinsics gradients are summed in
+    registers before one write, as there. Compiled for this channel count (if at most
     ``sampler.UNROLLED_CHANNELS``; else read at run time: ``C`` None) and ``padding`` (made on
     first use, one kernel per combination).
     """
     static_c = C or 0
-    static_padding = int(padding)
+    block = pinhole_block.warp_block8(C, padding)
 
-    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=LANES_MODULE_OPTIONS)
     def _warp_frame_depth_lanes(
         offset: int,
         image: wp.array(dtype=Any),
@@ -234,8 +231,9 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         out: wp.array(dtype=Any),
         valid: wp.array(dtype=wp.bool),
     ):
-        # One thread per image row, as the row kernel (per-row work once; a thread per block of 8
-        # pixels was 1.6-2x slower: Warp's per-element entry costs as much as a block's work)
+        # One thread per image row, as the row kernel: per-row work once, and the row's gradient sums
+        # in registers (a thread per block of 8 pixels made the forward ~1.4x slower: Warp's
+        # per-element entry and the per-row set-up were paid per block)
         r = wp.tid() + offset  # flat (b, y)
         b = r // H
         py = r - b * H
@@ -244,43 +242,21 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         Kb = K[b]
         Tb = pose[b]
         zmin = type(Kb[0, 0])(min_depth)
-        one = type(zmin)(1.0)
-        tol = type(zmin)(INSIDE_TOLERANCE)
-        umax = type(zmin)(W - 1) + tol
-        vmax = type(zmin)(H - 1) + tol
         a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
         t = lie.pose_translation(Tb)
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
-        for block in range(w8):
-            e = r * w8 + block  # flat (b, y, block of 8 pixels): depth[e] holds them
-            d = depth[e]
-            # invalid depth (<= min, NaN, inf) replaced by 1 before any arithmetic, as the scalar kernel does
-            usable = lanes.open_mask8(d, zmin, type(zmin)(1.0e30))
-            dd = lanes.select8(usable, d, lanes.splat8(one))
-            x = lanes.iota8(block * wp.static(sampler.LANES), one)
-            # camera.project_moved_ray on 8 lanes
-            q0 = wp.cw_mul(lanes.splat8(a0[0]) + ax[0] * x, dd) + lanes.splat8(t[0])
-            q1 = wp.cw_mul(lanes.splat8(a0[1]) + ax[1] * x, dd) + lanes.splat8(t[1])
-            q2 = wp.cw_mul(lanes.splat8(a0[2]) + ax[2] * x, dd) + lanes.splat8(t[2])
-            front = lanes.above8(q2, zmin)
-            inv_z = wp.cw_div(lanes.splat8(one), lanes.select8(front, q2, lanes.splat8(one)))
-            xn = wp.cw_mul(q0, inv_z)
-            yn = wp.cw_mul(q1, inv_z)
-            u = Kb[0, 0] * xn + Kb[0, 1] * yn + lanes.splat8(Kb[0, 2])
-            v = Kb[1, 1] * yn + lanes.splat8(Kb[1, 2])
-            ok = wp.cw_mul(usable, front)
-            flags = wp.cw_mul(ok, wp.cw_mul(lanes.closed_mask8(u, -tol, umax), lanes.closed_mask8(v, -tol, vmax)))
-            first = e * wp.static(sampler.LANES)  # the first pixel's flat index
-            for k in range(wp.static(sampler.LANES)):
-                valid[first + k] = flags[k] != type(zmin)(0.0)
-            xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
-            sampler.sample_lanes(image, out, b * nc * H * W, b * nc * hw8 + py * w8 + block, nc, H * W, hw8, H, W, xs,
-                                 ys, wp.cw_mul(inside, ok))
+        for k in range(w8):
+            block(image, depth, out, valid, r * w8 + k, k * wp.static(sampler.LANES), a0, ax, t, Kb, b * nc * H * W,
+                  b * nc * hw8 + py * w8 + k, nc, hw8, H, W, zmin)
 
     return FloatKernel(_warp_frame_depth_lanes, image="scalar", depth="vec8", pose="mat34", K="mat33",
-                       out="vec8").set_parallel(grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])))
+                       out="vec8").set_parallel(
+        segment=lambda a: a["H"],  # rows of one batch item
+        scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
+        grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
+    )
 
 
 # ----------------------------------------------------------------------------- through a lens model

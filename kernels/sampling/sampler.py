@@ -20,6 +20,7 @@ from .lanes import (
     taps_lanes,
 )
 from .scalar import (
+    INSIDE_TOLERANCE,
     PADDING_BORDER,
     PADDING_MODES,
     PADDING_ZEROS,
@@ -35,6 +36,7 @@ from .scalar import (
 )
 
 __all__ = [
+    "INSIDE_TOLERANCE",
     "LANES",
     "MAX_LANES_PLANE",
     "PADDING_BORDER",

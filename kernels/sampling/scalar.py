@@ -24,6 +24,11 @@ PADDING_BORDER = wp.constant(1)
 # padding_mode names (as grid_sample spells them) -> the codes kernels take
 PADDING_MODES = {"zeros": int(PADDING_ZEROS), "border": int(PADDING_BORDER)}
 
+# A projection counts as inside the image (the ``valid`` flag of the spatial transformers) when it
+# lies in [-tol, W - 1 + tol] x [-tol, H - 1 + tol] (pixel units): all four bilinear taps are then
+# real pixels, up to rounding (so the identity pose keeps the last row and column valid).
+INSIDE_TOLERANCE = 1.0e-3
+
 
 @wp.func
 def normalized_to_pixel(g: Any, size: int, align_corners: int):
@@ -354,7 +359,7 @@ sample_channels = float_overloads(_sample_channels)
 
 
 __all__ = [
-    "PADDING_BORDER", "PADDING_MODES", "PADDING_ZEROS", "UNROLLED_CHANNELS", "bilinear", "bilinear_taps",
-    "normalized_to_pixel", "sample_channels", "sample_channels_grad", "sample_channels_values", "sample_position",
-    "tap",
+    "INSIDE_TOLERANCE", "PADDING_BORDER", "PADDING_MODES", "PADDING_ZEROS", "UNROLLED_CHANNELS", "bilinear",
+    "bilinear_taps", "normalized_to_pixel", "sample_channels", "sample_channels_grad", "sample_channels_values",
+    "sample_position", "tap",
 ]

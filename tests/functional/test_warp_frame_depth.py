@@ -75,11 +75,14 @@ def test_identity_pose_reproduces_image(shape, dtype):
         torch.testing.assert_close(warped, image, rtol=0, atol=1e-5 if dtype == torch.float32 else 1e-12)
 
 
-def test_gradcheck_all_inputs():
-    image, depth, pose, K = scene(B=2, C=2, H=6, W=7, motion=0.08, seed=3)
+@pytest.mark.parametrize("W", [7, 16])  # the row kernel; the 8-lane kernel (rows of whole 8-pixel blocks)
+def test_gradcheck_all_inputs(W):
+    image, depth, pose, K = scene(B=2, C=2, H=6, W=W, motion=0.08, seed=3)
     args = [t.requires_grad_() for t in (image, depth, pose, K)]
     assert gradcheck(lambda *a: G.warp_frame_depth(*a)[0], args)
     assert gradcheck(lambda *a: G.warp_frame_depth(*a, padding_mode="border")[0], args)
+    # the image as data (the 8-lane adjoint's other path)
+    assert gradcheck(lambda *a: G.warp_frame_depth(image.detach(), *a)[0], args[1:])
 
 
 def test_gradcheck_near_min_depth_and_outside_image():
@@ -215,17 +218,11 @@ def _bits(t):
     return t.view(torch.int32 if t.dtype == torch.float32 else torch.int64)
 
 
-@pytest.mark.parametrize("C", [1, 4, 6])  # 4 = the channels the kernels unroll; 6: more
-@pytest.mark.parametrize("padding", [0, 1])
-@pytest.mark.parametrize("motion", ["identity", "small", "large"])
-def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
-    """The 8-lane forward kernel (a row per thread, 8 pixels at a time) gives bitwise the values and ``valid`` of the
-    row kernel (whose adjoint it shares): inside, outside and on the edges of the image (the identity
-    pose puts the last column and row exactly there), behind the camera, for invalid depths (0,
-    negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels, a skewed K and another
-    K for the second batch item."""
-    from gvnn_warp.ops import sampling as _ops
-
+def _lanes_scene(C, motion, dtype):
+    """A scene for the 8-lane kernel against the row kernel: inside, outside and on the edges of the
+    image (the identity pose puts the last column and row exactly there), behind the camera, invalid
+    depths (0, negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels, a skewed K and
+    another K for the second batch item; rows of two 8-pixel blocks. Returns the op's arguments."""
     B, H, W = 2, 6, 16
     image, depth, pose, _ = scene(B=B, C=C, H=H, W=W, motion={"identity": 0.0, "small": 0.05, "large": 0.6}[motion],
                                   seed=C, dtype=dtype)
@@ -235,13 +232,57 @@ def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
     depth[0, 0, 1, :7] = torch.tensor([0.0, -1.0, float("nan"), float("inf"), 1e-3, 1.0001e-3, 2e30], dtype=dtype)
     K = torch.tensor([[[14.0, 0.4, 7.5], [0, 12.0, 2.5], [0, 0, 1]],  # (each item its own K)
                       [[16.0, 0.0, 8.0], [0, 13.0, 3.0], [0, 0, 1]]], dtype=dtype)
-    args = (C, H, W, 1e-3, padding)
-    pose34 = pose[:, :3].contiguous()
+    return image, depth, pose[:, :3].contiguous(), K
+
+
+@pytest.mark.parametrize("C", [1, 4, 6])  # 4 = the channels the kernels unroll; 6: more
+@pytest.mark.parametrize("padding", [0, 1])
+@pytest.mark.parametrize("motion", ["identity", "small", "large"])
+def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
+    """The 8-lane forward kernel (a row per thread, 8 pixels at a time) gives bitwise the values and
+    ``valid`` of the row kernel in every case of :func:`_lanes_scene`."""
+    from gvnn_warp.ops import sampling as _ops
+
+    image, depth, pose34, K = _lanes_scene(C, motion, dtype)
+    args = (C, *image.shape[2:], 1e-3, padding)
     lanes = _ops.warp_frame_depth_lanes(image, depth, pose34, K, *args)
     scalar = _ops.warp_frame_depth(image, depth, pose34, K, *args)
     assert torch.equal(_bits(lanes[0]), _bits(scalar[0])) and torch.equal(lanes[1], scalar[1])
     if motion == "identity":
         assert scalar[1][1].all()  # (every pixel, the last row and column included, valid)
+
+
+@pytest.mark.parametrize("C", [1, 4, 6])
+@pytest.mark.parametrize("padding", [0, 1])
+@pytest.mark.parametrize("motion", ["identity", "small", "large"])
+@pytest.mark.parametrize("image_grad", [True, False], ids=["image-grad", "image-data"])
+def test_lanes_adjoint_equals_scalar_adjoint(C, padding, motion, image_grad, dtype):
+    """The 8-lane kernel's hand-written adjoint gives the row kernel's (Warp's adjoint of its
+    per-pixel code) gradients for image, depth, pose and K, up to the order of the sums, in every case
+    of :func:`_lanes_scene`; both of its paths (with and without the image gradient). A NaN incoming
+    gradient on pixels of invalid depth changes nothing: they pass no gradient at all. (The NaN and inf
+    pixels of the image make NaN gradients for what samples them, in both.)"""
+    from gvnn_warp.ops import sampling as _ops
+
+    image, depth, pose34, K = _lanes_scene(C, motion, dtype)
+    args = (C, *image.shape[2:], 1e-3, padding)
+    g = torch.randn(image.shape, generator=torch.Generator().manual_seed(C), dtype=dtype)
+    g[0, :, 1, :5] = float("nan")  # (the pixels of invalid depth: 0, -1, NaN, inf, min_depth)
+    grads = []
+    for op in (_ops.warp_frame_depth_lanes, _ops.warp_frame_depth):
+        xs = [image.clone().requires_grad_(image_grad), *(t.clone().requires_grad_() for t in (depth, pose34, K))]
+        op(*xs, *args)[0].backward(g)
+        grads.append([x.grad for x in xs])
+    tol = {"rtol": 1e-10, "atol": 1e-10} if dtype == torch.float64 else {"rtol": 1e-5, "atol": 1e-4}
+    for name, a, b in zip(("image", "depth", "pose", "K"), *grads):
+        if name == "image" and not image_grad:
+            assert a is None and b is None
+            continue
+        torch.testing.assert_close(a, b, **tol, equal_nan=True, msg=name)
+    depth_grad = grads[0][1]
+    assert (depth_grad[0, 0, 1, :5] == 0).all()  # (the NaN incoming gradient there)
+    if motion != "large":  # (there, most points leave the image or go behind the camera)
+        assert (depth_grad.nan_to_num() != 0).any()  # (gradients that could differ)
 
 
 def test_warp_frame_depth_takes_the_lanes_kernel_where_rows_allow(monkeypatch):

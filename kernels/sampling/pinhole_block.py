@@ -1,0 +1,227 @@
+"""A block of 8 pixels of one row of the pinhole 3D spatial transformer as 8-lane vector code,
+with its hand-written adjoint (``@wp.func``, no launches here): :func:`warp_block8`, what
+:func:`.kernels.warp_frame_depth_lanes` runs per block, forward and backward.
+
+Forward: :data:`.kernels.warp_frame_depth`'s per-pixel work on 8 pixels at once (the projection of
+:func:`gvnn_warp.kernels.geometry.camera.project_moved_ray` and the sampler of
+:func:`.sampler.sample_channels`, the same operations in the same order: bitwise the same values
+and ``valid``). Adjoint: the projection and its chain rule (to the depth, the row's rays, the
+translation and K) are vector arithmetic; d loss / d (x, y) of the samples is
+
+- with the image gradient wanted, the row kernel's per-sample adjoint
+  (:func:`.sampler.sample_channels_grad`) lane by lane, which reads the taps and scatters the image
+  gradient in one pass (the scatter as a pass of its own, after vector reads, was slower);
+- without it (the image is data), vector tap reads and arithmetic (:func:`position_grad8`).
+
+The block's gradients for the row's rays, translation and K are summed over the lanes and added to
+the kernel's, whose own (Warp's) adjoint takes the row's sums through :func:`.camera.row_rays` and
+the pose. Warp's automatic adjoint of the 8-lane forward was 2.5x slower than the row kernel's; this
+one, interleaved with it in one process (B=8 240x320, one thread): backward 0.8x with the image
+gradient, 0.8x without (see ``benchmarks/RESULTS.md``).
+"""
+
+from typing import Any
+
+import warp as wp
+
+from ..core import lanes
+from ..core.cache import float_overloads, specialise
+from ..core.kinds import vec8d, vec8f
+from . import sampler
+
+LANES = sampler.LANES
+
+
+@specialise("sampling.pinhole_block8", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
+def warp_block8(C: int | None, padding: int) -> wp.Function:
+    """The block function for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else
+    read at run time: ``C`` None) and ``padding``, both compiled in (float32 and float64
+    overloads), made on first use."""
+
+    def make(T):
+        return _warp_block8(T, C or 0, int(padding))
+
+    make.__qualname__ = f"warp_block8(C={C}, padding={padding})"
+    return float_overloads(make)
+
+
+def _warp_block8(T, static_c: int, static_padding: int):
+    """warp_block8's float type ``T`` overload (Warp custom adjoints need concrete types)."""
+    vec3 = wp.types.vector(3, T)
+    mat33 = wp.types.matrix((3, 3), T)
+    vec8 = vec8f if T == wp.float32 else vec8d
+
+    @wp.func
+    def sum8(v: vec8):
+        """The sum of the 8 lanes (pairwise)."""
+        return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
+
+    @wp.func
+    def dense(a: wp.array(dtype=Any)):
+        """``a`` (contiguous) as a 1-D array made here, whose element stride is a compile-time constant."""
+        return wp.array(ptr=a.ptr, shape=(a.shape[0],), dtype=a.dtype)
+
+    @wp.func
+    def position_grad8(
+        image: wp.array(dtype=T), q: int, g: vec8, a00: vec8, a10: vec8, a01: vec8, a11: vec8,
+        m00: vec8, m10: vec8, m01: vec8, m11: vec8, wx0: vec8, wx1: vec8, wy0: vec8, wy1: vec8,
+    ):
+        """One channel plane's (at ``q``) share of d loss / d (x, y) on 8 lanes, given the incoming
+        gradient ``g``: g ((v10 - v00) wy0 + (v11 - v01) wy1), g ((v01 - v00) wx0 + (v11 - v10) wx1)."""
+        v00 = sampler.gather_lanes(image, q, a00, m00)
+        v10 = sampler.gather_lanes(image, q, a10, m10)
+        v01 = sampler.gather_lanes(image, q, a01, m01)
+        v11 = sampler.gather_lanes(image, q, a11, m11)
+        return (
+            wp.cw_mul(g, wp.cw_mul(v10 - v00, wy0) + wp.cw_mul(v11 - v01, wy1)),
+            wp.cw_mul(g, wp.cw_mul(v01 - v00, wx0) + wp.cw_mul(v11 - v10, wx1)),
+        )
+
+    @wp.func
+    def project8(depth: wp.array(dtype=vec8), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, zmin: T):
+        """The 8 pixels x0 .. x0 + 7 of depth block ``e`` moved and projected, as
+        :func:`.camera.project_moved_ray` (with :func:`.camera.row_rays`' rays a0 + x ax): returns
+        (u, v, ok, dd, x, xn, yn, inv_z), ``ok`` 1 where the depth is valid and the moved point in
+        front, ``dd`` the depth with 1 in place of invalid values (< = min, NaN, inf)."""
+        one = T(1.0)
+        d = depth[e]
+        usable = lanes.open_mask8(d, zmin, T(1.0e30))
+        dd = lanes.select8(usable, d, lanes.splat8(one))
+        x = lanes.iota8(x0, one)
+        q0 = wp.cw_mul(lanes.splat8(a0[0]) + ax[0] * x, dd) + lanes.splat8(t[0])
+        q1 = wp.cw_mul(lanes.splat8(a0[1]) + ax[1] * x, dd) + lanes.splat8(t[1])
+        q2 = wp.cw_mul(lanes.splat8(a0[2]) + ax[2] * x, dd) + lanes.splat8(t[2])
+        front = lanes.above8(q2, zmin)
+        inv_z = wp.cw_div(lanes.splat8(one), lanes.select8(front, q2, lanes.splat8(one)))
+        xn = wp.cw_mul(q0, inv_z)
+        yn = wp.cw_mul(q1, inv_z)
+        u = Kb[0, 0] * xn + Kb[0, 1] * yn + lanes.splat8(Kb[0, 2])
+        v = Kb[1, 1] * yn + lanes.splat8(Kb[1, 2])
+        return u, v, wp.cw_mul(usable, front), dd, x, xn, yn, inv_z
+
+    @wp.func
+    def warp_block8(
+        image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
+        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,
+        dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
+    ):
+        """Pixels x0 .. x0 + 7 of a row (depth block ``e``, flat (b, y, block), also the index of
+        their first ``valid`` flag / 8): ``valid`` (valid depth, in front, inside the image within
+        ``sampler.INSIDE_TOLERANCE``) and the bilinear samples of the channel planes ``src + c H W`` of
+        ``image`` into ``out[dst + c hw8]`` (hw8 = H W / 8), 0 where the depth is invalid or the
+        point behind ``zmin``. Gradients (hand-written): to ``image``, ``depth``, ``a0``, ``ax``,
+        ``t`` and ``Kb``."""
+        tol = T(sampler.INSIDE_TOLERANCE)
+        u, v, ok, dd, x, xn, yn, inv_z = project8(depth, e, x0, a0, ax, t, Kb, zmin)
+        flags = wp.cw_mul(
+            ok, wp.cw_mul(lanes.closed_mask8(u, -tol, T(W - 1) + tol), lanes.closed_mask8(v, -tol, T(H - 1) + tol))
+        )
+        first = e * wp.static(LANES)
+        for k in range(wp.static(LANES)):
+            valid[first + k] = flags[k] != T(0.0)
+        xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
+        nc = C
+        if wp.static(static_c > 0):
+            nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
+        sampler.sample_lanes(image, out, src, dst, nc, H * W, hw8, H, W, xs, ys, wp.cw_mul(inside, ok))
+
+    @wp.func_grad(warp_block8)
+    def adj_warp_block8(
+        image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
+        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,
+        dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
+    ):
+        zero = T(0.0)
+        u, v, ok, dd, x, xn, yn, inv_z = project8(depth, e, x0, a0, ax, t, Kb, zmin)
+        xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
+        active = wp.cw_mul(inside, ok)
+        nc = C
+        if wp.static(static_c > 0):
+            nc = wp.static(static_c)
+        # contiguous views made here: their element strides are compile-time constants (this function
+        # is not inlined into the kernel, where the arguments' strides would be known)
+        img = dense(image)
+        g_out = dense(wp.adjoint[out])
+        g_image = dense(wp.adjoint[image])
+        gx = lanes.splat8(zero)
+        gy = lanes.splat8(zero)
+        if g_image.shape[0] > 0:
+            # with the image gradient: lane by lane, the row kernel's sampler adjoint (taps read and
+            # scattered in one pass; the scatter as a pass of its own after vector reads was slower)
+            g_flat = wp.array(ptr=g_out.ptr, shape=(g_out.shape[0] * wp.static(LANES),), dtype=T)
+            for k in range(wp.static(LANES)):
+                if active[k] != zero:
+                    gxk, gyk = sampler.sample_channels_grad(
+                        img, g_image, g_flat, src, dst * wp.static(LANES) + k, nc, H * W, H * W, H, W, xs[k], ys[k]
+                    )
+                    gx[k] = gxk
+                    gy[k] = gyk
+        else:
+            # the taps, as sampler.sample_lanes has them; d out_c / dx = (v10 - v00) wy0 + (v11 - v01) wy1
+            a00, a10, a01, a11, m00, m10, m01, m11, wx1, wy1 = sampler.taps_lanes(xs, ys, T(W), T(H))
+            m00 = wp.cw_mul(m00, active)
+            m10 = wp.cw_mul(m10, active)
+            m01 = wp.cw_mul(m01, active)
+            m11 = wp.cw_mul(m11, active)
+            wx0 = lanes.splat8(T(1.0)) - wx1
+            wy0 = lanes.splat8(T(1.0)) - wy1
+            for c in range(wp.static(sampler.UNROLLED_CHANNELS)):
+                if c < nc:
+                    dx, dy = position_grad8(img, src + c * H * W, g_out[dst + c * hw8], a00, a10, a01, a11, m00,
+                                            m10, m01, m11, wx0, wx1, wy0, wy1)
+                    gx = gx + dx
+                    gy = gy + dy
+            for c in range(sampler.UNROLLED_CHANNELS, nc):
+                dx, dy = position_grad8(img, src + c * H * W, g_out[dst + c * hw8], a00, a10, a01, a11, m00, m10,
+                                        m01, m11, wx0, wx1, wy0, wy1)
+                gx = gx + dx
+                gy = gy + dy
+            # lanes that are not active: no gradient at all (also for a NaN or inf incoming gradient there)
+            gx = lanes.select8(active, gx, lanes.splat8(zero))
+            gy = lanes.select8(active, gy, lanes.splat8(zero))
+        gu = gx
+        gv = gy
+        if wp.static(static_padding == int(sampler.PADDING_BORDER)):
+            # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
+            # (a select: a NaN gradient from a NaN pixel there does not pass either)
+            gu = lanes.select8(lanes.open_mask8(u, zero, T(W - 1)), gx, lanes.splat8(zero))
+            gv = lanes.select8(lanes.open_mask8(v, zero, T(H - 1)), gy, lanes.splat8(zero))
+        # through the projection (camera.project_moved_ray_grad on 8 lanes): u = fx xn + s yn + cx,
+        # v = fy yn + cy, xn = q0 / q2, yn = q1 / q2, q = dd (a0 + x ax) + t; lanes that are not
+        # active have gu = gv = 0 and contribute nothing
+        gxn = Kb[0, 0] * gu
+        gyn = Kb[0, 1] * gu + Kb[1, 1] * gv
+        g0 = wp.cw_mul(gxn, inv_z)
+        g1 = wp.cw_mul(gyn, inv_z)
+        g2 = -wp.cw_mul(wp.cw_mul(xn, gxn) + wp.cw_mul(yn, gyn), inv_z)
+        r0 = lanes.splat8(a0[0]) + ax[0] * x
+        r1 = lanes.splat8(a0[1]) + ax[1] * x
+        r2 = lanes.splat8(a0[2]) + ax[2] * x
+        g_depth = dense(wp.adjoint[depth])
+        if g_depth.shape[0] > 0:
+            g_depth[e] = g_depth[e] + wp.cw_mul(g0, r0) + wp.cw_mul(g1, r1) + wp.cw_mul(g2, r2)
+        gr0 = wp.cw_mul(g0, dd)
+        gr1 = wp.cw_mul(g1, dd)
+        gr2 = wp.cw_mul(g2, dd)
+        wp.adjoint[a0] += vec3(sum8(gr0), sum8(gr1), sum8(gr2))
+        wp.adjoint[ax] += vec3(sum8(wp.cw_mul(gr0, x)), sum8(wp.cw_mul(gr1, x)), sum8(wp.cw_mul(gr2, x)))
+        wp.adjoint[t] += vec3(sum8(g0), sum8(g1), sum8(g2))
+        wp.adjoint[Kb] += mat33(
+            sum8(wp.cw_mul(gu, xn)), sum8(wp.cw_mul(gu, yn)), sum8(gu),
+            zero, sum8(wp.cw_mul(gv, yn)), sum8(gv),
+            zero, zero, zero,
+        )
+
+    @wp.func_replay(warp_block8)
+    def replay_warp_block8(
+        image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
+        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,
+        dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
+    ):
+        # the backward pass needs nothing the forward stored: skip projecting and sampling again
+        pass
+
+    return warp_block8
+
+
+__all__ = ["LANES", "warp_block8"]
