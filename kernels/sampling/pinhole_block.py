@@ -20,8 +20,6 @@ one, interleaved with it in one process (B=8 240x320, one thread): backward 0.8x
 gradient, 0.8x without (see ``benchmarks/RESULTS.md``).
 """
 
-from typing import Any
-
 import warp as wp
 
 from ..core import lanes
@@ -55,11 +53,6 @@ def _warp_block8(T, static_c: int, static_padding: int):
     def sum8(v: vec8):
         """The sum of the 8 lanes (pairwise)."""
         return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
-
-    @wp.func
-    def dense(a: wp.array(dtype=Any)):
-        """``a`` (contiguous) as a 1-D array made here, whose element stride is a compile-time constant."""
-        return wp.array(ptr=a.ptr, shape=(a.shape[0],), dtype=a.dtype)
 
     @wp.func
     def position_grad8(
@@ -138,11 +131,10 @@ def _warp_block8(T, static_c: int, static_padding: int):
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)
-        # contiguous views made here: their element strides are compile-time constants (this function
-        # is not inlined into the kernel, where the arguments' strides would be known)
-        img = dense(image)
-        g_out = dense(wp.adjoint[out])
-        g_image = dense(wp.adjoint[image])
+        # (views with compile-time strides: this function is not inlined into the kernel)
+        img = sampler.dense(image)
+        g_out = sampler.dense(wp.adjoint[out])
+        g_image = sampler.dense(wp.adjoint[image])
         gx = lanes.splat8(zero)
         gy = lanes.splat8(zero)
         if g_image.shape[0] > 0:
@@ -197,7 +189,7 @@ def _warp_block8(T, static_c: int, static_padding: int):
         r0 = lanes.splat8(a0[0]) + ax[0] * x
         r1 = lanes.splat8(a0[1]) + ax[1] * x
         r2 = lanes.splat8(a0[2]) + ax[2] * x
-        g_depth = dense(wp.adjoint[depth])
+        g_depth = sampler.dense(wp.adjoint[depth])
         if g_depth.shape[0] > 0:
             g_depth[e] = g_depth[e] + wp.cw_mul(g0, r0) + wp.cw_mul(g1, r1) + wp.cw_mul(g2, r2)
         gr0 = wp.cw_mul(g0, dd)
