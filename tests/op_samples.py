@@ -68,8 +68,8 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         "bilinear_sample": (img, r(B * 12, 2) * 2 - 1, C, H, W, 12, 0, 0),
         "bilinear_sample_lanes": (img, r(B * 16, 2) * 2 - 1, C, H, W, 16, 1, 1),
         "warp_frame_depth": (img, r(B, 1, H, W) + 1, pose, K, C, H, W, 1e-3, 0),
-        "warp_frame_depth_lanes": (r(B, C, H, 8), r(B, 1, H, 8) + 1, pose,  # (rows of whole 8-pixel blocks)
-                                   intrinsics(8, H).expand(B, 3, 3).contiguous(), C, H, 8, 1e-3, 1),
+        "warp_frame_depth_lanes": (r(B, C, H, 16), r(B, 1, H, 16) + 1, pose,  # (rows of two 8-pixel blocks)
+                                   intrinsics(16, H).expand(B, 3, 3).contiguous(), C, H, 16, 1e-3, 1),
         "pixel_rays": (K, fisheye, H, W, lens.FISHEYE),
         "warp_frame_depth_lens": (img, r(B, 1, H, W) + 1, pose, K, radtan, rays, C, H, W, 1e-3, 0, lens.RADTAN, 0),
         # gvnn_warp.ops.perpixel

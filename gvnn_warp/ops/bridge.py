@@ -157,8 +157,7 @@ def _signature(spec: OpSpec) -> tuple:
 
 def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
     """The torch ops of a :func:`warp_op` registration (forward, and backward unless borrowed)."""
-    name, inputs, params, outputs, select = spec.name, spec.inputs, spec.params, spec.outputs, spec.select
-    fk = spec.kernel if isinstance(spec.kernel, FloatKernel) else None  # else made on the first launch: spec.fk
+    name, inputs, params, outputs = spec.name, spec.inputs, spec.params, spec.outputs
     in_kinds = [spec.array_kinds[n] for n in inputs]
     n_in = len(inputs)
     sig_in = ", ".join([f"Tensor {n}" for n in inputs] + [f"{p.type} {p.name}" for p in params])
@@ -194,7 +193,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
         n = n_threads(*args)
         if n > 0:
             ft, arrays, out_arrays = wrap(args, outs)
-            kernel = select(*args[n_in:]) if select is not None else (fk or spec.fk)
+            kernel = spec.kernel_for(args[n_in:])
             launch(kernel[ft], n, [*arrays, *args[n_in:]], out_arrays)
         return outs[0] if len(outs) == 1 else tuple(outs)
 
@@ -242,7 +241,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
             descriptor(g, o.kind, ft) if g is not None else null_array(o.kind, ft) for g, o in zip(readable, outputs)
         ]
         launch(
-            (select(*fargs[n_in:]) if select is not None else (fk or spec.fk))[ft],
+            spec.backward_kernel_for(fargs[n_in:])[ft],
             n,
             [*arrays, *fargs[n_in:]],
             out_arrays,

@@ -101,10 +101,15 @@ class OpSpec:
             self._fk = fk
         return self._fk
 
-    @property
-    def backward_kernel(self) -> FloatKernel | None:
-        """The kernel whose Warp adjoint the backward launches (None: a hand-written op)."""
-        return OPS[self.backward_from].fk if self.backward_from is not None else self.fk
+    def kernel_for(self, params) -> FloatKernel | None:
+        """The kernel a launch with these scalar arguments runs: ``select``'s variant for them, else
+        :attr:`fk` (None: a hand-written op)."""
+        return self.select(*params) if self.select is not None else self.fk
+
+    def backward_kernel_for(self, params) -> FloatKernel | None:
+        """The kernel whose Warp adjoint the backward launches with these scalar arguments (its own,
+        or ``backward_from``'s op's; None: a hand-written op)."""
+        return (OPS[self.backward_from] if self.backward_from is not None else self).kernel_for(params)
 
 
 OPS: dict[str, OpSpec] = {}  # every registered op, by name (tests walk it)

@@ -35,7 +35,7 @@ from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..sampling import sampler
-from ..sampling.kernels import INSIDE_TOLERANCE
+from ..sampling.sampler import INSIDE_TOLERANCE
 from . import residual as ph
 from .error_reduce import ROW_SLOTS
 

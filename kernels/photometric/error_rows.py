@@ -31,7 +31,7 @@ from ..core.cache import float_overloads, specialise
 from ..core.kinds import FloatKernel
 from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
-from ..sampling.kernels import INSIDE_TOLERANCE
+from ..sampling.sampler import INSIDE_TOLERANCE
 from . import residual as ph
 
 

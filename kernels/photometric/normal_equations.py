@@ -34,7 +34,7 @@ from ..core.cache import specialise
 from ..core.kinds import FloatKernel
 from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
-from ..sampling.kernels import INSIDE_TOLERANCE
+from ..sampling.sampler import INSIDE_TOLERANCE
 from . import residual as ph
 from .normal_equations_reduce import ROW_STRIDE, mat66d, vec6d
 

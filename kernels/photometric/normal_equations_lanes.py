@@ -24,7 +24,7 @@ from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..sampling import sampler
-from ..sampling.kernels import INSIDE_TOLERANCE
+from ..sampling.sampler import INSIDE_TOLERANCE
 from . import residual as ph
 from .normal_equations_reduce import N_SUMS, ROW_STRIDE, SEED_SLOT
 

@@ -37,8 +37,7 @@ from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
 from . import lens_block, pinhole_block, sampler
 
-# the ``valid`` flag's tolerance (see .scalar; the photometric kernels take it from here)
-INSIDE_TOLERANCE = sampler.INSIDE_TOLERANCE
+INSIDE_TOLERANCE = sampler.INSIDE_TOLERANCE  # the ``valid`` flag's tolerance (see .scalar)
 
 # Fewest pixels worth a separate chunk of a threaded launch (~0.2 ms of work: a chunk costs
 # ~20 us of launch and hand-over).

@@ -6,8 +6,9 @@ The functions below take 8 consecutive sample positions as one length-8 vector p
 (``vec8f`` / ``vec8d``): weights and tap addresses are computed 8 at a time in SIMD registers,
 only the image reads are per lane. They give the same values, operation for operation, as
 :func:`.scalar.sample_position` + :func:`.scalar.sample_channels` (the tests check it bitwise, for
-any image values, NaN and inf included, and any positions), so the forward-only kernel built on
-them shares the scalar kernel's adjoint. Addresses are carried as floats: exact while an image
+any image values, NaN and inf included, and any positions), so a forward-only kernel built on them
+can share the scalar kernel's adjoint (the sampler's does; the spatial transformer's 8-lane kernel
+has its own, :mod:`.pinhole_block`). Addresses are carried as floats: exact while an image
 plane has at most 2^24 pixels (:data:`MAX_LANES_PLANE`; larger planes take the scalar kernel).
 Exported by :mod:`.sampler` too.
 """
@@ -107,8 +108,9 @@ def planes_view(a: wp.array(dtype=Any), plane_size: int):
 
 @wp.func
 def dense(a: wp.array(dtype=Any)):
-    """A contiguous 1-D array seen as a 1-D array made here, over the same memory: its element stride
-    is a compile-time constant. For functions the compiler does not inline into their kernel (e.g.
+    """A contiguous 1-D array (the caller's guarantee: the torch bridge's arrays and Warp's own
+    allocations are) seen as a 1-D array made here, over the same memory: its element stride is a
+    compile-time constant. For functions the compiler does not inline into their kernel (e.g.
     a large custom adjoint), where an argument's stride is read at run time: an integer multiply in
     every address, which held up a scatter's read-modify-writes (measured: the 8-lane spatial
     transformer's backward 0.8x as long with its arrays seen through this)."""
@@ -184,7 +186,8 @@ def sample_lanes(
     """out[dst + c hw_out] (8 lanes) = bilinear samples of image plane ``src + c hw_in`` (H x W)
     at the 8 positions (x, y) in [-1, W] x [-1, H], for c in [0, C); taps outside the image read
     0, and so do whole lanes where ``inside`` is 0 (see :func:`sample_position_lanes`).
-    Forward only (no custom adjoint: kernels using it borrow the scalar kernel's)."""
+    Forward only (no custom adjoint: a kernel using it borrows the scalar kernel's, or writes its
+    own as :mod:`.pinhole_block` does)."""
     one = type(x[0])(1.0)
     zero = type(one)(0.0)
     ones = type(x)(one)

@@ -15,9 +15,9 @@ translation and K) are vector arithmetic; d loss / d (x, y) of the samples is
 
 The block's gradients for the row's rays, translation and K are summed over the lanes and added to
 the kernel's, whose own (Warp's) adjoint takes the row's sums through :func:`.camera.row_rays` and
-the pose. Warp's automatic adjoint of the 8-lane forward was 2.5x slower than the row kernel's; this
-one, interleaved with it in one process (B=8 240x320, one thread): backward 0.8x with the image
-gradient, 0.8x without (see ``benchmarks/RESULTS.md``).
+the pose. With Warp's automatic adjoint of the 8-lane forward, forward+backward took 2.5x the row
+kernel's time; with this adjoint the backward takes 0.8x the row kernel's, with or without the image
+gradient (B=8 240x320, one thread, interleaved in one process; see ``benchmarks/RESULTS.md``).
 """
 
 import warp as wp
@@ -27,7 +27,8 @@ from ..core.cache import float_overloads, specialise
 from ..core.kinds import vec8d, vec8f
 from . import sampler
 
-LANES = sampler.LANES
+_LANES = sampler.LANES
+
 
 
 @specialise("sampling.pinhole_block8", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
@@ -50,11 +51,6 @@ def _warp_block8(T, static_c: int, static_padding: int):
     vec8 = vec8f if T == wp.float32 else vec8d
 
     @wp.func
-    def sum8(v: vec8):
-        """The sum of the 8 lanes (pairwise)."""
-        return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
-
-    @wp.func
     def position_grad8(
         image: wp.array(dtype=T), q: int, g: vec8, a00: vec8, a10: vec8, a01: vec8, a11: vec8,
         m00: vec8, m10: vec8, m01: vec8, m11: vec8, wx0: vec8, wx1: vec8, wy0: vec8, wy1: vec8,
@@ -75,7 +71,7 @@ def _warp_block8(T, static_c: int, static_padding: int):
         """The 8 pixels x0 .. x0 + 7 of depth block ``e`` moved and projected, as
         :func:`.camera.project_moved_ray` (with :func:`.camera.row_rays`' rays a0 + x ax): returns
         (u, v, ok, dd, x, xn, yn, inv_z), ``ok`` 1 where the depth is valid and the moved point in
-        front, ``dd`` the depth with 1 in place of invalid values (< = min, NaN, inf)."""
+        front, ``dd`` the depth with 1 in place of invalid values (<= min, NaN, inf, >= 1e30)."""
         one = T(1.0)
         d = depth[e]
         usable = lanes.open_mask8(d, zmin, T(1.0e30))
@@ -109,8 +105,8 @@ def _warp_block8(T, static_c: int, static_padding: int):
         flags = wp.cw_mul(
             ok, wp.cw_mul(lanes.closed_mask8(u, -tol, T(W - 1) + tol), lanes.closed_mask8(v, -tol, T(H - 1) + tol))
         )
-        first = e * wp.static(LANES)
-        for k in range(wp.static(LANES)):
+        first = e * wp.static(_LANES)
+        for k in range(wp.static(_LANES)):
             valid[first + k] = flags[k] != T(0.0)
         xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
         nc = C
@@ -125,6 +121,7 @@ def _warp_block8(T, static_c: int, static_padding: int):
         dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
     ):
         zero = T(0.0)
+        zeros = lanes.splat8(zero)
         u, v, ok, dd, x, xn, yn, inv_z = project8(depth, e, x0, a0, ax, t, Kb, zmin)
         xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
         active = wp.cw_mul(inside, ok)
@@ -135,16 +132,16 @@ def _warp_block8(T, static_c: int, static_padding: int):
         img = sampler.dense(image)
         g_out = sampler.dense(wp.adjoint[out])
         g_image = sampler.dense(wp.adjoint[image])
-        gx = lanes.splat8(zero)
-        gy = lanes.splat8(zero)
+        gx = zeros
+        gy = zeros
         if g_image.shape[0] > 0:
             # with the image gradient: lane by lane, the row kernel's sampler adjoint (taps read and
             # scattered in one pass; the scatter as a pass of its own after vector reads was slower)
-            g_flat = wp.array(ptr=g_out.ptr, shape=(g_out.shape[0] * wp.static(LANES),), dtype=T)
-            for k in range(wp.static(LANES)):
+            g_flat = wp.array(ptr=g_out.ptr, shape=(g_out.shape[0] * wp.static(_LANES),), dtype=T)
+            for k in range(wp.static(_LANES)):
                 if active[k] != zero:
                     gxk, gyk = sampler.sample_channels_grad(
-                        img, g_image, g_flat, src, dst * wp.static(LANES) + k, nc, H * W, H * W, H, W, xs[k], ys[k]
+                        img, g_image, g_flat, src, dst * wp.static(_LANES) + k, nc, H * W, H * W, H, W, xs[k], ys[k]
                     )
                     gx[k] = gxk
                     gy[k] = gyk
@@ -169,15 +166,15 @@ def _warp_block8(T, static_c: int, static_padding: int):
                 gx = gx + dx
                 gy = gy + dy
             # lanes that are not active: no gradient at all (also for a NaN or inf incoming gradient there)
-            gx = lanes.select8(active, gx, lanes.splat8(zero))
-            gy = lanes.select8(active, gy, lanes.splat8(zero))
+            gx = lanes.select8(active, gx, zeros)
+            gy = lanes.select8(active, gy, zeros)
         gu = gx
         gv = gy
         if wp.static(static_padding == int(sampler.PADDING_BORDER)):
             # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
             # (a select: a NaN gradient from a NaN pixel there does not pass either)
-            gu = lanes.select8(lanes.open_mask8(u, zero, T(W - 1)), gx, lanes.splat8(zero))
-            gv = lanes.select8(lanes.open_mask8(v, zero, T(H - 1)), gy, lanes.splat8(zero))
+            gu = lanes.select8(lanes.open_mask8(u, zero, T(W - 1)), gx, zeros)
+            gv = lanes.select8(lanes.open_mask8(v, zero, T(H - 1)), gy, zeros)
         # through the projection (camera.project_moved_ray_grad on 8 lanes): u = fx xn + s yn + cx,
         # v = fy yn + cy, xn = q0 / q2, yn = q1 / q2, q = dd (a0 + x ax) + t; lanes that are not
         # active have gu = gv = 0 and contribute nothing
@@ -185,22 +182,27 @@ def _warp_block8(T, static_c: int, static_padding: int):
         gyn = Kb[0, 1] * gu + Kb[1, 1] * gv
         g0 = wp.cw_mul(gxn, inv_z)
         g1 = wp.cw_mul(gyn, inv_z)
-        g2 = -wp.cw_mul(wp.cw_mul(xn, gxn) + wp.cw_mul(yn, gyn), inv_z)
+        # (behind min_depth q_z was replaced by 1, a constant; the depth itself where it is invalid: selects,
+        # as the row kernel's wp.where, so that nothing there can pass, whatever its values)
+        g2 = lanes.select8(ok, -wp.cw_mul(wp.cw_mul(xn, gxn) + wp.cw_mul(yn, gyn), inv_z), zeros)
         r0 = lanes.splat8(a0[0]) + ax[0] * x
         r1 = lanes.splat8(a0[1]) + ax[1] * x
         r2 = lanes.splat8(a0[2]) + ax[2] * x
         g_depth = sampler.dense(wp.adjoint[depth])
         if g_depth.shape[0] > 0:
-            g_depth[e] = g_depth[e] + wp.cw_mul(g0, r0) + wp.cw_mul(g1, r1) + wp.cw_mul(g2, r2)
+            g_d = wp.cw_mul(g0, r0) + wp.cw_mul(g1, r1) + wp.cw_mul(g2, r2)
+            g_depth[e] = g_depth[e] + lanes.select8(ok, g_d, zeros)
         gr0 = wp.cw_mul(g0, dd)
         gr1 = wp.cw_mul(g1, dd)
         gr2 = wp.cw_mul(g2, dd)
-        wp.adjoint[a0] += vec3(sum8(gr0), sum8(gr1), sum8(gr2))
-        wp.adjoint[ax] += vec3(sum8(wp.cw_mul(gr0, x)), sum8(wp.cw_mul(gr1, x)), sum8(wp.cw_mul(gr2, x)))
-        wp.adjoint[t] += vec3(sum8(g0), sum8(g1), sum8(g2))
+        wp.adjoint[a0] += vec3(lanes.sum8(gr0), lanes.sum8(gr1), lanes.sum8(gr2))
+        wp.adjoint[ax] += vec3(
+            lanes.sum8(wp.cw_mul(gr0, x)), lanes.sum8(wp.cw_mul(gr1, x)), lanes.sum8(wp.cw_mul(gr2, x))
+        )
+        wp.adjoint[t] += vec3(lanes.sum8(g0), lanes.sum8(g1), lanes.sum8(g2))
         wp.adjoint[Kb] += mat33(
-            sum8(wp.cw_mul(gu, xn)), sum8(wp.cw_mul(gu, yn)), sum8(gu),
-            zero, sum8(wp.cw_mul(gv, yn)), sum8(gv),
+            lanes.sum8(wp.cw_mul(gu, xn)), lanes.sum8(wp.cw_mul(gu, yn)), lanes.sum8(gu),
+            zero, lanes.sum8(wp.cw_mul(gv, yn)), lanes.sum8(gv),
             zero, zero, zero,
         )
 
@@ -216,4 +218,4 @@ def _warp_block8(T, static_c: int, static_padding: int):
     return warp_block8
 
 
-__all__ = ["LANES", "warp_block8"]
+__all__ = ["warp_block8"]

@@ -218,25 +218,52 @@ def _bits(t):
     return t.view(torch.int32 if t.dtype == torch.float32 else torch.int64)
 
 
-def _lanes_scene(C, motion, dtype):
+def _lanes_scene(C, motion, dtype, bad_pixels=True):
     """A scene for the 8-lane kernel against the row kernel: inside, outside and on the edges of the
     image (the identity pose puts the last column and row exactly there), behind the camera, invalid
-    depths (0, negative, NaN, inf, just above min_depth, beyond 1e30), NaN/inf pixels, a skewed K and
-    another K for the second batch item; rows of two 8-pixel blocks. Returns the op's arguments."""
+    depths (0, negative, NaN, inf, just above min_depth, beyond 1e30), a skewed K and another K for
+    the second batch item, NaN/inf pixels (``bad_pixels``); rows of two 8-pixel blocks. Returns the
+    op's arguments."""
     B, H, W = 2, 6, 16
     image, depth, pose, _ = scene(B=B, C=C, H=H, W=W, motion={"identity": 0.0, "small": 0.05, "large": 0.6}[motion],
                                   seed=C, dtype=dtype)
     if motion == "large":
         pose[1, 2, 3] = -2.5  # (most of item 1's points behind the camera)
-    image[0, 0, 0, 0], image[1, -1, 2, 3] = float("nan"), float("inf")
+    if bad_pixels:
+        image[0, 0, 0, 0], image[1, -1, 2, 3] = float("nan"), float("inf")
     depth[0, 0, 1, :7] = torch.tensor([0.0, -1.0, float("nan"), float("inf"), 1e-3, 1.0001e-3, 2e30], dtype=dtype)
     K = torch.tensor([[[14.0, 0.4, 7.5], [0, 12.0, 2.5], [0, 0, 1]],  # (each item its own K)
                       [[16.0, 0.0, 8.0], [0, 13.0, 3.0], [0, 0, 1]]], dtype=dtype)
     return image, depth, pose[:, :3].contiguous(), K
 
 
-@pytest.mark.parametrize("C", [1, 4, 6])  # 4 = the channels the kernels unroll; 6: more
-@pytest.mark.parametrize("padding", [0, 1])
+def _passes_no_gradient(depth, pose34, K, padding, min_depth=1e-3):
+    """(B, H, W): the pixels that clearly pass no gradient (written from the conventions, in torch):
+    invalid depth, the moved point behind ``min_depth``, and with zeros padding a sample position
+    with no tap in the image; pixels within 1e-3 of those limits are left out (either way)."""
+    B, _, H, W = depth.shape
+    d = depth[:, 0]
+    usable = (d > min_depth) & (d < 1e30)
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=d.dtype), torch.arange(W, dtype=d.dtype), indexing="ij")
+    pixels = torch.stack([xs, ys, torch.ones_like(xs)], -1)  # (H, W, 3)
+    rays = torch.einsum("bij,hwj->bhwi", torch.linalg.inv(K), pixels)
+    q = torch.einsum("bij,bhwj->bhwi", pose34[:, :, :3], rays * torch.where(usable, d, 1.0)[..., None])
+    q = q + pose34[:, None, None, :, 3]
+    z = q[..., 2]
+    uvw = torch.einsum("bij,bhwj->bhwi", K, q / torch.where(z > min_depth, z, 1.0)[..., None])
+    u, v = uvw[..., 0], uvw[..., 1]
+    out = ~usable | (z < min_depth - 1e-3)
+    if padding == 0:
+        out |= (u < -1 - 1e-3) | (u > W + 1e-3) | (v < -1 - 1e-3) | (v > H + 1e-3)
+    return out
+
+
+# (C, padding): each pair is a kernel compiled for it; C = 3 unrolled as a constant (up to 4 are),
+# C = 6 read at run time
+LANES_VARIANTS = [(3, 0), (3, 1), (6, 0)]
+
+
+@pytest.mark.parametrize(("C", "padding"), LANES_VARIANTS)
 @pytest.mark.parametrize("motion", ["identity", "small", "large"])
 def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
     """The 8-lane forward kernel (a row per thread, 8 pixels at a time) gives bitwise the values and
@@ -252,37 +279,41 @@ def test_lanes_kernel_equals_scalar_kernel(C, padding, motion, dtype):
         assert scalar[1][1].all()  # (every pixel, the last row and column included, valid)
 
 
-@pytest.mark.parametrize("C", [1, 4, 6])
-@pytest.mark.parametrize("padding", [0, 1])
+@pytest.mark.parametrize(("C", "padding"), LANES_VARIANTS)
 @pytest.mark.parametrize("motion", ["identity", "small", "large"])
 @pytest.mark.parametrize("image_grad", [True, False], ids=["image-grad", "image-data"])
 def test_lanes_adjoint_equals_scalar_adjoint(C, padding, motion, image_grad, dtype):
     """The 8-lane kernel's hand-written adjoint gives the row kernel's (Warp's adjoint of its
     per-pixel code) gradients for image, depth, pose and K, up to the order of the sums, in every case
-    of :func:`_lanes_scene`; both of its paths (with and without the image gradient). A NaN incoming
-    gradient on pixels of invalid depth changes nothing: they pass no gradient at all. (The NaN and inf
-    pixels of the image make NaN gradients for what samples them, in both.)"""
+    of :func:`_lanes_scene` with finite pixels; both of its paths (with and without the image
+    gradient). A NaN incoming gradient on every pixel that passes no gradient (invalid depth, behind
+    the camera, no tap in the image) changes nothing. With NaN and inf pixels, the gradients of what
+    samples them are NaN in both, at the same places."""
     from gvnn_warp.ops import sampling as _ops
 
-    image, depth, pose34, K = _lanes_scene(C, motion, dtype)
-    args = (C, *image.shape[2:], 1e-3, padding)
-    g = torch.randn(image.shape, generator=torch.Generator().manual_seed(C), dtype=dtype)
-    g[0, :, 1, :5] = float("nan")  # (the pixels of invalid depth: 0, -1, NaN, inf, min_depth)
-    grads = []
-    for op in (_ops.warp_frame_depth_lanes, _ops.warp_frame_depth):
-        xs = [image.clone().requires_grad_(image_grad), *(t.clone().requires_grad_() for t in (depth, pose34, K))]
-        op(*xs, *args)[0].backward(g)
-        grads.append([x.grad for x in xs])
+    args = (C, 6, 16, 1e-3, padding)
     tol = {"rtol": 1e-10, "atol": 1e-10} if dtype == torch.float64 else {"rtol": 1e-5, "atol": 1e-4}
-    for name, a, b in zip(("image", "depth", "pose", "K"), *grads):
-        if name == "image" and not image_grad:
-            assert a is None and b is None
-            continue
-        torch.testing.assert_close(a, b, **tol, equal_nan=True, msg=name)
-    depth_grad = grads[0][1]
-    assert (depth_grad[0, 0, 1, :5] == 0).all()  # (the NaN incoming gradient there)
-    if motion != "large":  # (there, most points leave the image or go behind the camera)
-        assert (depth_grad.nan_to_num() != 0).any()  # (gradients that could differ)
+    for bad_pixels in (False, True):
+        image, depth, pose34, K = _lanes_scene(C, motion, dtype, bad_pixels)
+        g = torch.randn(image.shape, generator=torch.Generator().manual_seed(C), dtype=dtype)
+        silent = _passes_no_gradient(depth, pose34, K, padding)
+        assert silent.any() and (~silent).any()
+        g = torch.where(silent[:, None], float("nan"), g)
+        grads = []
+        for op in (_ops.warp_frame_depth_lanes, _ops.warp_frame_depth):
+            xs = [image.clone().requires_grad_(image_grad), *(t.clone().requires_grad_() for t in (depth, pose34, K))]
+            op(*xs, *args)[0].backward(g)
+            grads.append([x.grad for x in xs])
+        for name, a, b in zip(("image", "depth", "pose", "K"), *grads):
+            if name == "image" and not image_grad:
+                assert a is None and b is None
+                continue
+            if not bad_pixels:
+                assert torch.isfinite(a).all(), name
+            torch.testing.assert_close(a, b, **tol, equal_nan=True, msg=name)
+        assert (grads[0][1][:, 0][silent] == 0).all()  # (the NaN incoming gradient there)
+        if not bad_pixels:  # (gradients that could differ)
+            assert all((t != 0).any() for t in grads[0][1:]) or motion == "large"
 
 
 def test_warp_frame_depth_takes_the_lanes_kernel_where_rows_allow(monkeypatch):

@@ -32,7 +32,8 @@ def missing_for(name, spec, samples):
         if test not in ("scopes", "gradients") or not why:
             missing.append(f"untested={{{test!r}: ...}}: a test of tests/ops/test_compile.py or test_scopes.py, "
                            "and why")
-    kernels = [spec.fk, spec.backward_kernel] if spec.select is None else [spec.backward_kernel]
+    params = samples[name][len(spec.inputs):] if name in samples else None
+    kernels = [spec.kernel_for(params), spec.backward_kernel_for(params)] if params is not None else []
     for fk in kernels:
         if fk is not None and fk not in kinds.registered():
             missing.append(f"FloatKernel(...).set_parallel(...) declaration of {fk.kernel.key}")

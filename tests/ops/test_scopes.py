@@ -35,23 +35,25 @@ def many_pieces(seen):
     return plan
 
 
-def wanted_inputs(spec):
+def wanted_inputs(spec, params):
     """Positions (among the float tensor inputs) of the gradients the declaration lets be cut:
     all but the "any" ones (those are always cut into fixed pieces with partial buffers). A
     hand-written op (no one kernel whose adjoint is its backward): all of its tensor inputs, the
     planner cutting each of its launches as that kernel's declaration allows."""
     if not spec.differentiable:
         return set()
-    if spec.backward_kernel is None:
+    fk = spec.backward_kernel_for(params)
+    if fk is None:
         return set(range(len(spec.inputs)))
-    info = kinds.declaration(spec.backward_kernel[L.FLOAT_TYPES[1]])
+    info = kinds.declaration(fk[L.FLOAT_TYPES[1]])
     return {k for k, name in enumerate(spec.inputs) if info.scope(name) != "any"}
 
 
-def scope_of(spec, k):
-    if spec.backward_kernel is None:  # a hand-written op
+def scope_of(spec, params, k):
+    fk = spec.backward_kernel_for(params)
+    if fk is None:  # a hand-written op
         return "in the declarations of the kernels it launches"
-    return repr(kinds.declaration(spec.backward_kernel[L.FLOAT_TYPES[1]]).scope(spec.inputs[k]))
+    return repr(kinds.declaration(fk[L.FLOAT_TYPES[1]]).scope(spec.inputs[k]))
 
 
 def run(spec, args, planner, monkeypatch, wanted):
@@ -75,7 +77,8 @@ def test_declared_scopes_hold_for_every_kernel(monkeypatch, one_thread):
         if "scopes" in spec.untested:
             continue  # (the registration says why)
         args = samples[name]
-        wanted = wanted_inputs(spec)
+        params = args[len(spec.inputs):]
+        wanted = wanted_inputs(spec, params)
         ref_out, ref_grads = run(spec, args, one_piece, monkeypatch, wanted)
         # all cuttable gradients at once, then each alone (an "element" one is then cut per element)
         for subset in [wanted, *({k} for k in sorted(wanted))]:
@@ -85,14 +88,15 @@ def test_declared_scopes_hold_for_every_kernel(monkeypatch, one_thread):
             for k in subset:
                 assert torch.equal(grads[k], ref_grads[k]), (
                     f"{name}: gradient of {spec.inputs[k]!r} differs when cut into pieces: its declared scope "
-                    f"({scope_of(spec, k)}) is wrong"
+                    f"({scope_of(spec, params, k)}) is wrong"
                 )
     # every kernel an op launches was cut, forward and (if it has one) adjoint. Kernels that no op
     # launches through launch() (the pure-Warp normal equations and the aligner's kernels replay
     # their own recorded splits) have their own any-thread-count tests.
     op_kernels = set()
-    for spec in OPS.values():
-        for fk in (spec.fk, spec.backward_kernel):
+    for name, spec in OPS.items():
+        params = samples[name][len(spec.inputs):]
+        for fk in (spec.kernel_for(params), spec.backward_kernel_for(params)):
             if fk is not None and fk in kinds.registered():
                 op_kernels.add(fk)
     missing = []
