@@ -86,6 +86,15 @@ def pixel_rays(K: wp.array, dist: wp.array, H: int, W: int, model) -> wp.array:
     return rays
 
 
+def _lanes_view(a: wp.array) -> wp.array:
+    """A contiguous float array (its gradient too, if it has one) seen as 8-lane vectors over the same
+    memory (a tape's adjoint launch then reads and adds to the original's gradient)."""
+    vec8 = wp.types.vector(8, a.dtype)
+    n = a.size // 8
+    grad = wp.array(ptr=a.grad.ptr, dtype=vec8, shape=(n,), device=a.device) if a.grad is not None else None
+    return wp.array(ptr=a.ptr, dtype=vec8, shape=(n,), device=a.device, grad=grad, requires_grad=grad is not None)
+
+
 def warp_frame_depth(
     image: wp.array,
     depth: wp.array,
@@ -126,7 +135,13 @@ def warp_frame_depth(
     valid = wp.zeros((B, 1, H, W), dtype=wp.bool, device=image.device)
     common = [image.flatten(), depth.flatten(), pose, K]
     params = [C, H, W, float(min_depth), _PADDING[padding_mode]]
-    if m == 0:
+    out = warped.flatten()
+    if m == 0 and sampling_kernels.fits_row_lanes(H, W):
+        # the 8-lane kernel, as the torch op takes it: depth and output seen 8 values an element
+        kernel = sampling_kernels.warp_frame_depth_lanes(C, _PADDING[padding_mode])[ft]
+        inputs = [0, common[0], _lanes_view(common[1]), pose, K, *params]
+        out = _lanes_view(out)
+    elif m == 0:
         kernel, inputs = sampling_kernels.warp_frame_depth[ft], [0, *common, *params]
     else:
         rays = pixel_rays(K, dist, H, W, m)
@@ -136,7 +151,7 @@ def warp_frame_depth(
         kernel,
         dim=B * H,  # one thread per image row, as in the torch op
         inputs=inputs,
-        outputs=[warped.flatten(), valid.flatten()],
+        outputs=[out, valid.flatten()],
         device=image.device,
         # a launch with no gradient to pass is not recorded: a tape's backward would run its adjoint for
         # nothing (and the lens kernels' hand-written adjoints crashed on arrays without gradients)
