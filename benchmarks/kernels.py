@@ -106,6 +106,15 @@ def kernel_cases(quick: bool) -> dict:
             [warped, valid], ["scalar", "bool"], (C, H, W, 1e-3, 0), launches=B * H,  # one thread per row
         ),
     )
+    if sampling_kernels.fits_row_lanes(H, W):  # what the op runs here: a row per thread, 8 pixels at a time
+        cases["warp_frame_depth_lanes"] = (
+            n_pix,
+            *_launch_case(
+                sampling_kernels.warp_frame_depth_lanes(C, 0), n_pix, [image, depth, pose, K],
+                ["scalar", "vec8", "mat34", "mat33"], [warped, valid], ["vec8", "bool"], (C, H, W, 1e-3, 0),
+                launches=B * H,
+            ),
+        )
     return cases
 
 

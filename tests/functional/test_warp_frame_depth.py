@@ -77,7 +77,7 @@ def test_identity_pose_reproduces_image(shape, dtype):
 
 @pytest.mark.parametrize("W", [7, 16])  # the row kernel; the 8-lane kernel (rows of whole 8-pixel blocks)
 def test_gradcheck_all_inputs(W):
-    image, depth, pose, K = scene(B=2, C=2, H=6, W=W, motion=0.08, seed=3)
+    image, depth, pose, K = scene(B=2, C=2, H=6 if W == 7 else 4, W=W, motion=0.08, seed=3)
     args = [t.requires_grad_() for t in (image, depth, pose, K)]
     assert gradcheck(lambda *a: G.warp_frame_depth(*a)[0], args)
     assert gradcheck(lambda *a: G.warp_frame_depth(*a, padding_mode="border")[0], args)
