@@ -37,11 +37,19 @@ from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
 from . import lens_block, pinhole_block, sampler
 
-INSIDE_TOLERANCE = sampler.INSIDE_TOLERANCE  # the ``valid`` flag's tolerance (see .scalar)
-
 # Fewest pixels worth a separate chunk of a threaded launch (~0.2 ms of work: a chunk costs
 # ~20 us of launch and hand-over).
 _GRAIN_PIXELS = 8192
+
+# How the spatial transformers' row kernels (one thread per image row, launch B * H) may be split:
+# segments are a batch item's rows; a row's adjoint writes its own depth pixels, and the image plane,
+# pose and K of its item. The row kernel and the 8-lane kernel declare exactly this, the lens kernel
+# this and its own arrays.
+_ROW_SPLIT = {
+    "segment": lambda a: a["H"],
+    "scopes": {"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
+    "grain": lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
+}
 
 @wp.kernel(module="unique")
 def _bilinear_sample(
@@ -161,7 +169,7 @@ def _warp_frame_depth(
     Tb = pose[b]
     zmin = type(Kb[0, 0])(min_depth)
     one = type(zmin)(1.0)
-    tol = type(zmin)(INSIDE_TOLERANCE)
+    tol = type(zmin)(sampler.INSIDE_TOLERANCE)
     umax = type(zmin)(W - 1) + tol
     vmax = type(zmin)(H - 1) + tol
     a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
@@ -186,11 +194,7 @@ def _warp_frame_depth(
 
 warp_frame_depth = FloatKernel(
     _warp_frame_depth, image="scalar", depth="scalar", pose="mat34", K="mat33", out="scalar"
-).set_parallel(
-    segment=lambda a: a["H"],  # rows of one batch item
-    scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
-    grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
-)
+).set_parallel(**_ROW_SPLIT)
 
 
 def fits_row_lanes(H: int, W: int) -> bool:
@@ -251,11 +255,7 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
                   b * nc * hw8 + py * w8 + k, nc, hw8, H, W, zmin)
 
     return FloatKernel(_warp_frame_depth_lanes, image="scalar", depth="vec8", pose="mat34", K="mat33",
-                       out="vec8").set_parallel(
-        segment=lambda a: a["H"],  # rows of one batch item
-        scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment"},
-        grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
-    )
+                       out="vec8").set_parallel(**_ROW_SPLIT)
 
 
 # ----------------------------------------------------------------------------- through a lens model
@@ -328,7 +328,7 @@ def warp_frame_depth_lens() -> FloatKernel:
         Tb = pose[b]
         db = dist[b]
         zmin = type(Kb[0, 0])(min_depth)
-        tol = type(zmin)(INSIDE_TOLERANCE)
+        tol = type(zmin)(sampler.INSIDE_TOLERANCE)
         R = lie.pose_rotation(Tb)
         t = lie.pose_translation(Tb)
         row = r * W
@@ -346,9 +346,8 @@ def warp_frame_depth_lens() -> FloatKernel:
         _warp_frame_depth_lens, image="scalar", depth="scalar", pose="mat34", K="mat33", dist="vec8", rays="vec3",
         out="scalar",
     ).set_parallel(
-        segment=lambda a: a["H"],  # rows of one batch item
+        segment=_ROW_SPLIT["segment"],
         # rays shared by the batch (ray_stride 0) gather the gradients of every item: "any"
-        scopes={"image": "segment", "depth": "element", "pose": "segment", "K": "segment", "dist": "segment",
-                "rays": "any"},
-        grain=lambda a: max(1, _GRAIN_PIXELS // max(1, a["W"])),
+        scopes={**_ROW_SPLIT["scopes"], "dist": "segment", "rays": "any"},
+        grain=_ROW_SPLIT["grain"],
     )
