@@ -147,20 +147,30 @@ def test_inputs_not_modified_and_layout_independent():
     torch.testing.assert_close(G.warp_frame_depth(image_cl, depth_t, pose_sl, K)[0], out, rtol=0, atol=0)
 
 
+def _torch_project(depth, pose, K):
+    """Each pixel of ``depth`` (B, 1, H, W) unprojected, moved by ``pose`` (B, 3|4, 4) and projected
+    with ``K`` ((3, 3), or (B, 3, 3) one per item), in plain torch: (u, v, z), each (B, H, W);
+    meaningless where the depth is invalid or z is not positive."""
+    B, _, H, W = depth.shape
+    K = K.expand(B, 3, 3)[:, :, :, None, None]  # (entries broadcast over the pixels)
+    y, x = torch.meshgrid(torch.arange(H, dtype=depth.dtype), torch.arange(W, dtype=depth.dtype), indexing="ij")
+    d = depth[:, 0]
+    ry = (y - K[:, 1, 2]) / K[:, 1, 1]
+    rx = (x - K[:, 0, 2] - K[:, 0, 1] * ry) / K[:, 0, 0]
+    p = torch.stack([rx * d, ry * d, d], -1)  # (B, H, W, 3)
+    q = torch.einsum("bij,bhwj->bhwi", pose[:, :3, :3], p) + pose[:, None, None, :3, 3]
+    u = K[:, 0, 0] * q[..., 0] / q[..., 2] + K[:, 0, 1] * q[..., 1] / q[..., 2] + K[:, 0, 2]
+    v = K[:, 1, 1] * q[..., 1] / q[..., 2] + K[:, 1, 2]
+    return u, v, q[..., 2]
+
+
 def _torch_warp(image, depth, pose, K, padding_mode):
     """Reference in plain torch (unproject, move, project, grid_sample) for pixels whose depth is
     valid and whose moved point is in front; elsewhere its values are meaningless."""
-    B, C, H, W = image.shape
-    y, x = torch.meshgrid(torch.arange(H, dtype=depth.dtype), torch.arange(W, dtype=depth.dtype), indexing="ij")
-    d = depth[:, 0]
-    ry = (y - K[1, 2]) / K[1, 1]
-    rx = (x - K[0, 2] - K[0, 1] * ry) / K[0, 0]
-    p = torch.stack([rx * d, ry * d, d], -1)  # (B, H, W, 3)
-    q = torch.einsum("bij,bhwj->bhwi", pose[:, :, :3], p) + pose[:, None, None, :, 3]
-    u = K[0, 0] * q[..., 0] / q[..., 2] + K[0, 1] * q[..., 1] / q[..., 2] + K[0, 2]
-    v = K[1, 1] * q[..., 1] / q[..., 2] + K[1, 2]
+    H, W = image.shape[2:]
+    u, v, z = _torch_project(depth, pose, K)
     grid = torch.stack([u / (W - 1), v / (H - 1)], -1) * 2 - 1
-    return F.grid_sample(image, grid, align_corners=True, padding_mode=padding_mode), u, v, q[..., 2]
+    return F.grid_sample(image, grid, align_corners=True, padding_mode=padding_mode), u, v, z
 
 
 @pytest.mark.parametrize("padding_mode", ["zeros", "border"])
@@ -241,19 +251,12 @@ def _passes_no_gradient(depth, pose34, K, padding, min_depth=1e-3):
     """(B, H, W): the pixels that clearly pass no gradient (written from the conventions, in torch):
     invalid depth, the moved point behind ``min_depth``, and with zeros padding a sample position
     with no tap in the image; pixels within 1e-3 of those limits are left out (either way)."""
-    B, _, H, W = depth.shape
+    H, W = depth.shape[2:]
     d = depth[:, 0]
     usable = (d > min_depth) & (d < 1e30)
-    ys, xs = torch.meshgrid(torch.arange(H, dtype=d.dtype), torch.arange(W, dtype=d.dtype), indexing="ij")
-    pixels = torch.stack([xs, ys, torch.ones_like(xs)], -1)  # (H, W, 3)
-    rays = torch.einsum("bij,hwj->bhwi", torch.linalg.inv(K), pixels)
-    q = torch.einsum("bij,bhwj->bhwi", pose34[:, :, :3], rays * torch.where(usable, d, 1.0)[..., None])
-    q = q + pose34[:, None, None, :, 3]
-    z = q[..., 2]
-    uvw = torch.einsum("bij,bhwj->bhwi", K, q / torch.where(z > min_depth, z, 1.0)[..., None])
-    u, v = uvw[..., 0], uvw[..., 1]
+    u, v, z = _torch_project(torch.where(usable, d, 1.0)[:, None], pose34, K)
     out = ~usable | (z < min_depth - 1e-3)
-    if padding == 0:
+    if padding == 0:  # (NaN u, v from a zero z compare false: left out)
         out |= (u < -1 - 1e-3) | (u > W + 1e-3) | (v < -1 - 1e-3) | (v > H + 1e-3)
     return out
 
