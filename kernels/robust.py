@@ -33,6 +33,7 @@ from typing import Any
 import warp as wp
 
 from .core.cache import float_overloads
+from .core.compat import func_grad
 
 HUBER = wp.constant(0)
 CAUCHY = wp.constant(1)
@@ -59,7 +60,7 @@ def _log1p(T):
             r = wp.log(u) * (z / (u - T(1.0)))  # z / (u - 1) first: log(u) z overflows for z ~ 1e37
         return r
 
-    @wp.func_grad(log1p)
+    @func_grad(log1p)
     def adj_log1p(z: T, adj_ret: T):
         wp.adjoint[z] += adj_ret / (T(1.0) + z)
 

@@ -86,6 +86,38 @@ def add_function_overload(first, other) -> None:
     first.module.functions[first.key] = first
 
 
+def func_grad(forward):
+    """``@wp.func_grad(forward)`` for a concrete ``@wp.func`` (no generic argument types): registers
+    the decorated function as ``forward``'s custom adjoint exactly as Warp does, without Warp's
+    check of its signature against ``forward``'s return types. To learn those, Warp builds
+    ``forward`` (a code-generation pass over it and everything it calls) in every process that
+    defines it, kernels in the cache or not: 0.5-1 s before a first ``warp_frame_depth`` call, 3 s
+    for the whole API. What can be checked without that is checked here (the adjoint takes the
+    function's arguments, same types, first); a wrong or missing ``adj_ret`` argument fails the
+    calling kernel's build, and a cached kernel was built from this very source (its hash)."""
+    if len(forward.user_overloads) != 1:  # (a generic function has none until overloaded)
+        raise TypeError(f"func_grad({forward.key}): needs a function of concrete argument types (one overload)")
+    (f,) = forward.user_overloads.values()
+    inputs = list(forward.input_types.values())
+
+    def register(grad):
+        types = [t for name, t in grad.__annotations__.items() if name != "return"]
+        if len(types) < len(inputs) or not all(wp.types.types_equal(a, b) for a, b in zip(types, inputs)):
+            raise TypeError(f"func_grad({forward.key}): the adjoint {grad.__qualname__} must take the function's "
+                            "arguments (same types) and then the adjoint of each returned value")
+        # Warp's own registration (warp._src.context.func_grad's add_custom_grad), field for field
+        f.custom_grad_func = type(f)(
+            grad, key=f.key, native_func=f.native_func, namespace=f.namespace, input_types=dict(forward.input_types),
+            value_func=None, module=f.module, skip_forward_codegen=True, custom_reverse_mode=True,
+            custom_reverse_num_input_args=len(f.input_types), skip_adding_overload=False,
+            code_transformers=f.adj.transformers, inline_hint=f.inline_hint,
+        )
+        f.adj.skip_reverse_codegen = True
+        return grad
+
+    return register
+
+
 def gil_enabled() -> bool:
     """False on a free-threaded CPython running without the GIL (``sys._is_gil_enabled``, 3.13+);
     True everywhere else."""

@@ -15,6 +15,7 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads
+from ..core.compat import func_grad
 
 # Points (and depths) must have z above this many metres to be projected / used; below it a
 # warp marks the pixel invalid. The paper notes gradients of the projection degrade as z -> 0.
@@ -76,7 +77,7 @@ def _project_clamped(T):
         z = wp.where(p[2] > min_depth, p[2], min_depth)
         return project(K, wp.vector(p[0], p[1], z))
 
-    @wp.func_grad(project_clamped)
+    @func_grad(project_clamped)
     def adj_project_clamped(K: mat33, p: vec3, min_depth: T, adj_ret: vec2):
         front = p[2] > min_depth
         g_K, g_p = project_grad(K, wp.vector(p[0], p[1], wp.where(front, p[2], T(1.0))), adj_ret)
@@ -165,7 +166,7 @@ def _project_moved_ray(T):
         yn = q1 * inv_z
         return wp.vector(K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2], q2)
 
-    @wp.func_grad(project_moved_ray)
+    @func_grad(project_moved_ray)
     def adj_project_moved_ray(
         a0: vec3, ax: vec3, t: vec3, K: mat33, x: T, depth: T, min_depth: T, adj_ret: vec3
     ):

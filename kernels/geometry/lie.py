@@ -24,6 +24,7 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads
+from ..core.compat import func_grad
 
 # theta^2 below which Taylor series replace the closed forms (theta < 1e-2 rad). The first
 # omitted term is O(theta^6) ~ 1e-12 / 5040 relative; above it, the closed forms' derivatives
@@ -135,7 +136,7 @@ def _nearest_rotation(T):
         wp.svd3(M / wp.where(m > T(0.0), m, T(1.0)), U, s, V)
         return wp.where(m > T(0.0), U * wp.transpose(V), wp.identity(n=3, dtype=T))
 
-    @wp.func_grad(nearest_rotation)
+    @func_grad(nearest_rotation)
     def adj_nearest_rotation(M: mat33, adj_ret: mat33):
         m = _max_abs(M)
         scale = wp.where(m > T(0.0), m, T(1.0))
@@ -183,7 +184,7 @@ def _is_rotation(T):
         tol = T(ROTATION_TOL)
         return e2 <= tol * tol and wp.dot(c0, wp.cross(c1, c2)) > T(0.0)
 
-    @wp.func_grad(is_rotation)
+    @func_grad(is_rotation)
     def adj_is_rotation(R: mat33, adj_ret: bool):
         pass
 

@@ -28,6 +28,7 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads, specialise
+from ..core.compat import func_grad
 from ..core.kinds import FloatKernel
 from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
@@ -196,7 +197,7 @@ def _rows_mean(T):
             n += row_count[start + h]
         return wp.where(n > T(0.0), s / (T(C) * wp.where(n > T(0.0), n, T(1.0))), T(0.0)), n
 
-    @wp.func_grad(rows_mean)
+    @func_grad(rows_mean)
     def adj_rows_mean(
         row_sum: wp.array(dtype=T), row_count: wp.array(dtype=T), start: int, H: int, C: int,
         adj_ret_0: T, adj_ret_1: T,

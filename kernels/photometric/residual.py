@@ -17,6 +17,7 @@ import warp as wp
 from .. import robust
 from ..core import lanes
 from ..core.cache import float_overloads
+from ..core.compat import func_grad
 
 L2 = wp.constant(4)
 L1 = wp.constant(5)
@@ -264,7 +265,7 @@ def _pixel_penalty(T):
                                          k00, k10, k01, k11, wx1, wy1, kind, c)
         return total
 
-    @wp.func_grad(pixel_penalty)
+    @func_grad(pixel_penalty)
     def adj_pixel_penalty(
         live: wp.array(dtype=T),
         ref: wp.array(dtype=T),

@@ -22,6 +22,7 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads
+from ..core.compat import func_grad
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..photometric.error_rows import rows_mean
@@ -226,7 +227,7 @@ def _plane_mean(T):
             s += wp.float64(values[start + k])
         return T(s / wp.float64(n))
 
-    @wp.func_grad(plane_mean)
+    @func_grad(plane_mean)
     def adj_plane_mean(values: wp.array(dtype=T), start: int, n: int, adj_ret: T):
         g = wp.adjoint[values]
         if g.shape[0] > 0:
@@ -262,7 +263,7 @@ def _mean_abs_diff(T):
             g += wp.abs(image[i + c * hw] - image[i + c * hw + step])
         return g / T(C)
 
-    @wp.func_grad(mean_abs_diff)
+    @func_grad(mean_abs_diff)
     def adj_mean_abs_diff(image: wp.array(dtype=T), i: int, step: int, C: int, hw: int, adj_ret: T):
         # (written by hand: Warp does not differentiate the sum carried through the channel loop)
         g = wp.adjoint[image]

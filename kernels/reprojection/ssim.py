@@ -6,6 +6,7 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads
+from ..core.compat import func_grad
 
 SSIM_C1 = 0.01**2  # (in the kernels as 1/10000 and 9/10000 in the kernel's float type: a Python
 SSIM_C2 = 0.03**2  # float constant would reach a float64 kernel rounded to float32)
@@ -80,7 +81,7 @@ def _channel_error(T):
         l1 = wp.abs(target[t0 + k] - cand[c0 + k])
         return alpha * dssim(sx, sy, sxx, syy, sxy) + (T(1.0) - alpha) * l1
 
-    @wp.func_grad(channel_error)
+    @func_grad(channel_error)
     def adj_channel_error(
         target: wp.array(dtype=T),
         cand: wp.array(dtype=T),

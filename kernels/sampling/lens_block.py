@@ -10,6 +10,7 @@ of ``lens.rays.project_ray``'s), for float64 it is exact to rounding.
 import warp as wp
 
 from ..core.cache import float_overloads, specialise
+from ..core.compat import func_grad
 from ..core.kinds import vec8d, vec8f
 from ..geometry.lens import dispatch
 from ..geometry.lens import lanes as lens_lanes
@@ -76,7 +77,7 @@ def _warp_block(T):
             xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
             sampler.sample_channels(image, out, src, dst0 + k, C, H * W, H * W, H, W, xs, ys, ok and reachable)
 
-    @wp.func_grad(warp_block)
+    @func_grad(warp_block)
     def adj_warp_block(
         image: wp.array(dtype=T), depth: wp.array(dtype=T), rays: wp.array(dtype=vec3), out: wp.array(dtype=T),
         valid: wp.array(dtype=wp.bool), K: wp.array(dtype=mat33), dist: wp.array(dtype=vec8), i0: int, ray0: int,

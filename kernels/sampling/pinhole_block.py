@@ -24,6 +24,7 @@ import warp as wp
 
 from ..core import lanes
 from ..core.cache import float_overloads, specialise
+from ..core.compat import func_grad
 from ..core.kinds import vec8d, vec8f
 from . import sampler
 
@@ -114,7 +115,7 @@ def _warp_block8(T, static_c: int, static_padding: int):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
         sampler.sample_lanes(image, out, src, dst, nc, H * W, hw8, H, W, xs, ys, wp.cw_mul(inside, ok))
 
-    @wp.func_grad(warp_block8)
+    @func_grad(warp_block8)
     def adj_warp_block8(
         image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
         valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,

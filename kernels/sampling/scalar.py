@@ -18,6 +18,7 @@ from typing import Any
 import warp as wp
 
 from ..core.cache import float_overloads
+from ..core.compat import func_grad
 
 PADDING_ZEROS = wp.constant(0)
 PADDING_BORDER = wp.constant(1)
@@ -312,7 +313,7 @@ def _sample_channels(T):
             for c in range(UNROLLED_CHANNELS, C):
                 out[dst + c * hw_out] = T(0.0)
 
-    @wp.func_grad(sample_channels)
+    @func_grad(sample_channels)
     def adj_sample_channels(
         image: wp.array(dtype=T),
         out: wp.array(dtype=T),

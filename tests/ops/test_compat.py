@@ -11,6 +11,7 @@ import threading
 import warnings
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 import warp as wp
@@ -160,6 +161,87 @@ def test_add_function_overload():
     assert first.module.functions[first.key] is first
     types = {tuple(f.input_types.values()) for f in first.user_overloads.values()}
     assert {(wp.float32,), (wp.float64,)} <= types
+
+
+def _square(register, adjoint_scale: float):
+    """A float32 square with a custom adjoint ``adjoint_scale * adj_ret`` (not the true derivative:
+    which adjoint ran shows in the gradient), registered by ``register`` (wp.func_grad or ours)."""
+
+    @wp.func
+    def square(x: wp.float32):
+        return x * x
+
+    @register(square)
+    def adj_square(x: wp.float32, adj_ret: wp.float32):
+        wp.adjoint[x] += wp.float32(adjoint_scale) * adj_ret
+
+    return square
+
+
+def _square_adjoint_of_another_type(register):
+    """As :func:`_square`, with an adjoint whose argument is not of the function's type."""
+
+    @wp.func
+    def square(x: wp.float32):
+        return x * x
+
+    @register(square)
+    def adj_square(x: wp.float64, adj_ret: wp.float32):
+        wp.adjoint[x] += wp.float64(adj_ret)
+
+    return square
+
+
+@wp.func
+def _generic_identity(x: Any):
+    return x
+
+
+_IDENTITIES = {"adj", "func", "initializer_list_func", "native_func", "user_overloads", "module"}  # (per function)
+_ADJOINT_FLAGS = ("custom_reverse_mode", "custom_reverse_num_input_args", "skip_forward_codegen",
+                  "skip_reverse_codegen")
+
+
+def test_func_grad_registers_the_adjoint_as_warp_does():
+    # Warp's decorator and ours leave the same custom adjoint on the forward function; ours skips
+    # only Warp's check of the signature, which builds the forward function first
+    theirs, ours = _square(wp.func_grad, 3.0), _square(wcompat.func_grad, 3.0)
+    assert not hasattr(ours.adj, "return_var") and hasattr(theirs.adj, "return_var")  # (no build)
+    a, b = theirs.custom_grad_func, ours.custom_grad_func
+    assert type(a) is type(b) and set(vars(a)) == set(vars(b))
+    for field in set(vars(a)) - _IDENTITIES:
+        assert getattr(a, field) == getattr(b, field), field
+    for field in _ADJOINT_FLAGS:
+        assert getattr(a.adj, field) == getattr(b.adj, field), field
+    assert a.native_func == theirs.native_func and b.native_func == ours.native_func
+    assert a.module is theirs.module and b.module is ours.module
+    assert ours.adj.skip_reverse_codegen and theirs.adj.skip_reverse_codegen
+    with pytest.raises(TypeError, match="func_grad.*concrete argument types"):
+        wcompat.func_grad(_generic_identity)  # (generic: no overload to attach an adjoint to)
+
+
+def test_func_grad_adjoint_runs_and_a_wrong_signature_is_refused():
+    square = _square(wcompat.func_grad, 3.0)
+
+    @wp.kernel(module="unique")
+    def apply(x: wp.array(dtype=wp.float32), y: wp.array(dtype=wp.float32)):
+        i = wp.tid()
+        y[i] = square(x[i])
+
+    x = wp.array([2.0, -1.0], dtype=wp.float32, device="cpu", requires_grad=True)
+    y = wp.zeros(2, dtype=wp.float32, device="cpu", requires_grad=True)
+    tape = wp.Tape()
+    with tape:
+        wp.launch(apply, dim=2, inputs=[x], outputs=[y], device="cpu")
+    tape.backward(grads={y: wp.array([1.0, 0.5], dtype=wp.float32, device="cpu")})
+    np.testing.assert_array_equal(y.numpy(), [4.0, 1.0])
+    np.testing.assert_array_equal(x.grad.numpy(), [3.0, 1.5])  # the custom adjoint's, not 2x
+
+    # an adjoint of other argument types: refused at once, by Warp's decorator and by ours
+    with pytest.raises(RuntimeError, match="adj_square"):
+        _square_adjoint_of_another_type(wp.func_grad)
+    with pytest.raises(TypeError, match="func_grad.*the adjoint .*adj_square must take the function's arguments"):
+        _square_adjoint_of_another_type(wcompat.func_grad)
 
 
 def test_gil_enabled(monkeypatch):

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import warp as wp
 
 from ...core.cache import float_overloads, specialise
+from ...core.compat import func_grad
 from ...core.kinds import vec8d, vec8f
 from .. import camera
 from .constants import LIMIT, PINHOLE
@@ -69,7 +70,7 @@ def _typed_fronts(T):
             out = vec2(T(xd), T(yd))
         return out, ok
 
-    @wp.func_grad(distort)
+    @func_grad(distort)
     def adj_distort(model: int, dist: vec8, xn: vec2, adj_ret0: vec2, adj_ret1: bool):
         d = to64(dist)
         x = f64(xn[0])
@@ -91,7 +92,7 @@ def _typed_fronts(T):
                 out = vec2(T(x), T(y))
         return out, ok
 
-    @wp.func_grad(undistort)
+    @func_grad(undistort)
     def adj_undistort(model: int, dist: vec8, xd: vec2, adj_ret0: vec2, adj_ret1: bool):
         if finite(xd[0]) and finite(xd[1]):
             if model == PINHOLE:
@@ -118,7 +119,7 @@ def _typed_fronts(T):
                 out = vec2(T(u), T(v))
         return out, ok
 
-    @wp.func_grad(project)
+    @func_grad(project)
     def adj_project(model: int, K: mat33, dist: vec8, p: vec3, min_depth: T, adj_ret0: vec2, adj_ret1: bool):
         # finite X, Y, Z (a sum of finite coordinates above ~1e38 counts as not: irrelevant) and Z > min_depth
         ok = p[2] > min_depth and finite(p[0] + p[1] + p[2])
@@ -160,7 +161,7 @@ def _typed_fronts(T):
                 out = vec3(finite_or_zero(ray[0]), finite_or_zero(ray[1]), T(1.0)) * finite_or_zero(depth)
         return out, ok
 
-    @wp.func_grad(unproject)
+    @func_grad(unproject)
     def adj_unproject(model: int, K: mat33, dist: vec8, x: T, y: T, depth: T, adj_ret0: vec3, adj_ret1: bool):
         g = adj_ret0
         if model == PINHOLE:
@@ -239,7 +240,7 @@ def _typed_fronts(T):
                 out = vec2(T(f64(K[0, 0]) * xd + f64(K[0, 1]) * yd + f64(K[0, 2])), T(f64(K[1, 1]) * yd + f64(K[1, 2])))
         return out, ok
 
-    @wp.func_grad(distort_pixel)
+    @func_grad(distort_pixel)
     def adj_distort_pixel(model: int, K: mat33, dist: vec8, uv: vec2, adj_ret0: vec2, adj_ret1: bool):
         if finite(uv[0] + uv[1]):
             if model == PINHOLE:
@@ -271,7 +272,7 @@ def _typed_fronts(T):
                 out = vec2(T(f64(K[0, 0]) * x + f64(K[0, 1]) * y + f64(K[0, 2])), T(f64(K[1, 1]) * y + f64(K[1, 2])))
         return out, ok
 
-    @wp.func_grad(undistort_pixel)
+    @func_grad(undistort_pixel)
     def adj_undistort_pixel(model: int, K: mat33, dist: vec8, uv: vec2, adj_ret0: vec2, adj_ret1: bool):
         if finite(uv[0] + uv[1]):
             if model == PINHOLE:

@@ -24,6 +24,7 @@ from typing import Any, NamedTuple
 import warp as wp
 
 from ...core.cache import float_overloads, specialise
+from ...core.compat import func_grad
 from ...core.kinds import vec8d, vec8f
 from .. import camera
 from . import dispatch, fronts
@@ -81,7 +82,7 @@ def _project_ray(T):
         v = T(f64(K[1, 1]) * yd + f64(K[1, 2]))
         return vec3(u, v, q[2]), ok
 
-    @wp.func_grad(project_ray)
+    @func_grad(project_ray)
     def adj_project_ray(
         model: int, R: mat33, t: vec3, K: mat33, dist: vec8, ray: vec3, depth: T, min_depth: T,
         adj_ret0: vec3, adj_ret1: bool,
