@@ -14,8 +14,8 @@ Laid out by concept (the map: ``docs/architecture.md``; conventions: ``docs/conv
   Levenberg-Marquardt step (host functions: :mod:`.photometric.pipeline`).
 - :mod:`.pyramid`: image and depth pyramids for coarse-to-fine alignment.
 
-The names below are loaded on first use (PEP 562): defining a lens model's custom adjoints costs
-seconds, which a user of the pinhole layers, or of ``gvnn-warp --help``, should not wait for.
+The names below are loaded on first use (PEP 562): a user of the pinhole layers, or of
+``gvnn-warp --help``, does not wait for the lens models' functions and the other kernels.
 """
 
 import importlib

@@ -94,7 +94,8 @@ def func_grad(forward):
     defines it, kernels in the cache or not: 0.5-1 s before a first ``warp_frame_depth`` call, 3 s
     for the whole API. What can be checked without that is checked here (the adjoint takes the
     function's arguments, same types, first); a wrong or missing ``adj_ret`` argument fails the
-    calling kernel's build, and a cached kernel was built from this very source (its hash)."""
+    calling kernel's build (a C++ compile error, not a Warp message), and a cached kernel was built
+    from this very source (its hash)."""
     if len(forward.user_overloads) != 1:  # (a generic function has none until overloaded)
         raise TypeError(f"func_grad({forward.key}): needs a function of concrete argument types (one overload)")
     (f,) = forward.user_overloads.values()

@@ -7,8 +7,8 @@
   cancel). Converting costs little next to the loads and stores.
 - the 3D grid generator, the rigid transform and the projection over :mod:`.camera` (pinhole), each
   with its twin through a lens model (:mod:`.lens`) where it has one: ``<name>_lens()``, made on
-  first use through the cache (its kernel names the lens models, whose custom adjoints take seconds
-  to define), which takes the camera as ``K`` (mat33 per batch item), ``dist`` (vec8 per batch
+  first use through the cache (its kernel names the lens models, themselves made on first use),
+  which takes the camera as ``K`` (mat33 per batch item), ``dist`` (vec8 per batch
   item, the layout of :mod:`.lens`) and ``model`` (an int, the same for the whole launch).
 
 Arrays are 1-D (one element per batch item, point or pixel); see :mod:`.launch` for the ``offset``

@@ -63,11 +63,12 @@ results, so float32 values and gradients are float64's rounded):
   non-finite entries as 0, zero gradient. For PINHOLE: bitwise :func:`.camera.unproject`, always
   valid.
 
-Every function has a hand-written adjoint (``@wp.func_grad``) for all its floating arguments
-(K, dist, p / x, y, depth), so callers get gradients for intrinsics and every coefficient
-through Warp's adjoint launches or ``wp.Tape``. Adjoint of dist[LIMIT:] is always 0.
+Every function has a hand-written adjoint (``compat.func_grad``: Warp's ``@wp.func_grad`` without
+its build) for all its floating arguments (K, dist, p / x, y, depth), so callers get gradients for
+intrinsics and every coefficient through Warp's adjoint launches or ``wp.Tape``. Adjoint of
+dist[LIMIT:] is always 0.
 
-The typed fronts are :mod:`.fronts` (made on first use: defining their adjoints takes seconds);
+The typed fronts are :mod:`.fronts` (made on first use);
 the float64 building blocks for kernels with their own hand-written adjoints (:mod:`.rays`, the
 fused warps) are :mod:`.dispatch` (``to64``, ``from64``, ``distort64``, ``distort_value64``,
 ``distort_vjp_dist64``, ``undistort64``, ``undistort_grad64``; also here under their earlier names
@@ -161,7 +162,7 @@ def pack_dist(model: int, coeffs=()) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- typed fronts
 
-# Made on first use through the cache (:func:`.fronts.functions`; defining them takes seconds), and
+# Made on first use through the cache (:func:`.fronts.functions`), and
 # named by kernels as module attributes (``lens.project``): Warp resolves such a name when the
 # kernel is defined, so defining a kernel that names one makes them.
 _FRONTS = fronts.Fronts._fields

@@ -14,9 +14,9 @@ A ray is stored as ``(xn, yn, w)``: the ideal normalized coordinates of the pixe
 depth d is ``d (xn, yn, 1)``) and ``w = 1`` where the undistortion converged inside the model's
 domain, 0 where it did not (the pixel has no ray: treated as an invalid depth).
 
-``pixel_ray`` (it names the lens fronts) and ``project_ray`` (a custom adjoint) take seconds to
-define: they are made on first use, through the cache (:func:`functions`), and read as module
-attributes (``lens_rays.project_ray`` in a kernel) like the lens fronts.
+``pixel_ray`` (it names the lens fronts) and ``project_ray`` (a custom adjoint) are made on first
+use, through the cache (:func:`functions`), and read as module attributes
+(``lens_rays.project_ray`` in a kernel) like the lens fronts.
 """
 
 from typing import Any, NamedTuple
