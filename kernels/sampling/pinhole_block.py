@@ -31,7 +31,6 @@ from . import sampler
 _LANES = sampler.LANES
 
 
-
 @specialise("sampling.pinhole_block8", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
 def warp_block8(C: int | None, padding: int) -> wp.Function:
     """The block function for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else
