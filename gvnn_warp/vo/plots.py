@@ -74,10 +74,15 @@ def panel_figure(
     n_rows, n_pairs = len(steps), len(idx)
     _, live, ref_d, _, pose, _ = ps.batch(idx)
     H, W = live.shape[-2:]
-    tile = 2.3  # inches per tile: titles at FONT points fit
+    # A fixed layout, in inches (matplotlib's constrained layout took 1-2 s a figure on 28 axes)
+    tile, tile_h = 2.3, 2.3 * H / W  # inches per tile: titles at FONT points fit
+    left, right, top, row_pad, gap = 0.35, 1.15, 0.45, 0.25, 0.08  # ylabels; colour bar; suptitle; titles, xlabels
+    fig_w = left + 3 * n_pairs * tile + (3 * n_pairs - 1) * gap + right
+    fig_h = top + n_rows * (tile_h + 2 * row_pad)
     fig, axes = plt.subplots(
-        n_rows, 3 * n_pairs, figsize=(3 * n_pairs * tile + 1.2, n_rows * (tile * H / W + 0.5) + 0.6), dpi=100,
-        squeeze=False, layout="constrained",
+        n_rows, 3 * n_pairs, figsize=(fig_w, fig_h), dpi=100, squeeze=False,
+        gridspec_kw=dict(left=left / fig_w, right=1 - right / fig_w, top=1 - (top + row_pad) / fig_h,
+                         bottom=row_pad / fig_h, wspace=gap / tile, hspace=2 * row_pad / tile_h),
     )
     im = None
     for r, s in enumerate(steps):
@@ -106,10 +111,15 @@ def panel_figure(
                     ax.set_xlabel(below, fontsize=FONT)
         axes[r, 0].set_ylabel(f"step {s}", fontsize=FONT + 1)
     if im is not None:
-        bar = fig.colorbar(im, ax=axes.ravel().tolist(), shrink=min(1.0, 0.9 / n_rows + 0.3), extend="max")
+        grid_h = fig_h - top - 2 * row_pad  # (inches, the tiles' rows)
+        bar_h = grid_h * min(1.0, 0.9 / n_rows + 0.3)
+        cax = fig.add_axes(((fig_w - right + 0.2) / fig_w, (row_pad + (grid_h - bar_h) / 2) / fig_h,
+                            0.15 / fig_w, bar_h / fig_h), label="<colorbar>")  # (the name matplotlib gives its own)
+        bar = fig.colorbar(im, cax=cax, extend="max")
         bar.set_label("|residual|, mean over RGB (intensity, 0-1)", fontsize=FONT)
         bar.ax.tick_params(labelsize=FONT - 1)
-    fig.suptitle(f"VO {motion}: held-out pairs over training (rows: training step)", fontsize=FONT + 2)
+    fig.suptitle(f"VO {motion}: held-out pairs over training (rows: training step)", fontsize=FONT + 2,
+                 y=1 - 0.12 / fig_h, va="top")
     return fig
 
 
