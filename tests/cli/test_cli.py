@@ -344,6 +344,7 @@ def _env():
     return env
 
 
+@pytest.mark.long
 def test_ctrl_c_in_align_exits_130_with_one_line(tmp_path):
     cmd = [sys.executable, "-m", "gvnn_warp.cli", "align", "--out", str(tmp_path), "--size", "32x24",
            "--levels", "1", "--steps", "100000"]
@@ -449,6 +450,7 @@ def test_init_filter_keeps_other_stderr_lines(capfd):
     assert capfd.readouterr().err == "another warning\n"
 
 
+@pytest.mark.long
 def test_cold_kernel_cache_is_announced_once(tmp_path):
     code = """
 import sys
@@ -560,6 +562,7 @@ def test_track_without_evo_stops_before_work(tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.long
 def test_render_and_track_never_import_torch(tmp_path):
     """So they work without the torch extra: render and track end to end, and torch is never imported.
     (Not by blocking the import: scipy, which evo uses, looks torch up in sys.modules.)"""

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
 import torch
 
 SCRIPT = textwrap.dedent(
@@ -151,6 +152,7 @@ SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.long
 def test_whole_api_under_default_dtype_float64():
     res = subprocess.run([sys.executable, "-c", SCRIPT, "float64"], capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]

@@ -897,6 +897,7 @@ for arg in sys.argv[1:]:
 """
 
 
+@pytest.mark.long
 def test_scale_segments_last_element_near_2_31():
     # int32 bounds: n up to 2^31 - 1 values (what the ops accept); the last launch element writes
     # exactly its values and none past n (in a child process: a wrapped index faults there)

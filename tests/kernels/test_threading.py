@@ -357,6 +357,7 @@ def _run(code, **env):
     return out.stdout.strip().splitlines()[-1]
 
 
+@pytest.mark.long
 @once
 def test_openmp_can_be_turned_off_by_env_var(backend):
     code = "import torch, gvnn_warp as G; G.so3_exp(torch.zeros(1, 3)); print(G.kernels.core.launch.thread_backend())"
@@ -562,6 +563,7 @@ _FIRST_USES = """if True:
 """
 
 
+@pytest.mark.long
 @once
 def test_first_uses_of_many_kernels_from_several_threads_at_once_load_under_the_lock():
     # the first launch of a kernel loads its module and looks its entry points up in Warp's CPU

@@ -442,6 +442,7 @@ def test_track_cli_fuses_a_mesh_and_tracks_against_the_model(tmp_path, capsys):
 REAL = Path(__file__).parents[1] / "data" / "rgbd_dataset_freiburg1_xyz"  # six Kinect frames (README there)
 
 
+@pytest.mark.long
 def test_real_kinect_frames_track_fuse_and_track_against_the_model(tmp_path, capsys):
     # real frames (holes, noise, the freiburg1 lens chosen by the folder's name): every track mode
     # runs unchanged and stays within a few millimetres of the motion capture (which is itself

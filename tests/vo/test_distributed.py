@@ -38,6 +38,7 @@ RANKS = """if True:
 """
 
 
+@pytest.mark.long
 @pytest.mark.skipif(TORCHRUN is None, reason="torchrun not installed")
 def test_two_ranks_train_vo_and_depth_the_same_on_each_rank(tmp_path):
     folders = []

@@ -353,6 +353,7 @@ def test_run_writes_metrics_figures_and_checkpoint(tiny_run):
     assert not list(out.glob(".*tmp*"))  # atomic writes leave no temporaries behind
 
 
+@pytest.mark.long
 def test_short_training_reduces_loss(tmp_path):
     # a handful of pairs seen again and again: the photometric loss on them must fall clearly
     metrics = train(_tiny_config(tmp_path, steps=60, n_train_traj=1, n_frames=5, lr=3e-3))
@@ -466,6 +467,7 @@ def test_too_few_training_pairs_for_the_batch(tmp_path):
         train(_tiny_config(tmp_path, n_train_traj=1, n_frames=2))
 
 
+@pytest.mark.long
 def test_cli_interrupt_and_resume(tmp_path):
     """SIGINT mid-run saves a checkpoint and exits 130; --resume continues from its step."""
     out = tmp_path / "run"
