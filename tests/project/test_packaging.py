@@ -79,7 +79,9 @@ def _run(*cmd, cwd=None, check=True):
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     dist = tmp_path_factory.mktemp("dist")
-    _run(sys.executable, "-m", "build", "--wheel", "--outdir", dist, ROOT)
+    # (in this environment, which has the build requirements - build checks it - rather than in an isolated
+    # one that pip would first fill from the package index)
+    _run(sys.executable, "-m", "build", "--wheel", "--no-isolation", "--outdir", dist, ROOT)
     (whl,) = dist.glob("gvnn_warp-*.whl")
     return whl
 
