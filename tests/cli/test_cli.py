@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from processes import run_python
 
 from gvnn_warp import cli
 from gvnn_warp.cli import args as _args
@@ -419,7 +420,7 @@ assert rc == 1, rc
 assert "torch" not in sys.modules or sys.modules["torch"] is None
 print("ok")
 """
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    res = run_python(code, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().endswith("ok")
     err = res.stderr.strip().splitlines()
@@ -434,7 +435,7 @@ print("ok")
 
 def test_no_cuda_driver_warning():
     code = "import gvnn_warp, warp as wp; wp.zeros(1); print(wp.get_device())"
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    res = run_python(code, timeout=120)
     assert res.returncode == 0, res.stderr
     assert "CUDA driver" not in res.stderr, res.stderr
 
@@ -574,7 +575,7 @@ assert main(["track", {str(tmp_path / "seq")!r}, "--out", {str(tmp_path / "o")!r
 assert "torch" not in sys.modules, "torch imported"
 print("ok")
 """
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    res = run_python(code, timeout=300)
     assert res.returncode == 0, res.stderr[-3000:]
     assert res.stdout.strip().endswith("ok") and "ATE RMSE" in res.stdout
     assert (tmp_path / "o" / "metrics.json").exists()

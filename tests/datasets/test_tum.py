@@ -9,6 +9,7 @@ import itertools
 import numpy as np
 import pytest
 from PIL import Image
+from processes import run_python
 from scipy.spatial.transform import Rotation
 
 from gvnn_warp.datasets import tum
@@ -455,11 +456,8 @@ def test_render_refuses_to_overwrite_and_bad_arguments(tmp_path, capsys):
 
 
 def test_module_is_free_of_torch():
-    import subprocess
-    import sys
-
     code = "import sys, gvnn_warp.datasets; assert 'torch' not in sys.modules, 'torch imported'"
-    subprocess.run([sys.executable, "-c", code], check=True)
+    run_python(code, check=True, capture_output=False)
     assert tum.DEFAULT_DEPTH_SCALE == 5000.0
 
 

@@ -3,12 +3,12 @@ float64 before the first call (in a fresh process), or left at float32, every pu
 layer works in both dtypes, returns the dtype it was given, and layers' parameters take the dtype
 of what they are given (the VO network is float32 throughout)."""
 
-import subprocess
 import sys
 import textwrap
 
 import pytest
 import torch
+from processes import run_python
 
 SCRIPT = textwrap.dedent(
     r"""
@@ -154,7 +154,7 @@ SCRIPT = textwrap.dedent(
 
 @pytest.mark.long
 def test_whole_api_under_default_dtype_float64():
-    res = subprocess.run([sys.executable, "-c", SCRIPT, "float64"], capture_output=True, text=True, timeout=600)
+    res = run_python(SCRIPT, "float64", timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     assert res.stdout.strip().startswith("ok")
 

@@ -12,6 +12,7 @@ from gvnn_warp.kernels.core import compat as _compat
 from gvnn_warp.kernels.core import launch
 from gvnn_warp.kernels.core.launch import mat34d, mat34f
 from gvnn_warp.kernels.photometric import pipeline as pp
+from processes import run_python
 from refs import intrinsics, skew
 
 MIN_DEPTH = 1e-3
@@ -901,11 +902,9 @@ for arg in sys.argv[1:]:
 def test_scale_segments_last_element_near_2_31():
     # int32 bounds: n up to 2^31 - 1 values (what the ops accept); the last launch element writes
     # exactly its values and none past n (in a child process: a wrapped index faults there)
-    import subprocess
-    import sys
 
     cases = [f"{n},{seg}" for n in (2**31 - 1, 2**31 - 8, 2**31 - 100, 2**31 - 2047, 2**31 - 2048)
              for seg in (n, 2**20, n - 3, n - 5)]  # n - 3, n - 5: a segment starts off a multiple of 8
-    r = subprocess.run([sys.executable, "-c", _SCALE_NEAR_2_31, *cases], capture_output=True, text=True, timeout=300)
+    r = run_python(_SCALE_NEAR_2_31, *cases, timeout=300)
     assert r.returncode == 0, (r.stdout, r.stderr[-2000:])
     assert r.stdout.split("\n")[-len(cases) - 1:-1] == [f"{c} 1 0" for c in cases], r.stdout

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from processes import run_python
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -23,7 +24,7 @@ def test_kernels_package_never_imports_torch():
         "import sys, gvnn_warp.kernels, gvnn_warp.synthetic, gvnn_warp\n"
         "assert 'torch' not in sys.modules, 'torch was imported'\n"
     )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    run_python(code, check=True, capture_output=False)
 
 
 def test_layers_do_not_depend_on_data_generation():
@@ -182,5 +183,5 @@ tape.backward(grads={warped: wp.ones(warped.shape, dtype=wp.float64)})
 assert np.isfinite(img2.grad.numpy()).all() and img2.grad.numpy().sum() > 0
 print("ok")
 """
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    out = run_python(code)
     assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-2000:]

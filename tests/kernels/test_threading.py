@@ -13,6 +13,7 @@ from gvnn_warp.kernels.core import launch as L
 from gvnn_warp.kernels.core import threads
 from gvnn_warp.kernels.geometry import kernels as geometry_kernels
 from gvnn_warp.kernels.sampling import kernels as sampling_kernels
+from processes import run_python
 from refs import gradients_of, weighted_backward
 
 import gvnn_warp as G
@@ -289,12 +290,9 @@ def test_declared_atomics_and_gathers_are_safe():
 
 @once
 def test_env_var_in_subprocess(tmp_path, backend):
-    import subprocess
-    import sys
-
     code = "import gvnn_warp.kernels.core.launch as L; print(L.get_num_threads())"
     env = dict(os.environ, **{L.ENV_NUM_THREADS: "3"})
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    out = run_python(code, env=env, check=True)
     assert out.stdout.strip().splitlines()[-1] == "3"
 
 
@@ -347,12 +345,7 @@ def test_pool_errors_are_raised(backend):
 
 
 def _run(code, **env):
-    import subprocess
-    import sys
-
-    out = subprocess.run(
-        [sys.executable, "-c", code], env=dict(os.environ, **env), capture_output=True, text=True, timeout=120
-    )
+    out = run_python(code, env=dict(os.environ, **env), timeout=120)
     assert out.returncode == 0, out.stderr
     return out.stdout.strip().splitlines()[-1]
 
@@ -573,12 +566,9 @@ def test_first_uses_of_many_kernels_from_several_threads_at_once_load_under_the_
     # the other (torch ops forward and backward, lens cameras, the aligner and its pyramids, the
     # synthetic renderer); every module load and entry-point lookup must happen with
     # kernels.core.launch's lock held (the deterministic check: a crash needs an unlucky schedule)
-    import subprocess
-    import sys
     from pathlib import Path
 
-    out = subprocess.run([sys.executable, "-c", _FIRST_USES, str(Path(__file__).parents[1])],
-                         capture_output=True, text=True, timeout=300)
+    out = run_python(_FIRST_USES, Path(__file__).parents[1], timeout=300)
     assert out.returncode == 0 and "threads ok" in out.stdout, (out.returncode, out.stderr[-3000:])
     calls, unlocked = map(int, out.stdout.split()[-2:])
     assert calls > 20 and unlocked == 0, out.stdout

@@ -12,6 +12,7 @@ import torch
 import warp as wp
 from gvnn_warp.kernels import pyramid
 from odometry_refs import motion, normal_equations_torch, pose_error, rendered_pair
+from processes import run_python
 
 from gvnn_warp.odometry.aligner import DirectAligner, Frame
 
@@ -578,15 +579,13 @@ def test_numbers_of_any_kind_are_accepted_as_settings():
 
 
 def test_readme_example_runs_and_module_needs_no_torch():
-    import subprocess
-    import sys
     from pathlib import Path
 
     text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     start = text.index("```python", text.index("<!-- odometry-example -->")) + len("```python")
     code = text[start : text.index("```", start)]
     code += "\nimport sys\nassert 'torch' not in sys.modules, 'torch was imported'\n"
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    out = run_python(code, check=True).stdout
     lines = out.strip().splitlines()
     assert lines[0].startswith("True")
     errors = [float(line.split("error ")[1].split()[0]) for line in lines if "error" in line]

@@ -5,7 +5,6 @@ backend's visibility (info(), the debug log) and the free-threaded fallback."""
 import ctypes
 import json
 import logging
-import subprocess
 import sys
 import threading
 import warnings
@@ -19,6 +18,7 @@ from gvnn_warp.kernels.core import compat as wcompat
 from gvnn_warp.kernels.core import launch as L
 from gvnn_warp.kernels.core import threads
 from gvnn_warp.kernels.geometry import kernels as geometry_kernels
+from processes import run_python
 
 import gvnn_warp as G
 from gvnn_warp.ops import bridge as _bridge
@@ -283,7 +283,7 @@ def fresh_process_facts():
     """What a fresh process has imported and defined after a first op call, then pinhole work (a
     pinhole warp_frame_depth fwd+bwd, photometric_error, a pinhole DirectAligner), then one distorted
     camera (one process for the tests below: each pays torch's and the package's imports)."""
-    out = subprocess.run([sys.executable, "-c", FRESH_PROCESS], capture_output=True, text=True, timeout=300)
+    out = run_python(FRESH_PROCESS, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 

@@ -4,11 +4,10 @@ each of their public names; old names reach the same objects as the new paths.""
 
 import importlib
 import json
-import subprocess
-import sys
 
 import gvnn_warp.kernels as gk
 import pytest
+from processes import run_python
 
 import gvnn_warp
 
@@ -67,7 +66,7 @@ FRESH_PROCESS = """if True:
 def fresh_process_facts():
     """What a fresh process loads for one public name, then what a replacing package serves (one
     process for both tests below)."""
-    out = subprocess.run([sys.executable, "-c", FRESH_PROCESS], capture_output=True, text=True, timeout=120)
+    out = run_python(FRESH_PROCESS, timeout=120)
     assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 

@@ -15,6 +15,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from processes import FAST_EXIT
 
 ROOT = Path(__file__).resolve().parents[2]
 TORCH_PACKAGES = ("torch", "functorch", "torchgen")
@@ -137,7 +138,7 @@ def test_wheel_works_in_a_fresh_venv_without_and_with_torch(wheel, tmp_path):
     pth.write_text(f"{_dependency_view(tmp_path / 'deps')}\n")
 
     # without torch: the kernels work, the script starts and says what a command needs
-    assert _run(py, "-c", SMOKE_KERNELS, cwd=tmp_path).stdout.strip() == "kernels ok"
+    assert _run(py, "-c", FAST_EXIT + SMOKE_KERNELS, cwd=tmp_path).stdout.strip() == "kernels ok"
     assert "align" in _run(script, "--help", cwd=tmp_path).stdout
     res = _run(script, "align", "--out", tmp_path / "out", cwd=tmp_path, check=False)
     assert res.returncode == 1, res.stderr
@@ -146,4 +147,4 @@ def test_wheel_works_in_a_fresh_venv_without_and_with_torch(wheel, tmp_path):
 
     # with torch
     pth.write_text(pth.read_text() + f"{sysconfig.get_paths()['purelib']}\n")
-    assert _run(py, "-c", SMOKE_TORCH, cwd=tmp_path).stdout.strip() == "torch ok"
+    assert _run(py, "-c", FAST_EXIT + SMOKE_TORCH, cwd=tmp_path).stdout.strip() == "torch ok"
