@@ -13,6 +13,7 @@ FAST_EXIT = "import atexit, gc; atexit.register(gc.freeze)\n"
 def run_python(code: str, *args: str, python=sys.executable, **kwargs) -> subprocess.CompletedProcess:
     """``subprocess.run([python, "-c", code, *args], **kwargs)`` with :data:`FAST_EXIT` first; output
     captured as text unless ``kwargs`` say otherwise."""
-    kwargs.setdefault("capture_output", True)
+    if "stdout" not in kwargs and "stderr" not in kwargs:
+        kwargs.setdefault("capture_output", True)
     kwargs.setdefault("text", True)
     return subprocess.run([str(python), "-c", FAST_EXIT + code, *map(str, args)], **kwargs)

@@ -34,6 +34,7 @@ __all__ = [
     "add_command",
     "announce_compiles",
     "command_main",
+    "freeze_at_exit",
     "missing_packages",
     "parse_and_run",
     "run_command",
@@ -136,12 +137,6 @@ def run_command(parser: argparse.ArgumentParser, args: argparse.Namespace, requi
     naming a file (one the command cannot make, read or write) and an ``InputError`` (a file it
     cannot use) are one line, status 1; Ctrl-C ends
     the command with one line and status 130."""
-    # At exit, Python's last garbage collections walk every object the process still holds: ~1 s
-    # once torch is imported, for nothing (the command's files are closed and its results written).
-    # Frozen objects are skipped by every later collection (``gc.freeze``); modules, the exit
-    # handlers and reference counting still tear the process down as before. (Once per process.)
-    atexit.unregister(gc.freeze)
-    atexit.register(gc.freeze)
     missing = missing_packages(requires)
     if missing:
         hints = "; ".join(INSTALL_HINTS.get(n, f"{n}, which is not installed") for n in missing)
@@ -200,10 +195,24 @@ def parse_and_run(parser: argparse.ArgumentParser, argv: list[str] | None) -> in
         return INTERRUPTED_STATUS
 
 
+def freeze_at_exit() -> None:
+    """At exit, freeze every object before Python's last garbage collections (``gc.freeze``: they skip
+    frozen objects). Those collections walk every object the process still holds, ~1 s once torch
+    is imported, and find nothing a command needs: its files are written and closed by then. The exit
+    handlers, module teardown and reference counting still run; what is lost is the finalisation of
+    objects caught in reference cycles (their ``__del__``), which no command relies on. Called when
+    a command runs as a program (``gvnn-warp``, ``python -m gvnn_warp.cli.<command>``), not when
+    ``main`` is called with arguments from other code; once per process."""
+    atexit.unregister(gc.freeze)
+    atexit.register(gc.freeze)
+
+
 def command_main(add_parser: Callable, requires: Iterable[str] = (), argv: list[str] | None = None) -> int:
     """One command run on its own (``python -m gvnn_warp.cli.<command> ...``, e.g. under torchrun):
     the same parser, checks and handling as ``gvnn-warp <command> ...``; ``argv`` defaults to
     ``sys.argv[1:]``."""
+    if argv is None:
+        freeze_at_exit()
     root = argparse.ArgumentParser(prog="gvnn-warp")
     parser = add_command(root.add_subparsers(), add_parser, requires)
     return parse_and_run(parser, sys.argv[1:] if argv is None else argv)

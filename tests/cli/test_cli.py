@@ -433,6 +433,32 @@ print("ok")
 # ----------------------------------------------------------------------------- Warp's start-up
 
 
+def test_a_command_run_as_a_program_freezes_its_objects_at_exit(monkeypatch):
+    from gvnn_warp.cli import runner
+
+    # the objects are frozen when the exit handlers run (a handler registered before runs after it)
+    code = """import atexit, gc
+atexit.register(lambda: print("frozen at exit:", gc.get_freeze_count() > 0))
+from gvnn_warp.cli import runner
+if {call}:
+    runner.freeze_at_exit()
+    runner.freeze_at_exit()
+"""
+    for call in (True, False):
+        res = run_python(code.format(call=call), timeout=120)
+        assert res.returncode == 0 and res.stdout.strip().splitlines()[-1] == f"frozen at exit: {call}", res
+    # only as a program (argv from sys.argv), not when other code calls main with its arguments
+    called = []
+    monkeypatch.setattr(cli, "freeze_at_exit", lambda: called.append("main"))
+    monkeypatch.setattr(runner, "freeze_at_exit", lambda: called.append("command_main"))
+    monkeypatch.setattr(cli, "parse_and_run", lambda parser, argv: 0)
+    monkeypatch.setattr(runner, "parse_and_run", lambda parser, argv: 0)
+    assert cli.main(["render", "--out", "x"]) == 0 and called == []
+    assert runner.command_main(lambda sub: sub.add_parser("x"), argv=["x"]) == 0 and called == []
+    assert cli.main() == 0 and called == ["main"]
+    assert runner.command_main(lambda sub: sub.add_parser("x")) == 0 and called == ["main", "command_main"]
+
+
 def test_no_cuda_driver_warning():
     code = "import gvnn_warp, warp as wp; wp.zeros(1); print(wp.get_device())"
     res = run_python(code, timeout=120)

@@ -87,6 +87,7 @@ def wheel(tmp_path_factory) -> Path:
     return whl
 
 
+@pytest.mark.long  # (both: they share the wheel)
 def test_wheel_files_and_metadata(wheel):
     import tomllib
     from packaging.requirements import Requirement
@@ -128,6 +129,7 @@ def _dependency_view(dest: Path) -> Path:
     return dest
 
 
+@pytest.mark.long
 def test_wheel_works_in_a_fresh_venv_without_and_with_torch(wheel, tmp_path):
     venv = tmp_path / "venv"
     _run(sys.executable, "-m", "venv", "--without-pip", venv)
