@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from processes import FAST_EXIT
 
 from gvnn_warp.cli import main
 from gvnn_warp.depth.train import load_checkpoint
@@ -47,7 +48,7 @@ def test_two_ranks_train_vo_and_depth_the_same_on_each_rank(tmp_path):
         assert main(["render", "--out", str(folders[-1]), "--frames", "5", "--size", "96x64", "--seed", str(s),
                      "--no-progress"]) == 0
     script = tmp_path / "ranks.py"
-    script.write_text(RANKS)
+    script.write_text(FAST_EXIT + RANKS)
     vo_out, depth_out = tmp_path / "vo", tmp_path / "depth"
     cmd = [TORCHRUN, "--standalone", "--nproc_per_node=2", str(script), str(vo_out), str(depth_out),
            str(tmp_path / "store"), *map(str, folders)]
