@@ -6,7 +6,7 @@ import sys
 
 # Prepended to every script: the process freezes its objects at exit, so that Python's last garbage
 # collections skip them (~1 s once torch is imported), as every gvnn-warp command does
-# (gvnn_warp.cli.runner.run_command). atexit and gc are built in: nothing else is imported.
+# (gvnn_warp.cli.runner.freeze_at_exit). atexit and gc are built in: nothing else is imported.
 FAST_EXIT = "import atexit, gc; atexit.register(gc.freeze)\n"
 
 

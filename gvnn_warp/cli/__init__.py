@@ -25,7 +25,6 @@ from .runner import (
     INTERRUPTED_STATUS,
     add_command,
     announce_compiles,
-    freeze_at_exit,
     missing_packages,
     parse_and_run,
     run_command,
@@ -67,8 +66,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """``gvnn-warp ...``: parse ``argv`` (default ``sys.argv[1:]``) and run the command it names;
     returns the exit status. Run as a program (``argv`` None), it also calls :func:`.runner.freeze_at_exit`."""
-    if argv is None:
-        freeze_at_exit()
     try:
         parser = build_parser()
     except KeyboardInterrupt:

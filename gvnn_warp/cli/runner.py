@@ -182,7 +182,10 @@ def parse_and_run(parser: argparse.ArgumentParser, argv: list[str] | None) -> in
     """Parse ``argv`` with ``parser`` and run the command the arguments name (:func:`run_command`
     with the command's parser and packages, set by :func:`add_command`). Ctrl-C while parsing is one
     line and status 130; Ctrl-C again while ``run_command`` cleans up after reporting one is still
-    status 130, not Python's exit for an unhandled KeyboardInterrupt (killed by SIGINT, status -2)."""
+    status 130, not Python's exit for an unhandled KeyboardInterrupt (killed by SIGINT, status -2).
+    ``argv`` None: the program's own arguments (``sys.argv[1:]``), and :func:`freeze_at_exit`."""
+    if argv is None:
+        freeze_at_exit()
     try:
         args = parser.parse_args(argv)
     except KeyboardInterrupt:
@@ -200,9 +203,10 @@ def freeze_at_exit() -> None:
     frozen objects). Those collections walk every object the process still holds, ~1 s once torch
     is imported, and find nothing a command needs: its files are written and closed by then. The exit
     handlers, module teardown and reference counting still run; what is lost is the finalisation of
-    objects caught in reference cycles (their ``__del__``), which no command relies on. Called when
-    a command runs as a program (``gvnn-warp``, ``python -m gvnn_warp.cli.<command>``), not when
-    ``main`` is called with arguments from other code; once per process."""
+    objects caught in reference cycles (their ``__del__``), which no command relies on. Called by
+    :func:`parse_and_run` when a command runs as a program (``gvnn-warp``, ``python -m
+    gvnn_warp.cli.<command>``: ``argv`` None), not when ``main`` is called with arguments from other
+    code; once per process."""
     atexit.unregister(gc.freeze)
     atexit.register(gc.freeze)
 
@@ -211,8 +215,6 @@ def command_main(add_parser: Callable, requires: Iterable[str] = (), argv: list[
     """One command run on its own (``python -m gvnn_warp.cli.<command> ...``, e.g. under torchrun):
     the same parser, checks and handling as ``gvnn-warp <command> ...``; ``argv`` defaults to
     ``sys.argv[1:]``."""
-    if argv is None:
-        freeze_at_exit()
     root = argparse.ArgumentParser(prog="gvnn-warp")
     parser = add_command(root.add_subparsers(), add_parser, requires)
-    return parse_and_run(parser, sys.argv[1:] if argv is None else argv)
+    return parse_and_run(parser, argv)

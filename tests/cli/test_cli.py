@@ -449,14 +449,14 @@ if {call}:
         assert res.returncode == 0 and res.stdout.strip().splitlines()[-1] == f"frozen at exit: {call}", res
     # only as a program (argv from sys.argv), not when other code calls main with its arguments
     called = []
-    monkeypatch.setattr(cli, "freeze_at_exit", lambda: called.append("main"))
-    monkeypatch.setattr(runner, "freeze_at_exit", lambda: called.append("command_main"))
-    monkeypatch.setattr(cli, "parse_and_run", lambda parser, argv: 0)
-    monkeypatch.setattr(runner, "parse_and_run", lambda parser, argv: 0)
+    monkeypatch.setattr(runner, "freeze_at_exit", lambda: called.append(sys.argv[0]))
+    monkeypatch.setattr(runner, "run_command", lambda parser, args, requires: 0)
     assert cli.main(["render", "--out", "x"]) == 0 and called == []
-    assert runner.command_main(lambda sub: sub.add_parser("x"), argv=["x"]) == 0 and called == []
-    assert cli.main() == 0 and called == ["main"]
-    assert runner.command_main(lambda sub: sub.add_parser("x")) == 0 and called == ["main", "command_main"]
+    assert runner.command_main(lambda sub: sub.add_parser("x"), argv=[]) == 0 and called == []
+    monkeypatch.setattr(sys, "argv", ["gvnn-warp", "render", "--out", "x"])
+    assert cli.main() == 0 and called == ["gvnn-warp"]
+    monkeypatch.setattr(sys, "argv", ["x.py"])
+    assert runner.command_main(lambda sub: sub.add_parser("x")) == 0 and called == ["gvnn-warp", "x.py"]
 
 
 def test_no_cuda_driver_warning():
