@@ -6,7 +6,7 @@ Usage::
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
                           [--norm batch|none] [--pose direct|network] [--supervised] [--ema DECAY] [--steps N]
                           [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
-    gvnn-warp depth eval --checkpoint CKPT --data DIR --out OUT [--no-progress]
+    gvnn-warp depth eval --checkpoint CKPT --data DIR [DIR ...] --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
 them; TUM RGB-D downloads are read the same way, with the fr1/fr2 lens distortion), never their depth
@@ -17,9 +17,10 @@ Ctrl-C / SIGTERM and at the end; ``--resume`` continues from it), ``OUT/metrics.
 step) and ``OUT/training.png`` (a frame, its depth, the true depth if the folder has it, the
 auto-mask).
 
-``eval`` predicts every frame's depth and, where the folder has depth files, writes
+``eval`` predicts every frame's depth and, where the folders have depth files, writes
 ``OUT/metrics.json`` with abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3 (each image median-scaled: a
-monocular network has no scale) and ``OUT/depth.png``.
+monocular network has no scale; means over every image of every folder given, as a test set of
+several sequences is measured, with each folder's own means beside) and ``OUT/depth.png``.
 """
 
 from __future__ import annotations
@@ -97,7 +98,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.set_defaults(func=run)
     e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files")
     e.add_argument("--checkpoint", type=Path, required=True, metavar="CKPT", help="OUT/checkpoint.pt of train")
-    e.add_argument("--data", type=Path, required=True, metavar="DIR", help="a TUM-format folder")
+    e.add_argument("--data", type=Path, nargs="+", required=True, metavar="DIR",
+                   help="TUM-format folders (one test set: the metrics are means over all their frames)")
     e.add_argument("--out", type=output_dir, required=True, metavar="OUT", help="output folder (metrics.json, "
                    "depth.png)")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -136,14 +138,23 @@ def run_eval(args: argparse.Namespace) -> int:
     from ..depth.evaluate import evaluate
 
     m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
+    folders = " ".join(str(d) for d in args.data)
     if m.get("abs_rel") is None:
-        print(f"depth eval: {m['frames']} frames predicted; {args.data} has no depth files to compare with; "
+        print(f"depth eval: {m['frames']} frames predicted; {folders} has no depth files to compare with; "
               f"wrote {args.out}")
-    else:
-        print(f"depth eval ({m['images']} frames, median-scaled): abs_rel {m['abs_rel']:.3f}, sq_rel "
-              f"{m['sq_rel']:.3f}, rmse {m['rmse']:.3f} m, rmse_log {m['rmse_log']:.3f}, a1 {m['a1']:.3f}, "
-              f"a2 {m['a2']:.3f}, a3 {m['a3']:.3f}; wrote {args.out}")
+        return 0
+    several = m.get("per_folder")
+    print(f"depth eval ({m['images']} frames{f' of {len(several)} folders' if several else ''}, median-scaled): "
+          f"{_metrics_text(m)}; wrote {args.out}")
+    for folder, fm in (several or {}).items():
+        print(f"  {folder} ({fm['frames']} frames): " + ("no depth files" if fm.get("abs_rel") is None else
+                                                          _metrics_text(fm)))
     return 0
+
+
+def _metrics_text(m: dict) -> str:
+    return (f"abs_rel {m['abs_rel']:.3f}, sq_rel {m['sq_rel']:.3f}, rmse {m['rmse']:.3f} m, rmse_log "
+            f"{m['rmse_log']:.3f}, a1 {m['a1']:.3f}, a2 {m['a2']:.3f}, a3 {m['a3']:.3f}")
 
 
 def main(argv: list[str] | None = None) -> int:

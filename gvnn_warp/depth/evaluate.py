@@ -7,7 +7,9 @@ For an image with valid true depth d* (finite, in [min_depth, max_depth]) and sc
 mean (d - d*)^2 / d*, ``rmse`` = sqrt(mean (d - d*)^2), ``rmse_log`` = sqrt(mean (log d - log d*)^2),
 ``a1``, ``a2``, ``a3`` = the fraction with max(d / d*, d* / d) < 1.25, 1.25^2, 1.25^3. The reported
 values are means over the images; ``median_scale`` is the mean of the images' scales and
-``median_scale_spread`` their standard deviation over their mean.
+``median_scale_spread`` their standard deviation over their mean. A test set of several folders is
+measured as one set of images (every image weighs the same, as the field averages over a test
+split's images), each folder's own means reported beside.
 """
 
 from __future__ import annotations
@@ -62,38 +64,60 @@ def summarise(per_image: list[dict]) -> dict:
     return out
 
 
-def evaluate(checkpoint: str | Path, data: str | Path, out: str | Path, *, progress: bool = True,
+def evaluate(checkpoint: str | Path, data, out: str | Path, *, progress: bool = True,
              batch_size: int = 16) -> dict:
-    """Predict the depth of every frame of folder ``data`` at the network's size and, where the
-    folder has depth files, write ``OUT/metrics.json`` (see the module docstring; ``None`` values
-    without true depth) and ``OUT/depth.png`` (a frame, its depth, the true depth, the error)."""
+    """Predict the depth of every frame of the folder ``data`` (or of each folder of a list of them)
+    at the network's size and, where the folders have depth files, write ``OUT/metrics.json`` (see
+    the module docstring: the means over every image of every folder, ``None`` without true depth;
+    with several folders, each one's own under ``per_folder``, keyed by its path) and
+    ``OUT/depth.png`` (the first folder's middle frame, its depth, the true depth, the error). The
+    folders are read one at a time: they need not share a camera."""
     ck = load_checkpoint(checkpoint)
     net = load_depth_net(ck)
     c = ck["config"]
     size = tuple(c["size"])
-    video = read_video([data], size, with_depth=True, progress=progress)
-    preds = []
-    with torch.no_grad():
-        for i in progress_bar(range(0, video.images.shape[0], batch_size), desc="depth eval", unit="batch",
-                      disable=not progress, mininterval=0.5):
-            preds.append(net.depth(video.images[i:i + batch_size]))
-    pred = torch.cat(preds)
-    every = [depth_metrics(pred[i], video.depths[i], c["min_depth"], c["max_depth"]) for i in range(pred.shape[0])]
-    per_image = [m for m in every if m is not None]
-    metrics = summarise(per_image) if per_image else {k: None for k in (*METRICS, "median_scale")}
-    metrics.update(frames=int(pred.shape[0]), checkpoint=str(checkpoint), data=str(data), size=list(size),
+    folders = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
+    if not folders:
+        raise ValueError("evaluate: data must name at least one folder")
+    every, per_folder, shown = [], {}, None
+    for folder in folders:
+        video = read_video([folder], size, with_depth=True, progress=progress)
+        preds = []
+        with torch.no_grad():
+            for i in progress_bar(range(0, video.images.shape[0], batch_size), desc=f"depth eval {folder.name}",
+                                  unit="batch", disable=not progress, mininterval=0.5):
+                preds.append(net.depth(video.images[i:i + batch_size]))
+        pred = torch.cat(preds)
+        mine = [depth_metrics(pred[i], video.depths[i], c["min_depth"], c["max_depth"]) for i in range(pred.shape[0])]
+        every += mine
+        per_folder[str(folder)] = _summary(mine, pred.shape[0])
+        if shown is None:  # the figure's frame: the first folder's middle one
+            i = pred.shape[0] // 2
+            shown = (folder, i, video.images[i], pred[i, 0], video.depths[i, 0], mine[i])
+    metrics = _summary(every, len(every))
+    metrics.update(checkpoint=str(checkpoint), data=[str(f) for f in folders], size=list(size),
                    train_steps=ck["step"])
+    if len(folders) > 1:
+        metrics["per_folder"] = per_folder
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(json.dumps(metrics, indent=1), out / "metrics.json")
     from .plots import depth_panel  # (matplotlib is slow to import: only for the figure)
 
-    i = pred.shape[0] // 2
-    true = video.depths[i, 0]
+    folder, i, image, pred, true, m = shown
     err = None
-    if every[i] is not None:  # the error of the prediction scaled as the metrics scaled it
-        err = torch.where(true > 0, (pred[i, 0] * every[i]["scale"] - true).abs() / true.clamp(min=1e-6), torch.nan)
-    depth_panel(video.images[i], pred[i, 0], true if (true > 0).any() else None, err, out / "depth.png",
-                title=f"{Path(data).name}, frame {i}", last_title="|error| / true depth (median-scaled)",
+    if m is not None:  # the error of the prediction scaled as the metrics scaled it
+        err = torch.where(true > 0, (pred * m["scale"] - true).abs() / true.clamp(min=1e-6), torch.nan)
+    depth_panel(image, pred, true if (true > 0).any() else None, err, out / "depth.png",
+                title=f"{folder.name}, frame {i}", last_title="|error| / true depth (median-scaled)",
                 last_cmap="viridis")
+    return metrics
+
+
+def _summary(every: list[dict | None], frames: int) -> dict:
+    """:func:`summarise` over the images with true depth (``None`` values when there is none), and
+    the frames predicted."""
+    per_image = [m for m in every if m is not None]
+    metrics = summarise(per_image) if per_image else {k: None for k in (*METRICS, "median_scale")}
+    metrics["frames"] = frames
     return metrics

@@ -14,7 +14,7 @@ from PIL import Image
 from gvnn_warp.cli import main
 from gvnn_warp.datasets.tum import read_tum
 from gvnn_warp.depth.data import read_video
-from gvnn_warp.depth.evaluate import depth_metrics, summarise
+from gvnn_warp.depth.evaluate import depth_metrics, evaluate, summarise
 from gvnn_warp.depth.model import DepthNet, PoseNet, disp_to_depth
 from gvnn_warp.depth.predict import DepthPredictor
 from gvnn_warp.depth.train import POSES, DepthConfig, load_checkpoint, load_depth_net, train
@@ -185,7 +185,33 @@ def test_train_resume_and_eval(folders, tmp_path):
                  str(ev), "--no-progress"]) == 0
     metrics = json.loads((ev / "metrics.json").read_text())
     assert 0 < metrics["abs_rel"] < 10 and 0 <= metrics["a1"] <= 1 and metrics["images"] == 5
-    assert (ev / "depth.png").stat().st_size > 0
+    assert (ev / "depth.png").stat().st_size > 0 and "per_folder" not in metrics
+
+
+def test_eval_of_several_folders_is_one_test_set_with_each_folder_beside(folders, tmp_path, capsys):
+    # one folder of 5 frames and the other cut to 3 (its depth files of the last 2 removed from the
+    # list): the pooled means weigh every image alike, not every folder
+    out = tmp_path / "run"
+    train(DepthConfig(**{**_cfg(folders, out).__dict__, "steps": 1}))
+    short = tmp_path / "short"
+    shutil.copytree(folders[1], short)
+    for name in ("rgb.txt", "depth.txt"):
+        lines = (short / name).read_text().splitlines()
+        (short / name).write_text("\n".join(line for line in lines if line.startswith("#")) + "\n"
+                                  + "\n".join([line for line in lines if not line.startswith("#")][:3]) + "\n")
+    ck = str(out / "checkpoint.pt")
+    single = [evaluate(ck, f, tmp_path / f"e{k}", progress=False) for k, f in enumerate((folders[0], short))]
+    assert [m["images"] for m in single] == [5, 3]
+    assert main(["depth", "eval", "--checkpoint", ck, "--data", str(folders[0]), str(short), "--out",
+                 str(tmp_path / "both"), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    both = json.loads((tmp_path / "both" / "metrics.json").read_text())
+    assert both["images"] == 8 and both["data"] == [str(folders[0]), str(short)]
+    for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "median_scale"):
+        assert both[k] == pytest.approx((5 * single[0][k] + 3 * single[1][k]) / 8, rel=1e-12)
+        for f, m in zip((folders[0], short), single):
+            assert both["per_folder"][str(f)][k] == pytest.approx(m[k], rel=1e-12)
+    assert "8 frames of 2 folders" in printed and f"{short} (3 frames): abs_rel" in printed
 
 
 def test_the_network_kept_is_the_moving_average_of_the_trained_one(folders, tmp_path, monkeypatch):
