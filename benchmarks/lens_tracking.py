@@ -93,7 +93,7 @@ def main(argv=None) -> None:
     base = r["ms"]["pinhole"]
     print(f"lens tracking, {args.size[0]}x{args.size[1]}, {args.frames} frames (best of {args.repeats}):")
     for name, ms in r["ms"].items():
-        print(f"  {name:<16} {ms:6.2f} ms per pair ({ms / base:.2f}x the pinhole), ATE {100 * r['ate_m'][name]:.2f} cm")
+        print(f"  {name:<16} {ms:6.2f} ms per pair ({ms / base:.2f}x the pinhole), ATE {100 * r['ate_m'][name]:.3f} cm")
 
 
 if __name__ == "__main__":

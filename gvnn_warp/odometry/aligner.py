@@ -116,9 +116,10 @@ class DirectAligner:
         dist: the model's coefficients: (k1, k2, p1, p2, k3) for "radtan" (OpenCV's), (k1, k2,
             k3, k4) for "fisheye" (cv2.fisheye's); giving them without ``model`` means "radtan".
         resample: None, or a ``gvnn_warp.kernels.sampling.remap.RemapTable`` (one position per
-            source pixel): the frames given to ``prepare`` are another camera's images of the
-            table's size, resampled through it into the pinhole camera ``K`` in the same pass that
-            makes the pyramid's base level (:class:`~.undistort.UndistortingAligner`'s lens frames).
+            pixel of its output size): the frames given to ``prepare`` are another camera's images
+            of the table's source size, resampled through it into the pinhole camera ``K`` (images
+            of the table's output size) in the same pass that makes the pyramid's base level
+            (:class:`~.undistort.UndistortingAligner`'s lens frames).
         levels: pyramid levels (1 = no pyramid); fewer are used if a level would have a side
             below 4 pixels. None (default): as many as keep the coarsest level's shorter side at
             6 pixels or more (6 levels at 320x240, 7 at 640x480), which gives the widest basin.
@@ -190,9 +191,9 @@ class DirectAligner:
         if resample is not None:
             if not isinstance(resample, RemapTable):
                 fail(fn, TypeError, f"argument 'resample' must be None or a RemapTable, got {type(resample).__name__}")
-            if resample.n != resample.width * resample.height:
-                fail(fn, ValueError, f"argument 'resample' must have one position per source pixel "
-                                     f"({resample.width}x{resample.height}), got {resample.n}")
+            if resample.n != resample.out_width * resample.out_height:
+                fail(fn, ValueError, f"argument 'resample' must have one position per output pixel "
+                                     f"({resample.out_width}x{resample.out_height}), got {resample.n}")
             if self.model != "pinhole":
                 fail(fn, ValueError, f"argument 'resample' resamples into a pinhole camera; model is {self.model!r}")
         self.resample = resample
@@ -318,7 +319,8 @@ class DirectAligner:
                               UserWarning, stacklevel=3)
         key = (B, C, H, W, depth is not None)
         pool = self._frame_pool.setdefault(key, [])
-        pyr = pool.pop() if pool else PyramidBuffers(B, C, H, W, depth is not None, levels=self._levels_for(H, W),
+        Ho, Wo = (H, W) if self.resample is None else (self.resample.out_height, self.resample.out_width)
+        pyr = pool.pop() if pool else PyramidBuffers(B, C, H, W, depth is not None, levels=self._levels_for(Ho, Wo),
                                                      weights=self._channel_weights(C), color=self.color,
                                                      depth_tolerance=self.depth_tolerance, resample=self.resample)
         pyr.fill(np.ascontiguousarray(img, dtype=np.float32),

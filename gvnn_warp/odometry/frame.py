@@ -78,13 +78,16 @@ def _out_view(a: wp.array, lanes: bool) -> wp.array:
 class PyramidBuffers:
     """Preallocated pyramid buffers of one frame size, with the launches that fill them recorded
     once (a recorded launch replays in a few microseconds); reused through the aligner's pool.
-    ``resample``: a :class:`~gvnn_warp.kernels.sampling.remap.RemapTable` (source frames of its size,
-    the (H, W) output) through which each frame is resampled in the base level's pass."""
+    ``resample``: a :class:`~gvnn_warp.kernels.sampling.remap.RemapTable` through which each frame
+    (B, C, H, W), of the table's source size, is resampled in the base level's pass, which is then of
+    the table's output size."""
 
     def __init__(self, B: int, C: int, H: int, W: int, with_depth: bool, *, levels: int, weights: wp.array,
                  color: bool, depth_tolerance: float, resample=None):
         Co = C if color else 1
         self.key = (B, C, H, W, with_depth)
+        if resample is not None:  # (the base level is the table's output)
+            H, W = resample.out_height, resample.out_width
         self.shapes = _pyramid.pyramid_shapes(H, W, levels)
         self.images = [wp.empty((B, Co, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes]
         self.depths = [wp.empty((B, 1, h, w), dtype=wp.float32, device="cpu") for h, w in self.shapes] if with_depth \

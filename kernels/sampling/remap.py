@@ -76,13 +76,17 @@ def remap_frame(offset: int, image: wp.array(dtype=wp.float32), depth: wp.array(
 
 class RemapTable:
     """A map of source positions ``positions`` (N, 2) (u, v), pixel centres at integer coordinates,
-    into a (H, W) source, as the indices and weights the kernels read: bilinear where the position
-    is inside [0, W - 1] x [0, H - 1], nearest where it is within half a pixel of the image."""
+    into a (H, W) = (``height``, ``width``) source, as the indices and weights the kernels read:
+    bilinear where the position is inside [0, W - 1] x [0, H - 1], nearest where it is within half a
+    pixel of the image. ``out_size`` (W', H'): the output image the N positions make, row by row
+    (N = W' H'; default: the source's size, when N is W H)."""
 
-    def __init__(self, positions: np.ndarray, width: int, height: int):
+    def __init__(self, positions: np.ndarray, width: int, height: int, out_size: tuple[int, int] | None = None):
         p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
         u, v = p[:, 0], p[:, 1]
         self.width, self.height, self.n = int(width), int(height), p.shape[0]
+        self.out_width, self.out_height = (self.width, self.height) if out_size is None else (int(out_size[0]),
+                                                                                              int(out_size[1]))
         inside = (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
         x0 = np.clip(np.floor(u), 0, width - 2).astype(np.int64)
         y0 = np.clip(np.floor(v), 0, height - 2).astype(np.int64)

@@ -751,10 +751,16 @@ def test_a_lens_sequence_tracks_the_same_resampled_as_exact(tmp_path):
     lens_twin(pin, tmp_path / "lens", dist)
     lens = read_tum(tmp_path / "lens")
     assert lens.dist is not None
-    # the ideal camera of the resampling keeps every ideal pixel inside the lens image
-    Ki = ideal_camera(lens.K, dist, 160, 120)
-    pos = lens_positions(lens.K, dist, 160, 120, Ki)
-    assert Ki[0, 0] >= lens.K[0, 0] and pos.min() >= 0 and pos[:, 0].max() <= 159 and pos[:, 1].max() <= 119
+    # the ideal camera of the resampling keeps every ideal pixel inside the lens image: a crop of the
+    # lens's focal lengths, as large as that allows (one more step of 8 columns would not fit)
+    Ki, (w, h) = ideal_camera(lens.K, dist, 160, 120)
+    pos = lens_positions(lens.K, dist, w, h, Ki)
+    assert np.array_equal(Ki[[0, 1], [0, 1]], lens.K[[0, 1], [0, 1]]) and w % 8 == 0 and h % 2 == 0
+    assert pos.min() >= 0 and pos[:, 0].max() <= 159 and pos[:, 1].max() <= 119 and (w, h) < (160, 120)
+    wider = Ki.copy()
+    wider[0, 2] += 4
+    pos = lens_positions(lens.K, dist, w + 8, h, wider)
+    assert pos.min() < 0 or pos[:, 0].max() > 159 or pos[:, 1].max() > 119
     frames = [(lens.image(i, gray=True), lens.depth(i)) for i in range(5)]
     for mode in ("resample", "exact"):
         r = track(lambda i: frames[i], 5, make_aligner(lens.K, dist=lens.dist, size=(160, 120), lens=mode),
@@ -763,12 +769,14 @@ def test_a_lens_sequence_tracks_the_same_resampled_as_exact(tmp_path):
         assert t_err.max() < 0.004 and r_err.max() < 0.15, mode
 
 
-@pytest.mark.parametrize("C, W, color", [(1, 64, False), (3, 64, False), (1, 60, False), (3, 60, True)])
-def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color):
+@pytest.mark.parametrize("C, W, color, crop", [(1, 64, False, False), (3, 64, False, False), (1, 60, False, False),
+                                               (3, 60, True, False), (1, 64, False, True), (3, 60, True, True)])
+def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color, crop):
     # the lens frame resampled as the pyramid's base level is made (one pass) gives, bit for bit, the
     # pyramid of the frame resampled first (remap_rgbd) then prepared as a pinhole frame: NaN
     # intensities, missing depths, depth edges and positions with no source included; the 8-lane
-    # kernel (one intensity, W % 8 == 0) and the scalar one (colour, other widths)
+    # kernel (one intensity, W % 8 == 0) and the scalar one (colour, other widths); into an image of
+    # the source's size, and (crop) into a smaller one
     from gvnn_warp.kernels.sampling.remap import RemapTable
 
     from gvnn_warp.datasets.intrinsics import DISTORTION_PRESETS
@@ -784,15 +792,18 @@ def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color):
     dep = (1 + rng.uniform(size=(2, 1, H, W))).astype(np.float32)
     dep[:, 0, 10:20, 10:20] *= 3  # a depth edge
     dep[0, 0, 1, 1], dep[1, 0, 2, 2], dep[1, 0, 30, 40] = np.nan, 0, -1
-    pos = lens_positions(K, dist, W, H)  # with the lens's own K the corners fall outside the image
+    Wo, Ho = (W - 8, H - 6) if crop else (W, H)  # (the crop: the image's top left part)
+    Ko = K.copy()
+    pos = lens_positions(K, dist, Wo, Ho, Ko)  # with the lens's own K the corners fall outside the image
     pos[5] = -1
     assert (pos[:, 0] > W - 1).any() or (pos.min(1) < 0).sum() > 1
-    table = RemapTable(pos, W, H)
-    fused = DirectAligner(K, resample=table, color=color).prepare(img, dep)
+    table = RemapTable(pos, W, H, out_size=(Wo, Ho))
+    fused = DirectAligner(Ko, resample=table, color=color).prepare(img, dep)
     undistorting = UndistortingAligner(K, dist, (W, H))
     undistorting.table = table
     pairs = [undistorting.undistort(img[b], dep[b]) for b in range(2)]
-    first = DirectAligner(K, color=color).prepare(np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs]))
+    assert pairs[0][0].shape[1:] == pairs[0][1].shape[1:] == (Ho, Wo)
+    first = DirectAligner(Ko, color=color).prepare(np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs]))
     assert fused.images[0].shape[1] == (C if color else 1)
     assert len(fused.images) == len(first.images) > 2
     for a, b in zip(fused.images + fused.depths, first.images + first.depths):
@@ -802,8 +813,9 @@ def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color):
         DirectAligner(K, resample=table).prepare(img[:, :, :40], dep[:, :, :40])
     with pytest.raises(TypeError, match="DirectAligner: argument 'resample' must be None or a RemapTable"):
         DirectAligner(K, resample=pos)
-    with pytest.raises(ValueError, match="argument 'resample' must have one position per source pixel"):
-        DirectAligner(K, resample=RemapTable(pos[:-1], W, H))
+    with pytest.raises(ValueError, match=f"argument 'resample' must have one position per output pixel "
+                                         f"\\({Wo}x{Ho}\\), got {Wo * Ho - 1}"):
+        DirectAligner(K, resample=RemapTable(pos[:-1], W, H, out_size=(Wo, Ho)))
     with pytest.raises(ValueError, match="UndistortingAligner.prepare: argument 'depth' must be"):
         undistorting.prepare(img[0], dep[0, :, :40])
     with pytest.raises(ValueError, match="argument 'resample' resamples into a pinhole camera"):
