@@ -34,6 +34,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from .args import (  # noqa: E402
+    UsageError,
     bounded_int,
     description,
     finite_float,
@@ -137,18 +138,22 @@ def run_train(args: argparse.Namespace) -> int:
 def run_eval(args: argparse.Namespace) -> int:
     from ..depth.evaluate import evaluate
 
+    named = [Path(d).resolve() for d in args.data]
+    twice = next((d for k, d in enumerate(args.data) if named[k] in named[:k]), None)
+    if twice is not None:
+        raise UsageError(f"--data names the folder {twice} twice")
     m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
     folders = " ".join(str(d) for d in args.data)
     if m.get("abs_rel") is None:
-        print(f"depth eval: {m['frames']} frames predicted; {folders} has no depth files to compare with; "
+        print(f"depth eval: {m['frames']} frames predicted; {folders}: no valid true depth to compare with; "
               f"wrote {args.out}")
         return 0
     several = m.get("per_folder")
-    print(f"depth eval ({m['images']} frames{f' of {len(several)} folders' if several else ''}, median-scaled): "
-          f"{_metrics_text(m)}; wrote {args.out}")
+    print(f"depth eval ({m['images']} frames with true depth{f' in {len(several)} folders' if several else ''}, "
+          f"median-scaled): {_metrics_text(m)}; wrote {args.out}")
     for folder, fm in (several or {}).items():
-        print(f"  {folder} ({fm['frames']} frames): " + ("no depth files" if fm.get("abs_rel") is None else
-                                                          _metrics_text(fm)))
+        print(f"  {folder}: " + ("no valid true depth" if fm.get("abs_rel") is None else
+                                 f"{fm['images']} frames, {_metrics_text(fm)}"))
     return 0
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from ..datasets.tum import read_tum
 from ..progress import progress_bar
 from ..vo.checkpoint import atomic_write_text
 from .data import read_video
@@ -79,6 +80,12 @@ def evaluate(checkpoint: str | Path, data, out: str | Path, *, progress: bool = 
     folders = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
     if not folders:
         raise ValueError("evaluate: data must name at least one folder")
+    seen = {}
+    for folder in folders:  # (each folder's lists read before any frame: a bad one fails first)
+        read_tum(folder)
+        if folder.resolve() in seen:
+            raise ValueError(f"evaluate: data names the folder {seen[folder.resolve()]} twice (also as {folder})")
+        seen[folder.resolve()] = folder
     every, per_folder, shown = [], {}, None
     for folder in folders:
         video = read_video([folder], size, with_depth=True, progress=progress)

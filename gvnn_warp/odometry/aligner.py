@@ -73,7 +73,7 @@ from ..kernels import pyramid as _pyramid
 from ..kernels.geometry.camera import MIN_DEPTH
 from ..kernels.sampling.remap import RemapTable
 from .frame import Frame, PyramidBuffers, recycle
-from .inputs import as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
+from .inputs import MIN_SIDE, as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
 from .solver import LMState
 
 INTENSITY_LIMIT = 1.5  # above this an image is taken for [0, 255] intensities (warned about once per aligner)
@@ -82,7 +82,6 @@ __all__ = ["DirectAligner", "Frame"]
 
 _LUMA = (0.299, 0.587, 0.114)
 _ROBUST = ("huber", "cauchy", "geman_mcclure", "tukey", "l2")
-_MIN_SIDE = 4  # smallest side (pixels) of a pyramid level
 _AUTO_MIN_SIDE = 6  # levels=None: the coarsest level's shorter side is 6-11 pixels
 OCCLUSION_LEVELS = 2  # the occlusion test runs at the finest this many levels (see DirectAligner's 'occlusion')
 
@@ -191,9 +190,12 @@ class DirectAligner:
         if resample is not None:
             if not isinstance(resample, RemapTable):
                 fail(fn, TypeError, f"argument 'resample' must be None or a RemapTable, got {type(resample).__name__}")
-            if resample.n != resample.out_width * resample.out_height:
-                fail(fn, ValueError, f"argument 'resample' must have one position per output pixel "
-                                     f"({resample.out_width}x{resample.out_height}), got {resample.n}")
+            if resample.out_width is None:
+                fail(fn, ValueError, f"argument 'resample' must have an output size (RemapTable's out_size): "
+                                     f"{resample.n} positions for a {resample.width}x{resample.height} source")
+            if min(resample.out_width, resample.out_height) < MIN_SIDE:
+                fail(fn, ValueError, f"argument 'resample' must make images of at least {MIN_SIDE}x{MIN_SIDE} "
+                                     f"pixels, got {resample.out_width}x{resample.out_height}")
             if self.model != "pinhole":
                 fail(fn, ValueError, f"argument 'resample' resamples into a pinhole camera; model is {self.model!r}")
         self.resample = resample
@@ -256,7 +258,7 @@ class DirectAligner:
             while min(H >> n, W >> n) >= _AUTO_MIN_SIDE:
                 n += 1
             return n
-        while n < self.levels and min(H >> n, W >> n) >= _MIN_SIDE:
+        while n < self.levels and min(H >> n, W >> n) >= MIN_SIDE:
             n += 1
         return n
 
@@ -293,8 +295,8 @@ class DirectAligner:
         if W in (1, 3, 4) and C > 4:
             hint = (f", which looks channel-last {'(B, H, W, C)' if batched else '(H, W, C)'}: images are "
                     f"{'(B, C, H, W)' if batched else '(C, H, W)'} (numpy: transpose, torch: permute)")
-        if H < _MIN_SIDE or W < _MIN_SIDE:
-            fail(fn, ValueError, f"argument '{image_name}' must be at least {_MIN_SIDE}x{_MIN_SIDE} pixels, "
+        if H < MIN_SIDE or W < MIN_SIDE:
+            fail(fn, ValueError, f"argument '{image_name}' must be at least {MIN_SIDE}x{MIN_SIDE} pixels, "
                   f"got shape {tuple(np.shape(image))}{hint}")
         if self.resample is not None and (H, W) != (self.resample.height, self.resample.width):
             fail(fn, ValueError, f"argument '{image_name}' must be {self.resample.width}x{self.resample.height} "

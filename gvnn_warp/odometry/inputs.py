@@ -15,6 +15,7 @@ from ..kernels.geometry import lens as _lens
 
 __all__ = ["as_numpy", "fail", "initial_pose", "is_torch", "lens_camera", "real_number"]
 
+MIN_SIDE = 4  # smallest side (pixels) of an image the aligner takes, and of a pyramid level
 RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)
 
 

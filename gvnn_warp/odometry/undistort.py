@@ -8,16 +8,16 @@ edge) - at the positions where the pixels of an ideal pinhole camera fall in the
 base level (``DirectAligner(K_ideal, resample=table)``), and the aligner then runs on pinhole
 images, whose fused kernels use the pinhole's row-linear fast path. :meth:`UndistortingAligner.undistort`
 gives the resampled frame itself. The ideal camera (:func:`ideal_camera`) keeps the lens's focal
-lengths and is the largest centred crop whose every pixel falls inside the lens image and the
-model's domain (the region of OpenCV's ``getOptimalNewCameraMatrix`` with alpha 0, without its
-magnification): an ideal image with no empty border, whose edge the aligner would otherwise take
+lengths and is the largest crop whose every pixel falls inside the lens image and the model's
+domain (OpenCV's ``getOptimalNewCameraMatrix`` with alpha 0 keeps only such pixels too, but
+magnifies them to the full size): an ideal image with no empty border, whose edge the aligner would otherwise take
 for the scene's, and with no more pixels than the lens gives there (a magnified 640x480 ideal image
 of the same region cost 4-9% more time per pair: more pixels, and larger motions in pixels). The
 poses are those of the same physical camera (the resampling changes the pixels, not the camera
 centre or orientation). What it changes: the images are interpolated once more (the exact path,
 ``DirectAligner(K, model="radtan", dist=...)``, moves rays through the lens instead), and the lens
 pixels outside the ideal image (a border where the lens bends the image's edges in; ~12% of a
-Freiburg 1 frame's: 600x450 of 640x480) are not used.
+Freiburg 1 frame's: 600x454 of 640x480) are not used.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from ..kernels.core.launch import launch
 from ..kernels.geometry import kernels as geometry_kernels
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.remap import RemapTable, remap, remap_rgbd
-from .inputs import as_numpy, fail
+from .inputs import MIN_SIDE, as_numpy, fail
 
 __all__ = ["UndistortingAligner", "ideal_camera", "lens_positions"]
 
@@ -59,21 +59,36 @@ def lens_positions(K: np.ndarray, dist, width: int, height: int, K_ideal: np.nda
 
 def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> tuple[np.ndarray, tuple[int, int]]:
     """The ideal pinhole camera of a lens frame of ``width`` x ``height`` (see the module docstring):
-    (``K_ideal`` (3, 3), (W', H')), the focal lengths ``K``'s, W' a multiple of 8 (the 8-lane
-    kernels' rows) and H' even, the largest crop (its size shrunk by the smallest factor in [1, 3),
-    steps of 0.5%, the principal point moved with it) whose pixels all fall inside the lens image;
-    for a lens so strong that none does, the smallest (the pixels outside have no data)."""
+    (``K_ideal`` (3, 3), (W', H')), the focal lengths ``K``'s, the largest crop (its sides shrunk by
+    the smallest factor in [1, 3), steps of 0.5%; W' a multiple of 8, the 8-lane kernels' rows, from
+    64 pixels on) whose pixels all fall inside the lens image, each crop tried where the lens image
+    leaves it even margins (the lens need not be centred: its principal point moves by the crop's
+    margin, then by half the difference of the margins, up to three times). For a lens so strong
+    that none fits, the last tried (the pixels outside have no data)."""
     K = np.asarray(K, dtype=np.float64)
+    best = None
     for scale in np.arange(1.0, 3.0, 0.005):
-        w = max(8, 8 * int(width / scale / 8))
-        h = max(2, 2 * int(height / scale / 2))
-        Ki = K.copy()  # the principal point where the shrunk image's centre keeps the lens's centre ray
-        Ki[0, 2] = (K[0, 2] + 0.5) * w / width - 0.5
-        Ki[1, 2] = (K[1, 2] + 0.5) * h / height - 0.5
-        pos = lens_positions(K, dist, w, h, Ki)
-        if pos.min() >= 0 and pos[:, 0].max() <= width - 1 and pos[:, 1].max() <= height - 1:
-            return Ki, (w, h)
-    return Ki, (w, h)
+        w = min(width, 8 * int(width / scale / 8) if width >= 64 else int(width / scale))
+        h = min(height, int(height / scale))
+        if min(w, h) < MIN_SIDE:
+            break
+        Ki = K.copy()  # a crop at the same focal lengths: the principal point moves by the margin
+        Ki[0, 2], Ki[1, 2] = K[0, 2] - (width - w) / 2, K[1, 2] - (height - h) / 2
+        for _ in range(3):  # even the margins: move the crop by half their difference (ray ~ pixel near
+            # the edges; a few steps settle it)
+            pos = lens_positions(K, dist, w, h, Ki)
+            if pos.min() < 0 and (pos == -1).all(axis=1).any():  # beyond the model's domain
+                break
+            slack = np.array([pos[:, 0].min(), width - 1 - pos[:, 0].max(), pos[:, 1].min(),
+                              height - 1 - pos[:, 1].max()])
+            if slack[0] + slack[1] < 0 or slack[2] + slack[3] < 0:  # too large whatever its place
+                break
+            if slack.min() >= 0:
+                return Ki, (w, h)
+            Ki[0, 2] -= (slack[1] - slack[0]) / 2
+            Ki[1, 2] -= (slack[3] - slack[2]) / 2
+        best = (Ki, (w, h))
+    return best if best is not None else (K.copy(), (width, height))
 
 
 class UndistortingAligner:

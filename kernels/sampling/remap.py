@@ -79,14 +79,18 @@ class RemapTable:
     into a (H, W) = (``height``, ``width``) source, as the indices and weights the kernels read:
     bilinear where the position is inside [0, W - 1] x [0, H - 1], nearest where it is within half a
     pixel of the image. ``out_size`` (W', H'): the output image the N positions make, row by row
-    (N = W' H'; default: the source's size, when N is W H)."""
+    (N = W' H', else ValueError); default: the source's size when N = W H, else none
+    (``out_width`` and ``out_height`` None: the caller gives the output's shape)."""
 
     def __init__(self, positions: np.ndarray, width: int, height: int, out_size: tuple[int, int] | None = None):
         p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
         u, v = p[:, 0], p[:, 1]
         self.width, self.height, self.n = int(width), int(height), p.shape[0]
-        self.out_width, self.out_height = (self.width, self.height) if out_size is None else (int(out_size[0]),
-                                                                                              int(out_size[1]))
+        if out_size is None:
+            out_size = (self.width, self.height) if self.n == self.width * self.height else (None, None)
+        elif int(out_size[0]) * int(out_size[1]) != self.n:
+            raise ValueError(f"RemapTable: {self.n} positions for an output of {out_size[0]}x{out_size[1]}")
+        self.out_width, self.out_height = (None, None) if out_size[0] is None else (int(out_size[0]), int(out_size[1]))
         inside = (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
         x0 = np.clip(np.floor(u), 0, width - 2).astype(np.int64)
         y0 = np.clip(np.floor(v), 0, height - 2).astype(np.int64)

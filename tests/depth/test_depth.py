@@ -211,7 +211,14 @@ def test_eval_of_several_folders_is_one_test_set_with_each_folder_beside(folders
         assert both[k] == pytest.approx((5 * single[0][k] + 3 * single[1][k]) / 8, rel=1e-12)
         for f, m in zip((folders[0], short), single):
             assert both["per_folder"][str(f)][k] == pytest.approx(m[k], rel=1e-12)
-    assert "8 frames of 2 folders" in printed and f"{short} (3 frames): abs_rel" in printed
+    assert "8 frames with true depth in 2 folders" in printed and f"{short}: 3 frames, abs_rel" in printed
+    with pytest.raises(SystemExit) as status:  # (a command-line mistake: the usage line, status 2)
+        main(["depth", "eval", "--checkpoint", ck, "--data", str(short), f"{short}/", "--out", str(tmp_path / "t"),
+              "--no-progress"])
+    assert status.value.code == 2 and f"--data names the folder {short} twice" in capsys.readouterr().err
+    with pytest.raises(ValueError, match=f"evaluate: data names the folder {short} twice"):
+        evaluate(ck, [short, folders[0], short.parent / ".." / short.parent.name / "short"], tmp_path / "twice",
+                 progress=False)
 
 
 def test_the_network_kept_is_the_moving_average_of_the_trained_one(folders, tmp_path, monkeypatch):

@@ -752,15 +752,16 @@ def test_a_lens_sequence_tracks_the_same_resampled_as_exact(tmp_path):
     lens = read_tum(tmp_path / "lens")
     assert lens.dist is not None
     # the ideal camera of the resampling keeps every ideal pixel inside the lens image: a crop of the
-    # lens's focal lengths, as large as that allows (one more step of 8 columns would not fit)
-    Ki, (w, h) = ideal_camera(lens.K, dist, 160, 120)
-    pos = lens_positions(lens.K, dist, w, h, Ki)
-    assert np.array_equal(Ki[[0, 1], [0, 1]], lens.K[[0, 1], [0, 1]]) and w % 8 == 0 and h % 2 == 0
-    assert pos.min() >= 0 and pos[:, 0].max() <= 159 and pos[:, 1].max() <= 119 and (w, h) < (160, 120)
-    wider = Ki.copy()
-    wider[0, 2] += 4
-    pos = lens_positions(lens.K, dist, w + 8, h, wider)
-    assert pos.min() < 0 or pos[:, 0].max() > 159 or pos[:, 1].max() > 119
+    # lens's focal lengths, as large as that allows (little margin left: about a step of 8 columns
+    # and a row, each side shrinking 0.8 / 0.6 pixels a step), for the rendered camera and for the
+    # published fr1 one (principal point off the image's centre)
+    fr1 = np.array([[517.3 / 4, 0, (318.6 + 0.5) / 4 - 0.5], [0, 516.5 / 4, (255.3 + 0.5) / 4 - 0.5], [0, 0, 1]])
+    for K in (lens.K, fr1):
+        Ki, (w, h) = ideal_camera(K, dist, 160, 120)
+        pos = lens_positions(K, dist, w, h, Ki)
+        assert np.array_equal(Ki[[0, 1], [0, 1]], K[[0, 1], [0, 1]]) and w % 8 == 0 and w < 160 and h < 120
+        margins = pos[:, 0].min(), 159 - pos[:, 0].max(), pos[:, 1].min(), 119 - pos[:, 1].max()
+        assert min(margins) >= 0 and margins[0] + margins[1] < 10 and margins[2] + margins[3] < 3, margins
     frames = [(lens.image(i, gray=True), lens.depth(i)) for i in range(5)]
     for mode in ("resample", "exact"):
         r = track(lambda i: frames[i], 5, make_aligner(lens.K, dist=lens.dist, size=(160, 120), lens=mode),
@@ -813,9 +814,12 @@ def test_resampling_inside_the_base_level_equals_resampling_first(C, W, color, c
         DirectAligner(K, resample=table).prepare(img[:, :, :40], dep[:, :, :40])
     with pytest.raises(TypeError, match="DirectAligner: argument 'resample' must be None or a RemapTable"):
         DirectAligner(K, resample=pos)
-    with pytest.raises(ValueError, match=f"argument 'resample' must have one position per output pixel "
-                                         f"\\({Wo}x{Ho}\\), got {Wo * Ho - 1}"):
-        DirectAligner(K, resample=RemapTable(pos[:-1], W, H, out_size=(Wo, Ho)))
+    with pytest.raises(ValueError, match=f"RemapTable: {Wo * Ho - 1} positions for an output of {Wo}x{Ho}"):
+        RemapTable(pos[:-1], W, H, out_size=(Wo, Ho))
+    with pytest.raises(ValueError, match="argument 'resample' must have an output size"):
+        DirectAligner(K, resample=RemapTable(pos[:-1], W, H))
+    with pytest.raises(ValueError, match="argument 'resample' must make images of at least 4x4 pixels, got 8x3"):
+        DirectAligner(K, resample=RemapTable(pos[:24], W, H, out_size=(8, 3)))
     with pytest.raises(ValueError, match="UndistortingAligner.prepare: argument 'depth' must be"):
         undistorting.prepare(img[0], dep[0, :, :40])
     with pytest.raises(ValueError, match="argument 'resample' resamples into a pinhole camera"):
