@@ -136,12 +136,11 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from ..depth.evaluate import evaluate
+    from ..depth.evaluate import evaluate, repeated_folder
 
-    named = [Path(d).resolve() for d in args.data]
-    twice = next((d for k, d in enumerate(args.data) if named[k] in named[:k]), None)
+    twice = repeated_folder(args.data)
     if twice is not None:
-        raise UsageError(f"--data names the folder {twice} twice")
+        raise UsageError(f"--data names the folder {twice[0]} twice")
     m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
     folders = " ".join(str(d) for d in args.data)
     if m.get("abs_rel") is None:

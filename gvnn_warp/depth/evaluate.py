@@ -26,7 +26,7 @@ from ..vo.checkpoint import atomic_write_text
 from .data import read_video
 from .train import load_checkpoint, load_depth_net
 
-__all__ = ["METRICS", "depth_metrics", "evaluate"]
+__all__ = ["METRICS", "depth_metrics", "evaluate", "repeated_folder"]
 
 METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
 
@@ -80,12 +80,11 @@ def evaluate(checkpoint: str | Path, data, out: str | Path, *, progress: bool = 
     folders = [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
     if not folders:
         raise ValueError("evaluate: data must name at least one folder")
-    seen = {}
+    twice = repeated_folder(folders)
+    if twice is not None:
+        raise ValueError(f"evaluate: data names the folder {twice[0]} twice (also as {twice[1]})")
     for folder in folders:  # (each folder's lists read before any frame: a bad one fails first)
         read_tum(folder)
-        if folder.resolve() in seen:
-            raise ValueError(f"evaluate: data names the folder {seen[folder.resolve()]} twice (also as {folder})")
-        seen[folder.resolve()] = folder
     every, per_folder, shown = [], {}, None
     for folder in folders:
         video = read_video([folder], size, with_depth=True, progress=progress)
@@ -119,6 +118,17 @@ def evaluate(checkpoint: str | Path, data, out: str | Path, *, progress: bool = 
                 title=f"{folder.name}, frame {i}", last_title="|error| / true depth (median-scaled)",
                 last_cmap="viridis")
     return metrics
+
+
+def repeated_folder(folders) -> tuple[Path, Path] | None:
+    """(earlier, later): the first of ``folders`` (paths) that names a folder named before it (once
+    resolved), with that earlier path; None if every folder is named once."""
+    seen = {}
+    for folder in map(Path, folders):
+        earlier = seen.setdefault(folder.resolve(), folder)
+        if earlier is not folder:
+            return earlier, folder
+    return None
 
 
 def _summary(every: list[dict | None], frames: int) -> dict:

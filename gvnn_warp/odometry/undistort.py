@@ -66,7 +66,7 @@ def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> tuple[np.ndarr
     margin, then by half the difference of the margins, up to three times). For a lens so strong
     that none fits, the last tried (the pixels outside have no data)."""
     K = np.asarray(K, dtype=np.float64)
-    best = None
+    last = None
     for scale in np.arange(1.0, 3.0, 0.005):
         w = min(width, 8 * int(width / scale / 8) if width >= 64 else int(width / scale))
         h = min(height, int(height / scale))
@@ -77,7 +77,7 @@ def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> tuple[np.ndarr
         for _ in range(3):  # even the margins: move the crop by half their difference (ray ~ pixel near
             # the edges; a few steps settle it)
             pos = lens_positions(K, dist, w, h, Ki)
-            if pos.min() < 0 and (pos == -1).all(axis=1).any():  # beyond the model's domain
+            if (pos == -1).all(axis=1).any():  # beyond the model's domain
                 break
             slack = np.array([pos[:, 0].min(), width - 1 - pos[:, 0].max(), pos[:, 1].min(),
                               height - 1 - pos[:, 1].max()])
@@ -87,8 +87,8 @@ def ideal_camera(K: np.ndarray, dist, width: int, height: int) -> tuple[np.ndarr
                 return Ki, (w, h)
             Ki[0, 2] -= (slack[1] - slack[0]) / 2
             Ki[1, 2] -= (slack[3] - slack[2]) / 2
-        best = (Ki, (w, h))
-    return best if best is not None else (K.copy(), (width, height))
+        last = (Ki, (w, h))
+    return last if last is not None else (K.copy(), (width, height))
 
 
 class UndistortingAligner:
@@ -121,14 +121,13 @@ class UndistortingAligner:
         if img.shape[1:] != (self.height, self.width):
             fail("UndistortingAligner.undistort", ValueError, f"argument 'image' must be (C, {self.height}, "
                                                               f"{self.width}), got {img.shape}")
-        out = (self.table.out_height, self.table.out_width)
         if depth is None:
-            return remap(img, self.table, out), None
+            return remap(img, self.table), None
         d = as_numpy("UndistortingAligner.undistort", "depth", depth, (3,))
         if d.shape != (1, self.height, self.width):
             fail("UndistortingAligner.undistort", ValueError, f"argument 'depth' must be (1, {self.height}, "
                                                               f"{self.width}), got {d.shape}")
-        return remap_rgbd(img, d, self.table, out)
+        return remap_rgbd(img, d, self.table)
 
     def prepare(self, image, depth=None):
         """The pyramid of a lens frame (or a batch), resampled into the ideal camera as its base level

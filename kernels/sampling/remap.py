@@ -86,11 +86,11 @@ class RemapTable:
         p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
         u, v = p[:, 0], p[:, 1]
         self.width, self.height, self.n = int(width), int(height), p.shape[0]
-        if out_size is None:
-            out_size = (self.width, self.height) if self.n == self.width * self.height else (None, None)
-        elif int(out_size[0]) * int(out_size[1]) != self.n:
+        if out_size is not None and int(out_size[0]) * int(out_size[1]) != self.n:
             raise ValueError(f"RemapTable: {self.n} positions for an output of {out_size[0]}x{out_size[1]}")
-        self.out_width, self.out_height = (None, None) if out_size[0] is None else (int(out_size[0]), int(out_size[1]))
+        if out_size is None and self.n == self.width * self.height:
+            out_size = (self.width, self.height)
+        self.out_width, self.out_height = (None, None) if out_size is None else (int(out_size[0]), int(out_size[1]))
         inside = (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
         x0 = np.clip(np.floor(u), 0, width - 2).astype(np.int64)
         y0 = np.clip(np.floor(v), 0, height - 2).astype(np.int64)
@@ -105,15 +105,28 @@ class RemapTable:
         self.index = wp.array(index, dtype=wp.int32, device="cpu")
 
 
-def remap(src: np.ndarray, table: RemapTable, out_shape: tuple[int, int], nearest: bool = False) -> np.ndarray:
+def _output_shape(fn: str, table: RemapTable, out_shape: tuple[int, int] | None) -> tuple[int, int]:
+    """(H', W'): ``out_shape``, by default the table's output size; ValueError if the table's
+    positions do not make it."""
+    if out_shape is None:
+        if table.out_width is None:
+            raise ValueError(f"{fn}: the table has no output size (RemapTable's out_size): give out_shape")
+        out_shape = (table.out_height, table.out_width)
+    if table.n != out_shape[0] * out_shape[1]:
+        raise ValueError(f"{fn}: {table.n} positions for an output of {out_shape}")
+    return out_shape
+
+
+def remap(src: np.ndarray, table: RemapTable, out_shape: tuple[int, int] | None = None,
+          nearest: bool = False) -> np.ndarray:
     """``src`` (C, H, W) float32 resampled through ``table``: (C, H', W') float32 with
-    ``out_shape`` = (H', W'); bilinear, or the nearest pixel's value (non-finite values read as 0)."""
+    ``out_shape`` = (H', W') (default: the table's output size); bilinear, or the nearest pixel's
+    value (non-finite values read as 0)."""
     C, H, W = src.shape
     if (H, W) != (table.height, table.width):
         raise ValueError(f"remap: the source is {W}x{H}, the table's {table.width}x{table.height}")
+    out_shape = _output_shape("remap", table, out_shape)
     n = out_shape[0] * out_shape[1]
-    if table.n != n:
-        raise ValueError(f"remap: {table.n} positions for an output of {out_shape}")
     flat = np.ascontiguousarray(src, dtype=np.float32).reshape(C, -1)
     out = np.empty((C, n), np.float32)
     for c in range(C):
@@ -125,16 +138,16 @@ def remap(src: np.ndarray, table: RemapTable, out_shape: tuple[int, int], neares
     return out.reshape(C, *out_shape)
 
 
-def remap_rgbd(image: np.ndarray, depth: np.ndarray, table: RemapTable, out_shape: tuple[int, int]):
+def remap_rgbd(image: np.ndarray, depth: np.ndarray, table: RemapTable, out_shape: tuple[int, int] | None = None):
     """An RGB-D frame, ``image`` (C, H, W) bilinear and ``depth`` (1, H, W) nearest, resampled
-    through ``table`` in one launch: ((C, H', W'), (1, H', W')) float32."""
+    through ``table`` in one launch: ((C, H', W'), (1, H', W')) float32, ``out_shape`` = (H', W')
+    (default: the table's output size)."""
     C, H, W = image.shape
     if (H, W) != (table.height, table.width) or depth.shape != (1, H, W):
         raise ValueError(f"remap_rgbd: image {image.shape} and depth {depth.shape} must be (C, {table.height}, "
                          f"{table.width}) and (1, {table.height}, {table.width})")
+    out_shape = _output_shape("remap_rgbd", table, out_shape)
     n = out_shape[0] * out_shape[1]
-    if table.n != n:
-        raise ValueError(f"remap_rgbd: {table.n} positions for an output of {out_shape}")
     img = wp.array(np.ascontiguousarray(image, dtype=np.float32).reshape(-1), dtype=wp.float32, device="cpu",
                    copy=False)
     dep = wp.array(np.ascontiguousarray(depth, dtype=np.float32).reshape(-1), dtype=wp.float32, device="cpu",

@@ -844,6 +844,12 @@ def test_remap_is_bilinear_and_nearest_with_empty_outside():
     np.testing.assert_array_equal(near[0, :4], [src[0, 0, 0], src[0, 4, 6], src[0, 2, 2], src[0, 2, 3]])
     assert near[1, 3] == 0  # a NaN source reads as 0 (no depth)
     assert near[0, 5] == src[0, 4, 6] and near[0, 6] == 0  # within half a pixel of the image, and beyond
+    # the output's shape: the table's own when it has one, else given
+    np.testing.assert_array_equal(remap(src, RemapTable(pos, 7, 5, out_size=(7, 1)), nearest=True)[:, 0], near)
+    with pytest.raises(ValueError, match="remap: the table has no output size"):
+        remap(src, table)
+    with pytest.raises(ValueError, match=r"remap: 7 positions for an output of \(2, 7\)"):
+        remap(src, table, (2, 7))
 
 
 # ------------------------------------------------------------------------------------------------
