@@ -247,12 +247,13 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         zmin = type(Kb[0, 0])(min_depth)
         a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
         t = lie.pose_translation(Tb)
+        A0, AX, T8, K8 = pinhole_block.row_lanes(a0, ax, t, Kb)  # the blocks' gradient accumulators
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
         for k in range(w8):
-            block(image, depth, out, valid, r * w8 + k, k * wp.static(sampler.LANES), a0, ax, t, Kb, b * nc * H * W,
-                  b * nc * hw8 + py * w8 + k, nc, hw8, H, W, zmin)
+            block(image, depth, out, valid, r * w8 + k, k * wp.static(sampler.LANES), a0, ax, t, Kb, A0, AX, T8, K8,
+                  b * nc * H * W, b * nc * hw8 + py * w8 + k, nc, hw8, H, W, zmin)
 
     return FloatKernel(_warp_frame_depth_lanes, image="scalar", depth="vec8", pose="mat34", K="mat33",
                        out="vec8").set_parallel(**_ROW_SPLIT)

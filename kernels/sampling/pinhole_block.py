@@ -1,24 +1,27 @@
 """A block of 8 pixels of one row of the pinhole 3D spatial transformer as 8-lane vector code,
 with its hand-written adjoint (``@wp.func``, no launches here): :func:`warp_block8`, what
-:func:`.kernels.warp_frame_depth_lanes` runs per block, forward and backward.
+:func:`.kernels.warp_frame_depth_lanes` runs per block, forward and backward, and
+:func:`row_lanes`, the row's gradient accumulators.
 
 Forward: :data:`.kernels.warp_frame_depth`'s per-pixel work on 8 pixels at once (the projection of
 :func:`gvnn_warp.kernels.geometry.camera.project_moved_ray` and the sampler of
 :func:`.sampler.sample_channels`, the same operations in the same order: bitwise the same values
-and ``valid``). Adjoint: the projection and its chain rule (to the depth, the row's rays, the
-translation and K) are vector arithmetic; d loss / d (x, y) of the samples is
+and ``valid``). Adjoint: vector arithmetic but for the image gradient's read-modify-writes. The
+taps are read as vectors (:func:`position_grad8`) for d loss / d (x, y); with the image gradient
+wanted, each channel's tap terms are vector products added lane by lane (:func:`scatter8`; lanes
+may share a tap); the projection's chain rule (to the depth, the row's rays, the translation and K)
+is vector code.
 
-- with the image gradient wanted, the row kernel's per-sample adjoint
-  (:func:`.sampler.sample_channels_grad`) lane by lane, which reads the taps and scatters the image
-  gradient in one pass (the scatter as a pass of its own, after vector reads, was slower);
-- without it (the image is data), vector tap reads and arithmetic (:func:`position_grad8`).
-
-The block's gradients for the row's rays, translation and K are summed over the lanes and added to
-the kernel's, whose own (Warp's) adjoint takes the row's sums through :func:`.camera.row_rays` and
-the pose. With Warp's automatic adjoint of the 8-lane forward, forward+backward took 2.5x the row
-kernel's time; with this adjoint the backward takes 0.8x the row kernel's, with or without the image
-gradient (B=8 240x320, one thread, interleaved in one process; see ``benchmarks/RESULTS.md``).
+The block's gradients for the row's rays, translation and K are whole 8-lane vectors, added to
+8-lane copies of them that the kernel makes once per row (:func:`row_lanes`); Warp's adjoint of
+that function sums the lanes once per row, and the kernel's own adjoint takes the sums through
+:func:`.camera.row_rays` and the pose. Summing each block's lanes in the block (as an earlier
+version did) made LLVM vectorise the whole block adjoint 2 and 4 lanes wide instead of 8
+(``benchmarks/RESULTS.md``). With Warp's automatic adjoint of the 8-lane forward,
+forward+backward took 2.5x the row kernel's time.
 """
+
+from typing import Any
 
 import warp as wp
 
@@ -29,6 +32,24 @@ from ..core.kinds import vec8d, vec8f
 from . import sampler
 
 _LANES = sampler.LANES
+
+
+@wp.func
+def row_lanes(a0: Any, ax: Any, t: Any, Kb: Any):
+    """A row's constants in 8 lanes, the gradient accumulators of :func:`warp_block8`: (A0, AX, T8,
+    K8), 3x8, 3x8, 3x8 and 5x8 matrices whose rows are the components of the ray terms a0 and ax,
+    of the translation t, and fx, skew, cx, fy and cy of K, each repeated in the 8 lanes. The blocks
+    do not read them; their adjoints add 8-lane gradients to them (vector adds), and Warp's adjoint
+    of this function sums the lanes into a0, ax, t and K's, once per row."""
+    return (
+        wp.matrix_from_rows(lanes.splat8(a0[0]), lanes.splat8(a0[1]), lanes.splat8(a0[2])),
+        wp.matrix_from_rows(lanes.splat8(ax[0]), lanes.splat8(ax[1]), lanes.splat8(ax[2])),
+        wp.matrix_from_rows(lanes.splat8(t[0]), lanes.splat8(t[1]), lanes.splat8(t[2])),
+        wp.matrix_from_rows(
+            lanes.splat8(Kb[0, 0]), lanes.splat8(Kb[0, 1]), lanes.splat8(Kb[0, 2]), lanes.splat8(Kb[1, 1]),
+            lanes.splat8(Kb[1, 2]),
+        ),
+    )
 
 
 @specialise("sampling.pinhole_block8", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
@@ -49,6 +70,8 @@ def _warp_block8(T, static_c: int, static_padding: int):
     vec3 = wp.types.vector(3, T)
     mat33 = wp.types.matrix((3, 3), T)
     vec8 = vec8f if T == wp.float32 else vec8d
+    mat38 = wp.types.matrix((3, 8), T)
+    mat58 = wp.types.matrix((5, 8), T)
 
     @wp.func
     def position_grad8(
@@ -65,6 +88,31 @@ def _warp_block8(T, static_c: int, static_padding: int):
             wp.cw_mul(g, wp.cw_mul(v10 - v00, wy0) + wp.cw_mul(v11 - v01, wy1)),
             wp.cw_mul(g, wp.cw_mul(v01 - v00, wx0) + wp.cw_mul(v11 - v10, wx1)),
         )
+
+    @wp.func
+    def scatter8(
+        g_image: wp.array(dtype=T), q: int, g: vec8, a00: vec8, a10: vec8, a01: vec8, a11: vec8,
+        m00: vec8, m10: vec8, m01: vec8, m11: vec8, wx0: vec8, wx1: vec8, wy0: vec8, wy1: vec8,
+    ):
+        """One channel plane's (at ``q``) share of d loss / d image: g w added to each tap whose
+        mask is set, lane after lane, the taps of a lane in the scalar sampler's order (so each
+        pixel of the gradient gets its terms in the row kernel's order). The products are vector
+        code; the read-modify-writes are scalar (lanes may share a tap)."""
+        zero = T(0.0)
+        c00 = wp.cw_mul(g, wp.cw_mul(wx0, wy0))
+        c10 = wp.cw_mul(g, wp.cw_mul(wx1, wy0))
+        c01 = wp.cw_mul(g, wp.cw_mul(wx0, wy1))
+        c11 = wp.cw_mul(g, wp.cw_mul(wx1, wy1))
+        b = wp.max(q, 0)
+        for k in range(wp.static(_LANES)):
+            if m00[k] != zero:
+                g_image[b + wp.max(int(a00[k]), 0)] += c00[k]
+            if m10[k] != zero:
+                g_image[b + wp.max(int(a10[k]), 0)] += c10[k]
+            if m01[k] != zero:
+                g_image[b + wp.max(int(a01[k]), 0)] += c01[k]
+            if m11[k] != zero:
+                g_image[b + wp.max(int(a11[k]), 0)] += c11[k]
 
     @wp.func
     def project8(depth: wp.array(dtype=vec8), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, zmin: T):
@@ -91,15 +139,17 @@ def _warp_block8(T, static_c: int, static_padding: int):
     @wp.func
     def warp_block8(
         image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
-        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,
-        dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
+        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, A0: mat38,
+        AX: mat38, T8: mat38, K8: mat58, src: int, dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
     ):
         """Pixels x0 .. x0 + 7 of a row (depth block ``e``, flat (b, y, block), also the index of
         their first ``valid`` flag / 8): ``valid`` (valid depth, in front, inside the image within
         ``sampler.INSIDE_TOLERANCE``) and the bilinear samples of the channel planes ``src + c H W`` of
         ``image`` into ``out[dst + c hw8]`` (hw8 = H W / 8), 0 where the depth is invalid or the
-        point behind ``zmin``. Gradients (hand-written): to ``image``, ``depth``, ``a0``, ``ax``,
-        ``t`` and ``Kb``."""
+        point behind ``zmin``. ``A0``, ``AX``, ``T8``, ``K8``: :func:`row_lanes` of ``a0``, ``ax``,
+        ``t``, ``Kb``, not read (the compiler drops them). Gradients (hand-written): to ``image``,
+        ``depth``, and to ``a0``, ``ax``, ``t`` and ``Kb`` through ``A0``, ``AX``, ``T8``,
+        ``K8``."""
         tol = T(sampler.INSIDE_TOLERANCE)
         u, v, ok, dd, x, xn, yn, inv_z = project8(depth, e, x0, a0, ax, t, Kb, zmin)
         flags = wp.cw_mul(
@@ -117,8 +167,8 @@ def _warp_block8(T, static_c: int, static_padding: int):
     @func_grad(warp_block8)
     def adj_warp_block8(
         image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
-        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,
-        dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
+        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, A0: mat38,
+        AX: mat38, T8: mat38, K8: mat58, src: int, dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
     ):
         zero = T(0.0)
         zeros = lanes.splat8(zero)
@@ -132,42 +182,38 @@ def _warp_block8(T, static_c: int, static_padding: int):
         img = sampler.dense(image)
         g_out = sampler.dense(wp.adjoint[out])
         g_image = sampler.dense(wp.adjoint[image])
+        # the taps, as sampler.sample_lanes has them; d out_c / dx = (v10 - v00) wy0 + (v11 - v01) wy1
+        a00, a10, a01, a11, m00, m10, m01, m11, wx1, wy1 = sampler.taps_lanes(xs, ys, T(W), T(H))
+        m00 = wp.cw_mul(m00, active)
+        m10 = wp.cw_mul(m10, active)
+        m01 = wp.cw_mul(m01, active)
+        m11 = wp.cw_mul(m11, active)
+        wx0 = lanes.splat8(T(1.0)) - wx1
+        wy0 = lanes.splat8(T(1.0)) - wy1
+        scatter = g_image.shape[0] > 0
         gx = zeros
         gy = zeros
-        if g_image.shape[0] > 0:
-            # with the image gradient: lane by lane, the row kernel's sampler adjoint (taps read and
-            # scattered in one pass; the scatter as a pass of its own after vector reads was slower)
-            g_flat = wp.array(ptr=g_out.ptr, shape=(g_out.shape[0] * wp.static(_LANES),), dtype=T)
-            for k in range(wp.static(_LANES)):
-                if active[k] != zero:
-                    gxk, gyk = sampler.sample_channels_grad(
-                        img, g_image, g_flat, src, dst * wp.static(_LANES) + k, nc, H * W, H * W, H, W, xs[k], ys[k]
-                    )
-                    gx[k] = gxk
-                    gy[k] = gyk
-        else:
-            # the taps, as sampler.sample_lanes has them; d out_c / dx = (v10 - v00) wy0 + (v11 - v01) wy1
-            a00, a10, a01, a11, m00, m10, m01, m11, wx1, wy1 = sampler.taps_lanes(xs, ys, T(W), T(H))
-            m00 = wp.cw_mul(m00, active)
-            m10 = wp.cw_mul(m10, active)
-            m01 = wp.cw_mul(m01, active)
-            m11 = wp.cw_mul(m11, active)
-            wx0 = lanes.splat8(T(1.0)) - wx1
-            wy0 = lanes.splat8(T(1.0)) - wy1
-            for c in range(wp.static(sampler.UNROLLED_CHANNELS)):
-                if c < nc:
-                    dx, dy = position_grad8(img, src + c * H * W, g_out[dst + c * hw8], a00, a10, a01, a11, m00,
-                                            m10, m01, m11, wx0, wx1, wy0, wy1)
-                    gx = gx + dx
-                    gy = gy + dy
-            for c in range(sampler.UNROLLED_CHANNELS, nc):
-                dx, dy = position_grad8(img, src + c * H * W, g_out[dst + c * hw8], a00, a10, a01, a11, m00, m10,
-                                        m01, m11, wx0, wx1, wy0, wy1)
+        # (the two loops written out: one helper function for their bodies made the backward ~10% slower)
+        for c in range(wp.static(sampler.UNROLLED_CHANNELS)):
+            if c < nc:
+                g = g_out[dst + c * hw8]
+                dx, dy = position_grad8(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1,
+                                        wy0, wy1)
                 gx = gx + dx
                 gy = gy + dy
-            # lanes that are not active: no gradient at all (also for a NaN or inf incoming gradient there)
-            gx = lanes.select8(active, gx, zeros)
-            gy = lanes.select8(active, gy, zeros)
+                if scatter:
+                    scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1, wy0, wy1)
+        for c in range(sampler.UNROLLED_CHANNELS, nc):
+            g = g_out[dst + c * hw8]
+            dx, dy = position_grad8(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1, wy0,
+                                    wy1)
+            gx = gx + dx
+            gy = gy + dy
+            if scatter:
+                scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1, wy0, wy1)
+        # lanes that are not active: no gradient at all (also for a NaN or inf incoming gradient there)
+        gx = lanes.select8(active, gx, zeros)
+        gy = lanes.select8(active, gy, zeros)
         gu = gx
         gv = gy
         if wp.static(static_padding == int(sampler.PADDING_BORDER)):
@@ -185,32 +231,29 @@ def _warp_block8(T, static_c: int, static_padding: int):
         # (behind min_depth q_z was replaced by 1, a constant; the depth itself where it is invalid: selects,
         # as the row kernel's wp.where, so that nothing there can pass, whatever its values)
         g2 = lanes.select8(ok, -wp.cw_mul(wp.cw_mul(xn, gxn) + wp.cw_mul(yn, gyn), inv_z), zeros)
-        r0 = lanes.splat8(a0[0]) + ax[0] * x
-        r1 = lanes.splat8(a0[1]) + ax[1] * x
-        r2 = lanes.splat8(a0[2]) + ax[2] * x
         g_depth = sampler.dense(wp.adjoint[depth])
         if g_depth.shape[0] > 0:
+            r0 = lanes.splat8(a0[0]) + ax[0] * x
+            r1 = lanes.splat8(a0[1]) + ax[1] * x
+            r2 = lanes.splat8(a0[2]) + ax[2] * x
             g_d = wp.cw_mul(g0, r0) + wp.cw_mul(g1, r1) + wp.cw_mul(g2, r2)
             g_depth[e] = g_depth[e] + lanes.select8(ok, g_d, zeros)
+        # the row's constants: whole 8-lane gradients (row_lanes' adjoint sums the lanes, once per row)
         gr0 = wp.cw_mul(g0, dd)
         gr1 = wp.cw_mul(g1, dd)
         gr2 = wp.cw_mul(g2, dd)
-        wp.adjoint[a0] += vec3(lanes.sum8(gr0), lanes.sum8(gr1), lanes.sum8(gr2))
-        wp.adjoint[ax] += vec3(
-            lanes.sum8(wp.cw_mul(gr0, x)), lanes.sum8(wp.cw_mul(gr1, x)), lanes.sum8(wp.cw_mul(gr2, x))
-        )
-        wp.adjoint[t] += vec3(lanes.sum8(g0), lanes.sum8(g1), lanes.sum8(g2))
-        wp.adjoint[Kb] += mat33(
-            lanes.sum8(wp.cw_mul(gu, xn)), lanes.sum8(wp.cw_mul(gu, yn)), lanes.sum8(gu),
-            zero, lanes.sum8(wp.cw_mul(gv, yn)), lanes.sum8(gv),
-            zero, zero, zero,
+        wp.adjoint[A0] += wp.matrix_from_rows(gr0, gr1, gr2)
+        wp.adjoint[AX] += wp.matrix_from_rows(wp.cw_mul(gr0, x), wp.cw_mul(gr1, x), wp.cw_mul(gr2, x))
+        wp.adjoint[T8] += wp.matrix_from_rows(g0, g1, g2)
+        wp.adjoint[K8] += wp.matrix_from_rows(
+            wp.cw_mul(gu, xn), wp.cw_mul(gu, yn), gu, wp.cw_mul(gv, yn), gv
         )
 
     @wp.func_replay(warp_block8)
     def replay_warp_block8(
         image: wp.array(dtype=T), depth: wp.array(dtype=vec8), out: wp.array(dtype=vec8),
-        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, src: int,
-        dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
+        valid: wp.array(dtype=wp.bool), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, A0: mat38,
+        AX: mat38, T8: mat38, K8: mat58, src: int, dst: int, C: int, hw8: int, H: int, W: int, zmin: T,
     ):
         # the backward pass needs nothing the forward stored: skip projecting and sampling again
         pass
@@ -218,4 +261,4 @@ def _warp_block8(T, static_c: int, static_padding: int):
     return warp_block8
 
 
-__all__ = ["warp_block8"]
+__all__ = ["row_lanes", "warp_block8"]
