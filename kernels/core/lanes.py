@@ -124,12 +124,6 @@ def select8(m: Any, a: Any, b: Any):
 
 
 @wp.func
-def sum8(v: Any):
-    """The sum of the 8 lanes in their own type, pairwise: ((v0 + v1) + (v2 + v3)) + ((v4 + v5) + (v6 + v7))."""
-    return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
-
-
-@wp.func
 def hsum8(v: Any):
     """The sum of the 8 lanes, in float64, in lane order."""
     return (

@@ -211,10 +211,11 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
     ``out`` written as 8 lanes per element ("vec8"), flat (b, y, block of 8 pixels) and (b, c,
     block); for :func:`fits_row_lanes` sizes. Each block is :func:`.pinhole_block.warp_block8`:
     the values and ``valid`` are bitwise those of :data:`warp_frame_depth`, the gradients its own
-    (a hand-written adjoint on the lanes); the row's pose and intrinsics gradients are summed in
-    registers before one write, as there. Compiled for this channel count (if at most
-    ``sampler.UNROLLED_CHANNELS``; else read at run time: ``C`` None) and ``padding`` (made on
-    first use, one kernel per combination).
+    up to the order of sums (a hand-written adjoint on the lanes): the row's pose and intrinsics
+    gradients are summed over its blocks as 8-lane vectors (:func:`.pinhole_block.row_lanes`), and
+    their lanes once per row. Compiled for this channel count (if at most
+    ``sampler.UNROLLED_CHANNELS``; else read at run time: ``C`` None) and ``padding`` (made on first
+    use, one kernel per combination).
     """
     static_c = C or 0
     block = pinhole_block.warp_block8(C, padding)
@@ -234,8 +235,8 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         out: wp.array(dtype=Any),
         valid: wp.array(dtype=wp.bool),
     ):
-        # One thread per image row, as the row kernel: per-row work once, and the row's gradient sums
-        # in registers (a thread per block of 8 pixels made the forward ~1.4x slower: Warp's
+        # One thread per image row, as the row kernel: per-row work once, and one sum of the row's
+        # gradients (a thread per block of 8 pixels made the forward ~1.4x slower: Warp's
         # per-element entry and the per-row set-up were paid per block)
         r = wp.tid() + offset  # flat (b, y)
         b = r // H
@@ -247,13 +248,13 @@ def warp_frame_depth_lanes(C: int | None, padding: int) -> FloatKernel:
         zmin = type(Kb[0, 0])(min_depth)
         a0, ax = camera.row_rays(lie.pose_rotation(Tb), Kb, type(zmin)(py))
         t = lie.pose_translation(Tb)
-        A0, AX, T8, K8 = pinhole_block.row_lanes(a0, ax, t, Kb)  # the blocks' gradient accumulators
+        a0_lanes, ax_lanes, t_lanes, k_lanes = pinhole_block.row_lanes(a0, ax, t, Kb)  # the blocks' gradient sums
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
         for k in range(w8):
-            block(image, depth, out, valid, r * w8 + k, k * wp.static(sampler.LANES), a0, ax, t, Kb, A0, AX, T8, K8,
-                  b * nc * H * W, b * nc * hw8 + py * w8 + k, nc, hw8, H, W, zmin)
+            block(image, depth, out, valid, r * w8 + k, k * wp.static(sampler.LANES), a0, ax, t, Kb, a0_lanes,
+                  ax_lanes, t_lanes, k_lanes, b * nc * H * W, b * nc * hw8 + py * w8 + k, nc, hw8, H, W, zmin)
 
     return FloatKernel(_warp_frame_depth_lanes, image="scalar", depth="vec8", pose="mat34", K="mat33",
                        out="vec8").set_parallel(**_ROW_SPLIT)
