@@ -105,6 +105,7 @@ def warp_op(
     layer: str,
     backward_from: Callable | None = None,
     select: Callable[..., FloatKernel] | None = None,
+    backward_select: Callable[..., FloatKernel] | None = None,
     array_kinds: dict[str, str] | None = None,
     lazy: bool = False,
     untested: dict[str, str] | None = None,
@@ -135,6 +136,10 @@ def warp_op(
     for them), instead of ``fk``; its adjoint is the backward unless ``backward_from`` gives one.
     With ``select``, ``fk`` may be None and ``array_kinds`` name the kinds of the kernels' arrays
     (none is built up front).
+
+    ``backward_select(needs, *params) -> FloatKernel``: the kernel whose adjoint the backward
+    launches when the gradients of bit set ``needs`` are wanted (bit k: input k), a variant that
+    computes the same values but compiles only the gradients asked for; else ``select``'s.
     """
     # what an op that borrows another's backward must share with it (array kinds may differ: views)
     signature = (tuple(inputs), tuple(params), tuple((o.name, o.differentiable) for o in outputs))
@@ -145,7 +150,8 @@ def warp_op(
     spec = OpSpec(
         name, tuple(inputs), tuple(params), tuple(outputs), function, layer,
         differentiable=any(o.differentiable for o in outputs), kernel=fk, array_kinds=kinds, select=select,
-        backward_from=source.name if source is not None else None, lazy=lazy, untested=dict(untested or {}),
+        backward_from=source.name if source is not None else None, backward_select=backward_select, lazy=lazy,
+        untested=dict(untested or {}),
         define=functools.partial(_define_warp_op, n_threads=n_threads),
     )
     return register(spec)
@@ -241,7 +247,7 @@ def _define_warp_op(spec: OpSpec, n_threads: Callable[..., int]) -> Callable:
             descriptor(g, o.kind, ft) if g is not None else null_array(o.kind, ft) for g, o in zip(readable, outputs)
         ]
         launch(
-            spec.backward_kernel_for(fargs[n_in:])[ft],
+            spec.backward_kernel_for(fargs[n_in:], needs)[ft],
             n,
             [*arrays, *fargs[n_in:]],
             out_arrays,

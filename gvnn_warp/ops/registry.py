@@ -74,6 +74,7 @@ class OpSpec:
     array_kinds: dict[str, str] = field(default_factory=dict)  # the inputs' kinds
     select: Callable[..., FloatKernel] | None = None
     backward_from: str | None = None  # the op whose backward (kernel adjoint) this one uses
+    backward_select: Callable[..., FloatKernel] | None = None  # (needs, *params) -> the backward's kernel
     lazy: bool = False  # the torch op is defined on first use (see .bridge.warp_op)
     untested: dict[str, str] = field(default_factory=dict)
     module: str = ""  # the registration's module, whose attribute ``name`` is the op
@@ -106,9 +107,12 @@ class OpSpec:
         :attr:`fk` (None: a hand-written op)."""
         return self.select(*params) if self.select is not None else self.fk
 
-    def backward_kernel_for(self, params) -> FloatKernel | None:
-        """The kernel whose Warp adjoint the backward launches with these scalar arguments (its own,
-        or ``backward_from``'s op's; None: a hand-written op)."""
+    def backward_kernel_for(self, params, needs: int = -1) -> FloatKernel | None:
+        """The kernel whose Warp adjoint the backward launches with these scalar arguments and these
+        wanted gradients (bit k of ``needs``: input k's; all by default): ``backward_select``'s, else
+        its own or ``backward_from``'s op's kernel (None: a hand-written op)."""
+        if self.backward_select is not None:
+            return self.backward_select(needs, *params)
         return (OPS[self.backward_from] if self.backward_from is not None else self).kernel_for(params)
 
 

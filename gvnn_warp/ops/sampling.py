@@ -66,13 +66,19 @@ def _row_lanes_kernel(C, H, W, min_depth, padding):
     return sampling_kernels.warp_frame_depth_lanes(C, padding)
 
 
+def _row_lanes_backward_kernel(needs, C, H, W, min_depth, padding):
+    # without the image's gradient (bit 0 of needs), the variant compiled without its code
+    _row_lanes_kernel(C, H, W, min_depth, padding)
+    return sampling_kernels.warp_frame_depth_lanes(C, padding, bool(needs & 1))
+
+
 # the same values, a row's pixels 8 at a time (W % 8 == 0, H*W <= 2^24; SIMD arithmetic), a kernel
 # compiled per (C, padding), with its own (hand-written) adjoint
 warp_frame_depth_lanes = warp_op(
     "warp_frame_depth_lanes", None, ["image", "depth", "pose", "K"],
     [Param("C", "int"), Param("H", "int"), Param("W", "int"), Param("min_depth", "float"), Param("padding", "int")],
     [Output("out", "vec8", lambda img, *_: tuple(img.shape)), _WARPED[1]],
-    _image_rows, select=_row_lanes_kernel,
+    _image_rows, select=_row_lanes_kernel, backward_select=_row_lanes_backward_kernel,
     array_kinds={"image": "scalar", "depth": "vec8", "pose": "mat34", "K": "mat33", "out": "vec8"},
     function="warp_frame_depth", layer="SpatialTransformer3D",  # its 8-lane fast path
 )

@@ -54,19 +54,21 @@ def row_lanes(a0: Any, ax: Any, t: Any, Kb: Any):
 
 
 @specialise("sampling.pinhole_block8", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
-def warp_block8(C: int | None, padding: int) -> wp.Function:
+def warp_block8(C: int | None, padding: int, image_grad: bool = True) -> wp.Function:
     """The block function for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else
-    read at run time: ``C`` None) and ``padding``, both compiled in (float32 and float64
-    overloads), made on first use."""
+    read at run time: ``C`` None), ``padding`` and ``image_grad``, all compiled in (float32 and
+    float64 overloads), made on first use. With ``image_grad`` False the adjoint has no image
+    gradient code at all (the gradient is not written, whatever array it is given): the image is
+    data, and its taps are plain vector reads."""
 
     def make(T):
-        return _warp_block8(T, C or 0, int(padding))
+        return _warp_block8(T, C or 0, int(padding), bool(image_grad))
 
-    make.__qualname__ = f"warp_block8(C={C}, padding={padding})"
+    make.__qualname__ = f"warp_block8(C={C}, padding={padding}, image_grad={bool(image_grad)})"
     return float_overloads(make)
 
 
-def _warp_block8(T, static_c: int, static_padding: int):
+def _warp_block8(T, static_c: int, static_padding: int, static_image_grad: bool):
     """warp_block8's float type ``T`` overload (Warp custom adjoints need concrete types)."""
     vec3 = wp.types.vector(3, T)
     mat33 = wp.types.matrix((3, 3), T)
@@ -209,16 +211,19 @@ def _warp_block8(T, static_c: int, static_padding: int):
                                         wy0, wy1)
                 gx = gx + dx
                 gy = gy + dy
-                if scatter:
-                    scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
+                if wp.static(static_image_grad):
+                    if scatter:
+                        scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01,
+                                 w11)
         for c in range(sampler.UNROLLED_CHANNELS, nc):
             g = g_out[dst + c * hw8]
             dx, dy = position_grad8(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1, wy0,
                                     wy1)
             gx = gx + dx
             gy = gy + dy
-            if scatter:
-                scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
+            if wp.static(static_image_grad):
+                if scatter:
+                    scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
         # lanes that are not active: no gradient at all (also for a NaN or inf incoming gradient there)
         gx = lanes.select8(active, gx, zeros)
         gy = lanes.select8(active, gy, zeros)
