@@ -284,9 +284,10 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
     """Each pixel: march its ray through the z range of the blocks that project onto its tile
     (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
-    inside blocks - to the first crossing from positive to negative (refined linearly between
-    trilinear values). Writes the crossing's depth (0: none) and colour (three planes; the nearest
-    voxel's). The normals come from the depth image (:func:`depth_normals`)."""
+    inside blocks - to the first crossing from positive to negative (refined by a Newton step on the
+    trilinear values, or else linearly between trilinear values that bracket it). Writes the
+    crossing's depth (0: none) and colour (three planes; the nearest voxel's). The normals come from
+    the depth image (:func:`depth_normals`)."""
     # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
     # read the same voxels, run one after the other (the voxels are read from memory once)
     e = offset + wp.tid()
@@ -354,7 +355,19 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         have_prev = True
         t += wp.max(voxel, 0.8 * f * trunc) / scale
     if crossed:
-        # refine with trilinear values: bracket the crossing between two samples whose trilinear
+        # one Newton step on the trilinear values from where the nearest voxels' values cross zero
+        # (their linear interpolation): exact where the TSDF is linear along the ray; accepted when it
+        # moves less than a voxel and the value falls along the ray, as at a front surface
+        t0 = prev_t + (cross_t - prev_t) * prev_f / (prev_f - cross_f)
+        f0, g0, ok0 = hashing.trilinear_grad(table, mask, tw, t_wc + t0 * direction, inv_voxel)
+        slope = wp.dot(g0, direction)  # d value / d t
+        if ok0 and slope < 0.0:
+            t1 = t0 - f0 / slope
+            if wp.abs(t1 - t0) * scale < voxel:
+                hit = t1
+                crossed = False
+    if crossed:
+        # else refine with trilinear values: bracket the crossing between two samples whose trilinear
         # values straddle zero (the nearest voxels' values that stopped the march may disagree with
         # them by up to half a voxel: move the bracket by half voxels, at most 4 times), then
         # interpolate linearly between them
