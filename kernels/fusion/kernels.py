@@ -262,16 +262,18 @@ def depth_range(coords: wp.array(dtype=wp.vec3i), n_blocks: int, R_cw: wp.mat33,
 
 
 @wp.func
-def block_exit(p: wp.vec3, direction: wp.vec3, b: wp.vec3i, voxel: float, block_len: float):
+def block_exit(p: wp.vec3, direction: wp.vec3, inv_direction: wp.vec3, b: wp.vec3i, voxel: float,
+               block_len: float):
     """Ray parameter from ``p`` to where the ray ``p + t direction`` leaves the space of block ``b``
-    (its voxels' cells: [(BLOCK b - 1/2) voxel, (BLOCK (b + 1) - 1/2) voxel) on each axis)."""
+    (its voxels' cells: [(BLOCK b - 1/2) voxel, (BLOCK (b + 1) - 1/2) voxel) on each axis);
+    ``inv_direction``: the reciprocals of ``direction``'s components (used where they are not 0)."""
     t = float(1.0e30)
     for a in range(3):
         lo = float(b[a]) * block_len - 0.5 * voxel
         if direction[a] > 0.0:
-            t = wp.min(t, (lo + block_len - p[a]) / direction[a])
+            t = wp.min(t, (lo + block_len - p[a]) * inv_direction[a])
         elif direction[a] < 0.0:
-            t = wp.min(t, (lo - p[a]) / direction[a])
+            t = wp.min(t, (lo - p[a]) * inv_direction[a])
     return wp.max(t, 0.0)
 
 
@@ -317,6 +319,13 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         return
     direction = R_wc * wp.vec3(r[0], r[1], 1.0)
     scale = wp.length(direction)  # metres per unit of z
+    inv_scale = 1.0 / scale
+    inv_direction = wp.vec3(0.0)
+    for a in range(3):
+        if direction[a] != 0.0:
+            inv_direction[a] = 1.0 / direction[a]
+    voxel_t = voxel * inv_scale  # a voxel, in units of t
+    band_t = 0.8 * trunc * inv_scale
     inv_voxel = 1.0 / voxel
     block_len = voxel * float(BLOCK)
     prev_t = float(0.0)
@@ -337,12 +346,12 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             blk = find_block(table, mask, bc)
         if blk < 0:  # no block: on to where the ray leaves this block's space
             have_prev = False
-            t += block_exit(p, direction, bc, voxel, block_len) + 0.01 * voxel / scale
+            t += block_exit(p, direction, inv_direction, bc, voxel, block_len) + 0.01 * voxel_t
             continue
         kk = blk * BLOCK_VOXELS + voxel_offset(i)
         if tw[kk][1] <= 0.0:
             have_prev = False
-            t += voxel / scale
+            t += voxel_t
             continue
         f = tw[kk][0]
         if f <= 0.0:
@@ -353,7 +362,7 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         prev_t = t
         prev_f = f
         have_prev = True
-        t += wp.max(voxel, 0.8 * f * trunc) / scale
+        t += wp.max(voxel_t, band_t * f)
     if crossed:
         # one Newton step on the trilinear values from where the nearest voxels' values cross zero
         # (their linear interpolation): exact where the TSDF is linear along the ray; accepted when it
