@@ -17,6 +17,13 @@ SHIFT = 3  # log2(BLOCK)
 MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is never more than half full)
 
 
+# MurmurHash3's finaliser constants 0x85EBCA6B and 0xC2B2AE35, written as the int32 of the same bits: Warp
+# declares an integer literal as int32, and one above 2**31 made clang warn of the conversion at every
+# compile of a module that hashes blocks
+_FMIX1 = wp.constant(0x85EBCA6B - 2**32)
+_FMIX2 = wp.constant(0xC2B2AE35 - 2**32)
+
+
 @wp.func
 def block_hash(b: wp.vec3i, mask: int):
     """Slot where the search for block ``b`` starts: three large primes, xor-ed (Teschner et al. 2003),
@@ -25,9 +32,9 @@ def block_hash(b: wp.vec3i, mask: int):
     h = (wp.uint32(b[0]) * wp.uint32(73856093)) ^ (wp.uint32(b[1]) * wp.uint32(19349669)) ^ (
         wp.uint32(b[2]) * wp.uint32(83492791))
     h = h ^ (h >> wp.uint32(16))
-    h = h * wp.uint32(0x85EBCA6B)
+    h = h * wp.uint32(_FMIX1)
     h = h ^ (h >> wp.uint32(13))
-    h = h * wp.uint32(0xC2B2AE35)
+    h = h * wp.uint32(_FMIX2)
     h = h ^ (h >> wp.uint32(16))
     return wp.int32(h & wp.uint32(mask))
 
