@@ -105,6 +105,7 @@ class ModelTracker:
                                valid[:m].copy(), seconds[:m].copy(), list(range(max(m - 1, 1))), infos[:m])
 
         rgb, depth = _frame(seq, 0, self.depth)
+        prev_depth = depth
         s = time.perf_counter()
         try:
             self.fuse.add(0, vol.integrate(depth, rgb, camera, start_pose), time.perf_counter() - s)
@@ -117,7 +118,8 @@ class ModelTracker:
                 except InputError as e:
                     raise TrackingStopped(i, result(i), e) from e
                 s = time.perf_counter()
-                ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W)
+                # (at the pose frame i - 1 was just integrated at: its depth tells the rays where to start)
+                ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W, start_depth=prev_depth)
                 # (the live depth too: the aligner's occlusion test and depth term use it)
                 T, info = self.aligner.align(to_gray(ref_colour), ref_depth[None], to_gray(rgb), depth)
                 T = np.asarray(T, dtype=np.float64)
@@ -130,6 +132,7 @@ class ModelTracker:
                     self.fuse.add(i, vol.integrate(depth, rgb, camera, poses[i]), time.perf_counter() - t)
                 except MapFull as e:
                     raise TrackingStopped(i, result(i), InputError(str(e))) from e
+                prev_depth = depth
                 seconds[i] = time.perf_counter() - s
                 infos.append(info)
                 bar.update(1)

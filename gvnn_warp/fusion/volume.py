@@ -264,16 +264,32 @@ class TSDFVolume:
 
     # ------------------------------------------------------------------------------ raycasting
 
-    def raycast(self, camera, T_world_cam, height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def raycast(self, camera, T_world_cam, height: int, width: int, *,
+                start_depth=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The model seen by ``camera`` at ``T_world_cam``: (depth (H, W) float32 metres, 0 where no
         surface; colour (3, H, W); normals (3, H, W) unit, camera frame, facing the camera, zero where
         unknown or at a depth edge), the first crossing of each pixel's ray from positive to negative
         TSDF within [min_depth, max_depth]; the normals from the rendered depth's neighbours (as
-        KinectFusion's normal map)."""
+        KinectFusion's normal map).
+
+        ``start_depth`` (H, W) or (1, H, W) metres, optional: where the surface is expected, e.g. the
+        depth of the frame just integrated at this pose (frame-to-model tracking raycasts there). Each
+        pixel's ray with a valid value starts twice the truncation before it instead of at the
+        nearest block: the crossing found is the first one from there (a surface of the model that
+        lies further in front along the ray, which that frame saw as free space, is passed over).
+        About half the march's steps."""
         fn = "raycast"
         if not (isinstance(height, int) and isinstance(width, int) and height >= 2 and width >= 2):
             fail(_name(fn), ValueError, f"arguments 'height' and 'width' must be integers >= 2, got {height!r}, "
                                         f"{width!r}")
+        if start_depth is None:
+            start = wp.empty(0, dtype=wp.float32, device="cpu")
+        else:
+            sd = as_numpy(_name(fn), "start_depth", start_depth, (2, 3))
+            if sd.shape not in ((height, width), (1, height, width)):
+                fail(_name(fn), ValueError, f"argument 'start_depth' must be ({height}, {width}) or (1, {height}, "
+                                            f"{width}) like the raycast, got {sd.shape}")
+            start = wp.array(np.ascontiguousarray(sd, np.float32).reshape(-1), dtype=wp.float32, device="cpu")
         T = self._pose(fn, T_world_cam)
         fx, fy, cx, cy, model, _, rays, _ = self._camera(fn, camera, height, width)
         n = height * width
@@ -294,7 +310,7 @@ class TSDFVolume:
         launch_chunks(K_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays,
                                   wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), R_cw, self.voxel_size, self.truncation,
                                   self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin, tiles_x, tiles_y,
-                                  near, far, height, depth, colour])
+                                  near, far, height, start, 2.0 * self.truncation, depth, colour])
         launch_chunks(K_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
         return (depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width),
                 np.ascontiguousarray(normal.numpy().reshape(height, width, 3).transpose(2, 0, 1)))

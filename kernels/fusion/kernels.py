@@ -283,13 +283,16 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             rays: wp.array(dtype=wp.vec3), R_wc: wp.mat33, t_wc: wp.vec3, R_cw: wp.mat33, voxel: float, trunc: float,
             min_depth: float, max_depth: float, fx: float, fy: float, cx: float, cy: float, tile: int, margin: int,
             tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32), H: int,
+            start: wp.array(dtype=wp.float32), start_margin: float,
             out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
     """Each pixel: march its ray through the z range of the blocks that project onto its tile
     (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
     inside blocks - to the first crossing from positive to negative (refined by a Newton step on the
     trilinear values, or else linearly between trilinear values that bracket it). Writes the
     crossing's depth (0: none) and colour (three planes; the nearest voxel's). The normals come from
-    the depth image (:func:`depth_normals`)."""
+    the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
+    the pixel's surface is expected; where it is positive and finite the ray starts ``start_margin``
+    (in z) before it if that is beyond its tile's range."""
     # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
     # read the same voxels, run one after the other (the voxels are read from memory once)
     e = offset + wp.tid()
@@ -314,8 +317,15 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     if tx < 0 or ty < 0 or tx >= tiles_x or ty >= tiles_y:
         return
     t_end = wp.min(max_depth, far[ty * tiles_x + tx])
-    t = wp.max(min_depth, near[ty * tiles_x + tx])
-    if t_end <= t:
+    t_tile = wp.max(min_depth, near[ty * tiles_x + tx])
+    t = t_tile
+    hinted = bool(False)  # started from ``start``: a negative value first sends the ray back to t_tile
+    if start.shape[0] > 0:
+        s0 = start[k]
+        if s0 > 0.0 and s0 < 1.0e30 and s0 - start_margin > t:  # (NaN fails)
+            t = s0 - start_margin
+            hinted = True
+    if t_end <= t_tile:
         return
     direction = R_wc * wp.vec3(r[0], r[1], 1.0)
     scale = wp.length(direction)  # metres per unit of z
@@ -354,6 +364,12 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             t += voxel_t
             continue
         f = tw[kk][0]
+        if f <= 0.0 and hinted and not have_prev:
+            # (the start fell behind the first surface, or inside a band stretched along a grazing ray:
+            # march from the tile's range as without a start)
+            hinted = False
+            t = t_tile
+            continue
         if f <= 0.0:
             crossed = have_prev  # (a negative value first: the back of a surface, or inside it: no hit)
             cross_t = t

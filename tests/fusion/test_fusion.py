@@ -118,6 +118,40 @@ def test_raycast_and_mesh_of_a_sphere_match_the_sphere(sphere):
     assert np.median(np.abs(np.linalg.norm(pts - centre, axis=1) - radius)) < 0.1 * VOXEL
 
 
+def test_raycast_from_a_start_depth(sphere):
+    # frame-to-model tracking passes the depth of the frame just integrated at the pose: the rays start
+    # twice the truncation before it; the same surface is found as accurately (the march samples other
+    # points, so a depth may differ, most near the silhouette, where the band lies along the rays); no
+    # start where the value is not a depth; a start past the surface passes it over (documented)
+    vol, centre, radius, poses, rays = sphere
+    T = poses[2]
+    true = _sphere_depth(T, centre, radius, rays)
+    d0, c0, n0 = vol.raycast(K, T, H, W)
+    d1, c1, n1 = vol.raycast(K, T, H, W, start_depth=true[None])
+    assert ((d1 > 0) != (d0 > 0)).sum() <= 0.002 * (d0 > 0).sum()
+    both = (d0 > 0) & (d1 > 0)
+    assert np.median(np.abs(d1 - d0)[both]) < 1e-4
+    for q in (50, 90):
+        err0, err1 = (np.percentile(np.abs(d[both & (true > 0)] - true[both & (true > 0)]), q) for d in (d0, d1))
+        assert err1 < 1.1 * err0 + 1e-4
+    np.testing.assert_allclose(c1[:, both].mean(1), c0[:, both].mean(1), atol=1e-4)
+    invalid = np.where(np.arange(W)[None] % 3 == 0, 0.0, np.where(np.arange(W)[None] % 3 == 1, np.nan, -1.0))
+    d2, _, _ = vol.raycast(K, T, H, W, start_depth=np.broadcast_to(invalid, (H, W)).astype(np.float32))
+    np.testing.assert_array_equal(d2, d0)
+    # a start just behind the surface (the first value it reads negative): the ray marches again from
+    # the tile's range
+    inside = np.where(true > 0, true + 2.5 * vol.truncation, 0).astype(np.float32)
+    d3, _, _ = vol.raycast(K, T, H, W, start_depth=inside)
+    ok = (d3 > 0) & (true > 0)
+    assert ok.sum() > 0.99 * ((d0 > 0) & (true > 0)).sum() and np.median(np.abs(d3 - d0)[ok & (d0 > 0)]) < 1e-4
+    # a start in the free space behind it: the sphere is passed over (nothing behind it in this scene)
+    behind = np.where(true > 0, true + 2 * radius + 3 * vol.truncation, 0).astype(np.float32)
+    d4, _, _ = vol.raycast(K, T, H, W, start_depth=behind)
+    assert (d4[true > 0] == 0).mean() > 0.99
+    with pytest.raises(ValueError, match=r"TSDFVolume.raycast: argument 'start_depth' must be \(120, 160\)"):
+        vol.raycast(K, T, H, W, start_depth=true[:, :-1])
+
+
 def test_world_translation_across_block_boundaries_changes_nothing(sphere):
     # the same frames with the world moved by an offset that crosses many blocks, into negative
     # coordinates (floor division of negative voxel indices): the same depth and the same mesh, moved
