@@ -94,11 +94,12 @@ def voxel_of_point(p: wp.vec3, inv_voxel: float):
 
 
 @wp.func
-def trilinear(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
+def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
                    inv_voxel: float):
-    """Trilinear TSDF at world point ``p`` from the 8 voxels around it: (value, ok); ``ok`` is False
-    if one of them is unobserved (no block, or weight 0). One block lookup when the 8 share a block
-    (about 2 times in 3), else one per voxel."""
+    """Trilinear TSDF at world point ``p`` from the 8 voxels around it and its gradient: (value, d value
+    / d p (per metre; the gradient of the trilinear interpolant, exact where the TSDF is linear),
+    ok); ``ok`` is False if one of them is unobserved (no block, or weight 0). One block lookup when
+    the 8 share a block (about 2 times in 3), else one per voxel."""
     g = p * inv_voxel
     f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
     i0 = wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2]))
@@ -108,47 +109,6 @@ def trilinear(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.
     ly = (local // BLOCK) % BLOCK
     lz = local // (BLOCK * BLOCK)
     shared = int(-2)  # the block all 8 lie in (-1: not allocated), or -2: they do not share one
-    if lx < BLOCK - 1 and ly < BLOCK - 1 and lz < BLOCK - 1:
-        shared = find_block(table, mask, voxel_block(i0))
-    value = float(0.0)
-    ok = bool(shared != -1)
-    if ok:
-        for c in range(8):
-            dx = c & 1
-            dy = (c >> 1) & 1
-            dz = (c >> 2) & 1
-            k = int(-1)
-            if shared >= 0:
-                k = shared * BLOCK_VOXELS + local + dx + BLOCK * (dy + BLOCK * dz)
-            else:
-                k = find_voxel(table, mask, i0 + wp.vec3i(dx, dy, dz))
-            w = float(0.0)
-            if k >= 0:
-                w = tw[k][1]
-            if w <= 0.0:
-                ok = False
-            else:
-                wx = wp.where(dx == 1, t[0], 1.0 - t[0])
-                wy = wp.where(dy == 1, t[1], 1.0 - t[1])
-                wz = wp.where(dz == 1, t[2], 1.0 - t[2])
-                value += wx * wy * wz * tw[k][0]
-    return value, ok
-
-
-@wp.func
-def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
-                   inv_voxel: float):
-    """:func:`trilinear` with its gradient: (value, d value / d p (per metre), ok), from the same 8
-    voxels (the gradient of the trilinear interpolant, exact where the TSDF is linear)."""
-    g = p * inv_voxel
-    f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
-    i0 = wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2]))
-    t = g - f0
-    local = voxel_offset(i0)
-    lx = local % BLOCK
-    ly = (local // BLOCK) % BLOCK
-    lz = local // (BLOCK * BLOCK)
-    shared = int(-2)  # as in trilinear
     if lx < BLOCK - 1 and ly < BLOCK - 1 and lz < BLOCK - 1:
         shared = find_block(table, mask, voxel_block(i0))
     value = float(0.0)
@@ -180,6 +140,14 @@ def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtyp
                 value += wx * wy * wz * v
                 grad += v * wp.vec3(sx * wy * wz, wx * sy * wz, wx * wy * sz)
     return value, grad * inv_voxel, ok
+
+
+@wp.func
+def trilinear(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
+              inv_voxel: float):
+    """:func:`trilinear_grad`'s (value, ok), without the gradient."""
+    value, _grad, ok = trilinear_grad(table, mask, tw, p, inv_voxel)
+    return value, ok
 
 
 @wp.func
