@@ -25,20 +25,25 @@ bilinear_sample = warp_op(
 )
 
 
-def _lanes_kernel(C, H, W, hw, align_corners, padding):
+def _lanes_kernel(C, H, W, hw, align_corners, padding, image_grad=True):
     if not sampling_kernels.fits_lanes(hw, H, W):
         raise ValueError(f"bilinear_sample_lanes: needs hw % 8 == 0 and H*W <= 2^24, got hw={hw}, H*W={H * W}")
-    return sampling_kernels.bilinear_sample_lanes(C, align_corners, padding)
+    return sampling_kernels.bilinear_sample_lanes(C, align_corners, padding, image_grad)
+
+
+def _lanes_backward_kernel(needs, *params):
+    # without the image's gradient (bit 0 of needs), the variant compiled without its code
+    return _lanes_kernel(*params, image_grad=bool(needs & 1))
 
 
 # the same values, 8 output locations per thread (h*w % 8 == 0, H*W <= 2^24; SIMD arithmetic),
-# a kernel compiled per (C, align_corners, padding); forward only: the backward is bilinear_sample's
+# a kernel compiled per (C, align_corners, padding), with its own (hand-written) adjoint
 bilinear_sample_lanes = warp_op(
     "bilinear_sample_lanes", None, ["image", "grid"], _SAMPLE_PARAMS,
     [Output("out", "vec8", lambda img, g, C, H, W, hw, a, p: (img.shape[0], C, hw))],
     lambda img, g, *_: g.shape[0] // sampling_kernels.sampler.LANES,
-    backward_from=bilinear_sample, select=_lanes_kernel, array_kinds=sampling_kernels.LANES_ARRAY_KINDS,
-    function="bilinear_sample", layer="BilinearSampler",  # its 8-lane forward fast path
+    select=_lanes_kernel, backward_select=_lanes_backward_kernel, array_kinds=sampling_kernels.LANES_ARRAY_KINDS,
+    function="bilinear_sample", layer="BilinearSampler",  # its 8-lane fast path
 )
 
 _WARPED = [

@@ -35,7 +35,7 @@ from ..core.cache import specialise
 from ..core.kinds import LANES_MODULE_OPTIONS, FloatKernel
 from ..geometry import camera, lie
 from ..geometry.lens import rays as lens_rays
-from . import lens_block, pinhole_block, sampler
+from . import bilinear_block, lens_block, pinhole_block, sampler
 
 # Fewest pixels worth a separate chunk of a threaded launch (~0.2 ms of work: a chunk costs
 # ~20 us of launch and hand-over).
@@ -92,24 +92,24 @@ def fits_lanes(n_out: int, H: int, W: int) -> bool:
 
 
 @specialise("sampling.bilinear_sample_lanes", C=tuple(range(1, sampler.UNROLLED_CHANNELS + 1)))
-def bilinear_sample_lanes(C: int | None, align_corners: int, padding: int) -> FloatKernel:
-    """The forward of :data:`bilinear_sample` with 8 output locations per thread.
+def bilinear_sample_lanes(C: int | None, align_corners: int, padding: int, image_grad: bool = True) -> FloatKernel:
+    """:data:`bilinear_sample` with 8 output locations per thread, forward and backward.
 
     Compiled for this channel count (if at most ``sampler.UNROLLED_CHANNELS``; else read at run
-    time: ``C`` None), ``align_corners`` and ``padding``: constants fold the branches away, which
-    the vectorised code needs to be fast (made on first use, one kernel per combination). Same
-    arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16") and ``out`` written as
-    8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For :func:`fits_lanes`
-    sizes. It computes bitwise the values of
-    :data:`bilinear_sample` (see :func:`.sampler.sample_lanes`) and has no adjoint of its own:
-    use that kernel's.
+    time: ``C`` None), ``align_corners``, ``padding`` and ``image_grad`` (False: an adjoint without
+    the image's gradient, for a backward that does not want it): constants fold the branches away,
+    which the vectorised code needs to be fast (made on first use, one kernel per combination).
+    Same arguments; ``grid`` is read as 8 (x, y) pairs per element ("vec16") and ``out`` written as
+    8 lanes per element ("vec8"), flat (b, c, block of 8 locations). For :func:`fits_lanes` sizes.
+    Each element is :func:`.bilinear_block.sample_block8`: bitwise the values of
+    :data:`bilinear_sample`, its gradients up to the order of sums (a hand-written adjoint on the
+    lanes).
     """
     # compile-time constants (named apart from the kernel's arguments)
     static_c = C or 0
-    static_align = int(align_corners)
-    static_padding = int(padding)
+    block = bilinear_block.sample_block8(C, align_corners, padding, bool(image_grad))
 
-    @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=LANES_MODULE_OPTIONS)
     def _bilinear_sample_lanes(
         offset: int,
         image: wp.array(dtype=Any),
@@ -125,20 +125,15 @@ def bilinear_sample_lanes(C: int | None, align_corners: int, padding: int) -> Fl
         t = wp.tid() + offset  # flat (b, block of 8 output locations)
         hw8 = hw // wp.static(sampler.LANES)
         b = t // hw8
-        g = grid[t]  # the 8 (x, y) pairs
-        gx = out.dtype(g[0], g[2], g[4], g[6], g[8], g[10], g[12], g[14])
-        gy = out.dtype(g[1], g[3], g[5], g[7], g[9], g[11], g[13], g[15])
-        x = sampler.normalized_to_pixel_lanes(gx, W, wp.static(static_align))
-        y = sampler.normalized_to_pixel_lanes(gy, H, wp.static(static_align))
-        xs, ys, inside = sampler.sample_position_lanes(x, y, H, W, wp.static(static_padding))
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
-        dst = b * nc * hw8 + t - b * hw8
-        sampler.sample_lanes(image, out, b * nc * H * W, dst, nc, H * W, hw8, H, W, xs, ys, inside)
+        block(image, out, grid[t], b * nc * H * W, b * nc * hw8 + t - b * hw8, nc, hw8, H, W)
 
     return FloatKernel(_bilinear_sample_lanes, **LANES_ARRAY_KINDS).set_parallel(
-        grain=_GRAIN_PIXELS // sampler.LANES
+        segment=lambda a: a["hw"] // sampler.LANES,  # batch items
+        scopes={"image": "segment", "grid": "element"},
+        grain=_GRAIN_PIXELS // sampler.LANES,
     )
 
 

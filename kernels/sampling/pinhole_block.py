@@ -7,10 +7,10 @@ Forward: :data:`.kernels.warp_frame_depth`'s per-pixel work on 8 pixels at once 
 :func:`gvnn_warp.kernels.geometry.camera.project_moved_ray` and the sampler of
 :func:`.sampler.sample_channels`, the same operations in the same order: bitwise the same values
 and ``valid``). Adjoint: vector arithmetic but for the image gradient's read-modify-writes. The
-taps are read as vectors (:func:`position_grad8`) for d loss / d (x, y); with the image gradient
-wanted, each channel's tap terms are vector products added lane by lane (:func:`scatter8`; lanes
-may share a tap); the projection's chain rule (to the depth, the row's rays, the translation and K)
-is vector code.
+taps are read as vectors (:func:`.lanes.position_grad_lanes`) for d loss / d (x, y); with the
+image gradient wanted, each channel's tap terms are vector products added lane by lane
+(:func:`.lanes.scatter_lanes`; lanes may share a tap); the projection's chain rule (to the depth,
+the row's rays, the translation and K) is vector code.
 
 The block's gradients for the row's rays, translation and K are whole 8-lane vectors, added to
 8-lane copies of them that the kernel makes once per row (:func:`row_lanes`); Warp's adjoint of
@@ -77,48 +77,6 @@ def _warp_block8(T, static_c: int, static_padding: int, static_image_grad: bool)
     mat58 = wp.types.matrix((5, 8), T)
 
     @wp.func
-    def position_grad8(
-        image: wp.array(dtype=T), q: int, g: vec8, a00: vec8, a10: vec8, a01: vec8, a11: vec8,
-        m00: vec8, m10: vec8, m01: vec8, m11: vec8, wx0: vec8, wx1: vec8, wy0: vec8, wy1: vec8,
-    ):
-        """One channel plane's (at ``q``) share of d loss / d (x, y) on 8 lanes, given the incoming
-        gradient ``g``: g ((v10 - v00) wy0 + (v11 - v01) wy1), g ((v01 - v00) wx0 + (v11 - v10) wx1)."""
-        v00 = sampler.gather_lanes(image, q, a00, m00)
-        v10 = sampler.gather_lanes(image, q, a10, m10)
-        v01 = sampler.gather_lanes(image, q, a01, m01)
-        v11 = sampler.gather_lanes(image, q, a11, m11)
-        return (
-            wp.cw_mul(g, wp.cw_mul(v10 - v00, wy0) + wp.cw_mul(v11 - v01, wy1)),
-            wp.cw_mul(g, wp.cw_mul(v01 - v00, wx0) + wp.cw_mul(v11 - v10, wx1)),
-        )
-
-    @wp.func
-    def scatter8(
-        g_image: wp.array(dtype=T), q: int, g: vec8, a00: vec8, a10: vec8, a01: vec8, a11: vec8,
-        m00: vec8, m10: vec8, m01: vec8, m11: vec8, w00: vec8, w10: vec8, w01: vec8, w11: vec8,
-    ):
-        """One channel plane's (at ``q``) share of d loss / d image: g w added to each tap whose
-        mask is set. The products are vector code, the read-modify-writes scalar (lanes may share a
-        tap), lane after lane, each lane's taps in the scalar sampler's order. (The row kernel's
-        adjoint runs a row's pixels from last to first; lanes from last to first here, which would
-        make the image gradient bitwise its own, made the backward 13-30% slower.)"""
-        zero = T(0.0)
-        c00 = wp.cw_mul(g, w00)
-        c10 = wp.cw_mul(g, w10)
-        c01 = wp.cw_mul(g, w01)
-        c11 = wp.cw_mul(g, w11)
-        b = wp.max(q, 0)
-        for k in range(wp.static(_LANES)):
-            if m00[k] != zero:
-                g_image[b + wp.max(int(a00[k]), 0)] += c00[k]
-            if m10[k] != zero:
-                g_image[b + wp.max(int(a10[k]), 0)] += c10[k]
-            if m01[k] != zero:
-                g_image[b + wp.max(int(a01[k]), 0)] += c01[k]
-            if m11[k] != zero:
-                g_image[b + wp.max(int(a11[k]), 0)] += c11[k]
-
-    @wp.func
     def project8(depth: wp.array(dtype=vec8), e: int, x0: int, a0: vec3, ax: vec3, t: vec3, Kb: mat33, zmin: T):
         """The 8 pixels x0 .. x0 + 7 of depth block ``e`` moved and projected, as
         :func:`.camera.project_moved_ray` (with :func:`.camera.row_rays`' rays a0 + x ax): returns
@@ -180,6 +138,8 @@ def _warp_block8(T, static_c: int, static_padding: int, static_image_grad: bool)
         u, v, ok, dd, x, xn, yn, inv_z = project8(depth, e, x0, a0, ax, t, Kb, zmin)
         xs, ys, inside = sampler.sample_position_lanes(u, v, H, W, wp.static(static_padding))
         active = wp.cw_mul(inside, ok)
+        # (lanes_grad.channel_grads_lanes, written out: calling it, as bilinear_block does, made this
+        # backward 7-9% slower with the image gradient)
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)
@@ -207,23 +167,24 @@ def _warp_block8(T, static_c: int, static_padding: int, static_image_grad: bool)
         for c in range(wp.static(sampler.UNROLLED_CHANNELS)):
             if c < nc:
                 g = g_out[dst + c * hw8]
-                dx, dy = position_grad8(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1,
-                                        wy0, wy1)
+                dx, dy = sampler.position_grad_lanes(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01,
+                                                     m11, wx0, wx1, wy0, wy1)
                 gx = gx + dx
                 gy = gy + dy
                 if wp.static(static_image_grad):
                     if scatter:
-                        scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01,
-                                 w11)
+                        sampler.scatter_lanes(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11,
+                                              w00, w10, w01, w11)
         for c in range(sampler.UNROLLED_CHANNELS, nc):
             g = g_out[dst + c * hw8]
-            dx, dy = position_grad8(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, wx0, wx1, wy0,
-                                    wy1)
+            dx, dy = sampler.position_grad_lanes(img, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11,
+                                                 wx0, wx1, wy0, wy1)
             gx = gx + dx
             gy = gy + dy
             if wp.static(static_image_grad):
                 if scatter:
-                    scatter8(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
+                    sampler.scatter_lanes(g_image, src + c * H * W, g, a00, a10, a01, a11, m00, m10, m01, m11, w00,
+                                          w10, w01, w11)
         # lanes that are not active: no gradient at all (also for a NaN or inf incoming gradient there)
         gx = lanes.select8(active, gx, zeros)
         gy = lanes.select8(active, gy, zeros)

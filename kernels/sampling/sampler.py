@@ -1,6 +1,6 @@
 """The bilinear sampler (``@wp.func``, no launches here): one position per call with its custom
-adjoint (:mod:`.scalar`), and 8 positions per call as length-8 vectors, forward only, the same
-values bitwise (:mod:`.lanes`). Kernels name its functions through this module
+adjoint (:mod:`.scalar`), and 8 positions per call as length-8 vectors, the same values bitwise,
+with the pieces of an adjoint on the lanes (:mod:`.lanes`). Kernels name its functions through this module
 (``sampler.sample_channels``, ``sampler.gather_lanes``...); the conventions (flat (B, C, H, W)
 images, pixel positions, padding modes as ``grid_sample``'s) are in :mod:`.scalar`.
 """
@@ -16,8 +16,10 @@ from .lanes import (
     inside_flag,
     normalized_to_pixel_lanes,
     planes_view,
+    position_grad_lanes,
     sample_lanes,
     sample_position_lanes,
+    scatter_lanes,
     taps_lanes,
 )
 from .scalar import (
@@ -55,12 +57,14 @@ __all__ = [
     "normalized_to_pixel",
     "normalized_to_pixel_lanes",
     "planes_view",
+    "position_grad_lanes",
     "sample_channels",
     "sample_channels_grad",
     "sample_channels_values",
     "sample_lanes",
     "sample_position",
     "sample_position_lanes",
+    "scatter_lanes",
     "tap",
     "taps_lanes",
 ]

@@ -120,6 +120,59 @@ def test_lanes_kernel_equals_scalar_kernel(C, H, W, align_corners, padding, dtyp
     assert torch.equal(_bits(lanes), _bits(scalar))
 
 
+@pytest.mark.parametrize("C", [1, 3, 6])  # 6: more than the kernels unroll
+@pytest.mark.parametrize("align_corners", [0, 1])
+@pytest.mark.parametrize("padding", [0, 1])
+@pytest.mark.parametrize("image_grad", [True, False], ids=["image-grad", "image-data"])
+def test_lanes_adjoint_equals_scalar_adjoint(C, align_corners, padding, image_grad, dtype):
+    """The 8-lane kernel's hand-written adjoint gives the one-location-per-thread kernel's (Warp's
+    adjoint of its code) gradients for the image and the grid, up to the order of the sums: samples
+    inside, across the edges, outside, on the border padding's clamp and at non-finite positions;
+    both of its paths (with and without the image gradient). A NaN incoming gradient where a sample
+    passes none (outside, a non-finite position) changes nothing. With NaN and inf pixels, the
+    gradients of what samples them are NaN in both, at the same places."""
+    from gvnn_warp.ops import sampling as _ops
+
+    H, W, B, hw = 7, 9, 2, 64
+    tol = {"rtol": 1e-10, "atol": 1e-10} if dtype == torch.float64 else {"rtol": 1e-5, "atol": 1e-5}
+    args = (C, H, W, hw, align_corners, padding)
+    for bad_pixels in (False, True):
+        g = torch.Generator().manual_seed(C + 10 * padding)
+        image = torch.randn(B, C, H, W, generator=g, dtype=dtype)
+        if bad_pixels:
+            image[0, 0, 2, 3] = float("nan")
+            image[1, -1, 4, 5] = float("inf")
+        grid = torch.rand(B * hw, 2, generator=g, dtype=dtype) * 2.8 - 1.4
+        grid[:6] = torch.tensor([[float("nan"), 0.0], [0.0, float("inf")], [-5.0, 0.2], [0.3, 5.0], [-1.0, -1.0],
+                                 [1.0, 1.0]], dtype=dtype)
+        g_out = torch.randn(B, C, hw, generator=g, dtype=dtype)
+        # where a sample reads nothing: a NaN incoming gradient (a NaN position; with zeros padding also
+        # one whose taps all miss the image, an infinite one included; the border padding clamps those)
+        x = grid[:, 0].reshape(B, hw)
+        y = grid[:, 1].reshape(B, hw)
+        span = 1.0 + (1.0 / (W - 1) if align_corners else 1.0 / W) * 2
+        silent = x.isnan() | y.isnan()
+        if padding == 0:
+            silent |= (x.abs() > span + 0.3) | (y.abs() > span + 0.3)
+        g_out = torch.where(silent[:, None], float("nan"), g_out)
+        grads = []
+        for op in (_ops.bilinear_sample_lanes, _ops.bilinear_sample):
+            im, gr = image.clone().requires_grad_(image_grad), grid.clone().requires_grad_()
+            op(im, gr, *args).backward(g_out)
+            grads.append((im.grad, gr.grad))
+        (li, lg), (si, sg) = grads
+        if image_grad:
+            if not bad_pixels:
+                assert torch.isfinite(li).all() and (li != 0).any()
+            torch.testing.assert_close(li, si, **tol, equal_nan=True)
+        else:
+            assert li is None and si is None
+        if not bad_pixels:
+            assert torch.isfinite(lg).all() and (lg != 0).any()
+        torch.testing.assert_close(lg, sg, **tol, equal_nan=True)
+        assert (lg.reshape(B, hw, 2)[silent] == 0).all()
+
+
 def test_bilinear_sample_takes_the_lanes_kernel_where_it_applies(monkeypatch):
     from gvnn_warp.ops import sampling as _ops
 
