@@ -59,7 +59,7 @@ def _sample_block8(T, static_c: int, static_align: int, static_padding: int, sta
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
-        sampler.sample_lanes(image, out, src, dst, nc, H * W, hw8, H, W, xs, ys, inside)
+        sampler.sample_lanes(image, out, src, dst, nc, H * W, hw8, H, W, xs, ys, inside, 0)
 
     @func_grad(sample_block8)
     def adj_sample_block8(image: wp.array(dtype=T), out: wp.array(dtype=vec8), g: vec16, src: int, dst: int,

@@ -72,9 +72,9 @@ def gather_lanes32(a: wp.array(dtype=Any), base: int, idx: Any, mask: Any):
     """:func:`gather_lanes` with the indices left as signed 32-bit integers (no ``max(., 0)``; the
     same precondition: valid addresses in every lane, and so the same values). LLVM then reads the 8
     lanes with one 8-wide gather with 32-bit indices (``vgatherdps``) instead of two 4-wide ones with
-    64-bit indices and their widening: the 8-lane sampler's forward (:func:`blend_lanes`) took
-    3-16% less time on an Intel Xeon guest. The adjoints keep :func:`gather_lanes`: with this one
-    there, the spatial transformer's backward was slower (``benchmarks/RESULTS.md``)."""
+    64-bit indices and their widening. On an Intel Xeon guest the spatial transformer's forward took
+    3-17% less time with it, the sampler's alone 5-8% more, and the spatial transformer's backward
+    more (``benchmarks/RESULTS.md``): :func:`blend_lanes` takes either."""
     zero = type(idx[0])(0.0)
     return type(idx)(
         wp.where(mask[0] != zero, a[base + int(idx[0])], zero),
@@ -224,15 +224,23 @@ def sample_position_lanes(x: Any, y: Any, H: int, W: int, padding: int):
 def blend_lanes(
     image: wp.array(dtype=Any), q: int,
     a00: Any, a10: Any, a01: Any, a11: Any, m00: Any, m10: Any, m01: Any, m11: Any,
-    w00: Any, w10: Any, w01: Any, w11: Any,
+    w00: Any, w10: Any, w01: Any, w11: Any, index32: int,
 ):
     """One channel plane (at ``q``) of :func:`sample_lanes`: the weighted sum of the four masked
-    taps, in :func:`sample_channels_values`'s order."""
+    taps, in :func:`sample_channels_values`'s order; ``index32`` (a constant at the call) 1: the
+    taps read by :func:`gather_lanes32`, else :func:`gather_lanes` (the same values)."""
+    if index32 != 0:
+        return (
+            wp.cw_mul(gather_lanes32(image, q, a00, m00), w00)
+            + wp.cw_mul(gather_lanes32(image, q, a10, m10), w10)
+            + wp.cw_mul(gather_lanes32(image, q, a01, m01), w01)
+            + wp.cw_mul(gather_lanes32(image, q, a11, m11), w11)
+        )
     return (
-        wp.cw_mul(gather_lanes32(image, q, a00, m00), w00)
-        + wp.cw_mul(gather_lanes32(image, q, a10, m10), w10)
-        + wp.cw_mul(gather_lanes32(image, q, a01, m01), w01)
-        + wp.cw_mul(gather_lanes32(image, q, a11, m11), w11)
+        wp.cw_mul(gather_lanes(image, q, a00, m00), w00)
+        + wp.cw_mul(gather_lanes(image, q, a10, m10), w10)
+        + wp.cw_mul(gather_lanes(image, q, a01, m01), w01)
+        + wp.cw_mul(gather_lanes(image, q, a11, m11), w11)
     )
 
 
@@ -250,10 +258,13 @@ def sample_lanes(
     x: Any,
     y: Any,
     inside: Any,
+    index32: int,
 ):
     """out[dst + c hw_out] (8 lanes) = bilinear samples of image plane ``src + c hw_in`` (H x W)
     at the 8 positions (x, y) in [-1, W] x [-1, H], for c in [0, C); taps outside the image read
     0, and so do whole lanes where ``inside`` is 0 (see :func:`sample_position_lanes`).
+    ``index32``: see :func:`blend_lanes` (measured on an Intel Xeon guest: the spatial
+    transformer's forward 3-17% faster with 1, the sampler's alone 5-8% slower).
     Forward only (no custom adjoint: a kernel using it writes its own, as :mod:`.bilinear_block` and
     :mod:`.pinhole_block` do, or borrows a scalar kernel's)."""
     one = type(x[0])(1.0)
@@ -292,10 +303,12 @@ def sample_lanes(
     for c in range(wp.static(UNROLLED_CHANNELS)):
         if c < C:
             q = src + c * hw_in
-            out[dst + c * hw_out] = blend_lanes(image, q, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
+            out[dst + c * hw_out] = blend_lanes(image, q, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11,
+                                                index32)
     for c in range(UNROLLED_CHANNELS, C):
         q = src + c * hw_in
-        out[dst + c * hw_out] = blend_lanes(image, q, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11)
+        out[dst + c * hw_out] = blend_lanes(image, q, a00, a10, a01, a11, m00, m10, m01, m11, w00, w10, w01, w11,
+                                            index32)
 
 
 __all__ = [

@@ -124,7 +124,7 @@ def _warp_block8(T, static_c: int, static_padding: int, static_image_grad: bool)
         nc = C
         if wp.static(static_c > 0):
             nc = wp.static(static_c)  # a constant: the channel loop unrolls exactly
-        sampler.sample_lanes(image, out, src, dst, nc, H * W, hw8, H, W, xs, ys, wp.cw_mul(inside, ok))
+        sampler.sample_lanes(image, out, src, dst, nc, H * W, hw8, H, W, xs, ys, wp.cw_mul(inside, ok), 1)
 
     @func_grad(warp_block8)
     def adj_warp_block8(
