@@ -274,10 +274,13 @@ class TSDFVolume:
 
         ``start_depth`` (H, W) or (1, H, W) metres, optional: where the surface is expected, e.g. the
         depth of the frame just integrated at this pose (frame-to-model tracking raycasts there). Each
-        pixel's ray with a valid value starts twice the truncation before it instead of at the
-        nearest block: the crossing found is the first one from there (a surface of the model that
-        lies further in front along the ray, which that frame saw as free space, is passed over).
-        About half the march's steps."""
+        pixel's ray with a value that is positive and finite (0, NaN, negative, inf: no start) starts
+        twice the truncation before it instead of at the nearest block: the crossing found is the
+        first one from there (a surface of the model further in front along the ray, which that
+        frame saw as free space, is passed over). If that ray reads a negative value with no
+        positive one just before it (the start was behind the surface, or in a band stretched along
+        a grazing ray), it marches again from the nearest block, as without a start. About half the
+        march's steps."""
         fn = "raycast"
         if not (isinstance(height, int) and isinstance(width, int) and height >= 2 and width >= 2):
             fail(_name(fn), ValueError, f"arguments 'height' and 'width' must be integers >= 2, got {height!r}, "

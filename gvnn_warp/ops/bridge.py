@@ -146,6 +146,9 @@ def warp_op(
     source = OPS.get(getattr(backward_from, "_gvnn_name", None)) if backward_from is not None else None
     if backward_from is not None and (source is None or _signature(source) != signature):
         raise ValueError(f"warp_op {name!r}: backward_from must be a warp_op with the same inputs, params, outputs")
+    if backward_from is not None and backward_select is not None:
+        raise ValueError(f"warp_op {name!r}: backward_from and backward_select exclude each other (the backward "
+                         "is the other op's, or this op's kernels')")
     kinds = dict(array_kinds) if array_kinds is not None else {n: fk.array_kinds[n] for n in inputs}
     spec = OpSpec(
         name, tuple(inputs), tuple(params), tuple(outputs), function, layer,

@@ -82,8 +82,12 @@ def specialise(family: str, **constants: tuple | None) -> Callable[[Callable], C
                 args = signature.bind(*args, **kwargs).args
             value = seen.get(args)  # the hit path (once per call of a torch op): one dict read, no lock
             if value is None:
-                signature.bind(*args)  # (a TypeError for a wrong number of arguments)
-                values = tuple(v if allowed is None or v in allowed else None for v, allowed in zip(args, policy))
+                # (a TypeError for a wrong number of arguments; defaults filled in, so that a default
+                # left out and passed are one variant)
+                bound = signature.bind(*args)
+                bound.apply_defaults()
+                values = tuple(v if allowed is None or v in allowed else None
+                               for v, allowed in zip(bound.args, policy))
                 value = seen[args] = _made((family, values), lambda: make(*values))
             return value
 

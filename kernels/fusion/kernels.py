@@ -292,7 +292,8 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     crossing's depth (0: none) and colour (three planes; the nearest voxel's). The normals come from
     the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
     the pixel's surface is expected; where it is positive and finite the ray starts ``start_margin``
-    (in z) before it if that is beyond its tile's range."""
+    (in z) before it if that is beyond its tile's range, and goes back to the tile's range if it
+    reads a negative value with no positive one just before it."""
     # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
     # read the same voxels, run one after the other (the voxels are read from memory once)
     e = offset + wp.tid()
@@ -319,7 +320,8 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     t_end = wp.min(max_depth, far[ty * tiles_x + tx])
     t_tile = wp.max(min_depth, near[ty * tiles_x + tx])
     t = t_tile
-    hinted = bool(False)  # started from ``start``: a negative value first sends the ray back to t_tile
+    hinted = bool(False)  # started from ``start``: a negative value read with no positive one just before it
+    # (the first value, or the first after unobserved voxels) sends the ray back to t_tile, once
     if start.shape[0] > 0:
         s0 = start[k]
         if s0 > 0.0 and s0 < 1.0e30 and s0 - start_margin > t:  # (NaN fails)
@@ -366,7 +368,8 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         f = tw[kk][0]
         if f <= 0.0 and hinted and not have_prev:
             # (the start fell behind the first surface, or inside a band stretched along a grazing ray:
-            # march from the tile's range as without a start)
+            # march from the tile's range as without a start; where the full march would find no
+            # crossing either, this one finds none)
             hinted = False
             t = t_tile
             continue

@@ -13,9 +13,10 @@ the image. ``warp_frame_depth`` runs one thread per image row (launch size B * H
 quantities are computed once, and the pose and intrinsics gradients of a row are summed in
 registers before one write; :func:`.launch.launch` splits launches over threads by batch item
 (see :meth:`.launch.FloatKernel.set_parallel`).
-:func:`bilinear_sample_lanes` is a forward-only twin of the sampler that handles 8 locations per
-thread as length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise
-scalar); it gives the same values and shares the sampler's adjoint. :func:`warp_frame_depth_lanes`
+:func:`bilinear_sample_lanes` is the sampler's twin that handles 8 locations per thread as
+length-8 vectors, which LLVM turns into SIMD code (Warp's per-thread code is otherwise scalar): the
+same values, and a hand-written adjoint on the lanes (:mod:`.bilinear_block`; the sampler's
+gradients up to the order of sums). :func:`warp_frame_depth_lanes`
 is the fused kernel with one thread per row whose pixels are projected and sampled 8 at a time
 (:mod:`.pinhole_block`): bitwise :data:`warp_frame_depth`'s values, and a hand-written adjoint on
 the same lanes (its gradients are the row kernel's up to the order of sums).

@@ -161,6 +161,11 @@ def test_lanes_adjoint_equals_scalar_adjoint(C, align_corners, padding, image_gr
             op(im, gr, *args).backward(g_out)
             grads.append((im.grad, gr.grad))
         (li, lg), (si, sg) = grads
+        if not image_grad:  # (the backward took the variant compiled without the image gradient)
+            from gvnn_warp.kernels.core import cache
+
+            key = f"C={C if C <= 4 else None}, align_corners={align_corners}, padding={padding}, image_grad=False"
+            assert f"sampling.bilinear_sample_lanes({key})" in cache.entries()
         if image_grad:
             if not bad_pixels:
                 assert torch.isfinite(li).all() and (li != 0).any()

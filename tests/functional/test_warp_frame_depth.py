@@ -307,6 +307,11 @@ def test_lanes_adjoint_equals_scalar_adjoint(C, padding, motion, image_grad, dty
             xs = [image.clone().requires_grad_(image_grad), *(t.clone().requires_grad_() for t in (depth, pose34, K))]
             op(*xs, *args)[0].backward(g)
             grads.append([x.grad for x in xs])
+        if not image_grad:  # (the backward took the variant compiled without the image gradient)
+            from gvnn_warp.kernels.core import cache
+
+            key = f"C={C if C <= 4 else None}, padding={padding}, image_grad=False"
+            assert f"sampling.warp_frame_depth_lanes({key})" in cache.entries()
         for name, a, b in zip(("image", "depth", "pose", "K"), *grads):
             if name == "image" and not image_grad:
                 assert a is None and b is None

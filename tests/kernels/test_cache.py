@@ -33,6 +33,19 @@ def test_policy_compiles_listed_values_and_reads_the_rest_at_run_time():
     assert cache.POLICIES["tests.cache_demo"] == {"channels": (1, 3)}
 
 
+@cache.specialise("tests.cache_default", channels=(1, 3))
+def _with_default(channels, wide: bool = True):
+    made.append(("default", channels, wide))
+    return object()
+
+
+def test_a_default_left_out_or_passed_is_one_variant():
+    a = _with_default(3)
+    assert _with_default(3, True) is a and _with_default(3, wide=True) is a and _with_default(channels=3) is a
+    assert _with_default(3, False) is not a
+    assert made.count(("default", 3, True)) == 1
+
+
 def test_wrong_calls_and_reused_families_are_refused():
     with pytest.raises(TypeError, match="narrow"):
         _variant(3)
