@@ -66,3 +66,17 @@ def test_backward_from_needs_the_same_signature():
             select=lambda *a: None,
             array_kinds={"image": "scalar", "grid": "vec16"},
         )
+
+
+def test_backward_from_and_backward_select_exclude_each_other():
+    from gvnn_warp.ops.bridge import warp_op
+    from gvnn_warp.ops.registry import Output
+    from gvnn_warp.ops.sampling import _SAMPLE_PARAMS
+
+    with pytest.raises(ValueError, match="backward_from and backward_select exclude each other"):
+        warp_op(
+            "never_registered", None, ["image", "grid"], _SAMPLE_PARAMS,
+            [Output("out", "vec8", lambda *a: (1,))], lambda *a: 0, function="bilinear_sample",
+            layer="BilinearSampler", backward_from=_ops.bilinear_sample, select=lambda *a: None,
+            backward_select=lambda *a: None, array_kinds={"image": "scalar", "grid": "vec16"},
+        )
