@@ -382,19 +382,24 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         prev_f = f
         have_prev = True
         t += wp.max(voxel_t, band_t * f)
+    bracket = bool(False)  # the Newton step did not apply: refine by bracketing
     if crossed:
-        # one Newton step on the trilinear values from where the nearest voxels' values cross zero
-        # (their linear interpolation): exact where the TSDF is linear along the ray; accepted when it
-        # moves less than a voxel and the value falls along the ray, as at a front surface
+        # where the nearest voxels' values cross zero (their linear interpolation; the depth if
+        # neither refinement applies, e.g. an unobserved voxel among the 8 of a trilinear value)
         t0 = prev_t + (cross_t - prev_t) * prev_f / (prev_f - cross_f)
+        hit = t0
+        # one Newton step on the trilinear values from there: exact where the TSDF is linear along
+        # the ray; accepted when it moves less than a voxel and the value falls along the ray, as at
+        # a front surface
         f0, g0, ok0 = hashing.trilinear_grad(table, mask, tw, t_wc + t0 * direction, inv_voxel)
         slope = wp.dot(g0, direction)  # d value / d t
+        bracket = True
         if ok0 and slope < 0.0:
             t1 = t0 - f0 / slope
             if wp.abs(t1 - t0) * scale < voxel:
                 hit = t1
-                crossed = False
-    if crossed:
+                bracket = False
+    if bracket:
         # else refine with trilinear values: bracket the crossing between two samples whose trilinear
         # values straddle zero (the nearest voxels' values that stopped the march may disagree with
         # them by up to half a voxel: move the bracket by half voxels, at most 4 times), then
@@ -417,8 +422,6 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
                 fa, oka = hashing.trilinear(table, mask, tw, t_wc + ta * direction, inv_voxel)
         if oka and okb and fa > 0.0 and fb <= 0.0:
             hit = ta + (tb - ta) * fa / (fa - fb)
-        else:  # (an unobserved voxel among the 8: the nearest voxels' values)
-            hit = prev_t + (cross_t - prev_t) * prev_f / (prev_f - cross_f)
     if hit <= 0.0:
         return
     q = t_wc + hit * direction
