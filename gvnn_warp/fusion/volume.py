@@ -28,6 +28,7 @@ import warp as wp
 from ..kernels.core.launch import launch_chunks, wp_launch
 from ..kernels.fusion import kernels as K_
 from ..kernels.fusion import marching
+from ..kernels.fusion import raycasting as R_
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
@@ -306,15 +307,15 @@ class TSDFVolume:
         tiles_x, tiles_y = -(-width // _TILE) + 2 * margin, -(-height // _TILE) + 2 * margin
         near = wp.full(tiles_x * tiles_y, 1.0e30, dtype=wp.float32, device="cpu")
         far = wp.zeros(tiles_x * tiles_y, dtype=wp.float32, device="cpu")
-        wp_launch(K_.depth_range, dim=1, inputs=[self.coords, self._n_blocks, R_cw, t_cw, fx, fy, cx, cy,
+        wp_launch(R_.depth_range, dim=1, inputs=[self.coords, self._n_blocks, R_cw, t_cw, fx, fy, cx, cy,
                                                  self.voxel_size * BLOCK, self.min_depth, _TILE, margin, tiles_x,
                                                  tiles_y, near, far], device="cpu")
         n_tiled = 64 * (-(-width // 8)) * (-(-height // 8))  # (the kernel runs over 8 x 8 tiles of pixels)
-        launch_chunks(K_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays,
+        launch_chunks(R_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays,
                                   wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), R_cw, self.voxel_size, self.truncation,
                                   self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin, tiles_x, tiles_y,
                                   near, far, height, start, 2.0 * self.truncation, depth, colour])
-        launch_chunks(K_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
+        launch_chunks(R_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
         return (depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width),
                 np.ascontiguousarray(normal.numpy().reshape(height, width, 3).transpose(2, 0, 1)))
 

@@ -9,8 +9,8 @@ Voxblox do), so a room at 1 cm needs no dense cube. Conventions (``docs/conventi
 camera), its ``weight`` (0: never observed) and a ``colour`` (RGB in [0, 1]).
 
 - :mod:`.hashing`: ``@wp.func`` s of the hash table and of voxel lookups (no launches);
-- :mod:`.kernels`: the thin kernels (blocks touched by a depth image, block insertion, integration,
-  raycasting); :mod:`.marching`: marching cubes;
+- :mod:`.kernels`: the thin kernels of integration (blocks touched by a depth image, block
+  insertion, integration); :mod:`.raycasting`: raycasting; :mod:`.marching`: marching cubes;
 - the host object that checks, grows its arrays and launches (numpy in and out) is
   ``gvnn_warp.fusion.TSDFVolume``.
 """

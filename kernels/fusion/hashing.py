@@ -15,6 +15,7 @@ BLOCK = 8  # voxels per block side
 BLOCK_VOXELS = BLOCK * BLOCK * BLOCK
 SHIFT = 3  # log2(BLOCK)
 MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is never more than half full)
+SENTINEL = wp.constant(-(2**31))  # a block coordinate no block has: an unused candidate slot, no block yet
 
 
 # MurmurHash3's finaliser constants 0x85EBCA6B and 0xC2B2AE35, written as the int32 of the same bits: Warp
