@@ -94,6 +94,26 @@ def above8(v: Any, lo: Any):
 
 
 @wp.func
+def below(v: Any, hi: Any):
+    """1 where v < hi, else 0 (NaN: 0)."""
+    return wp.where(v < hi, type(hi)(1.0), type(hi)(0.0))
+
+
+@wp.func
+def at_least8(v: Any, lo: Any):
+    """1 where v >= lo (NaN: 0), per lane."""
+    return wp.vector(at_least(v[0], lo), at_least(v[1], lo), at_least(v[2], lo), at_least(v[3], lo),
+                     at_least(v[4], lo), at_least(v[5], lo), at_least(v[6], lo), at_least(v[7], lo))
+
+
+@wp.func
+def below8(v: Any, hi: Any):
+    """1 where v < hi (NaN: 0), per lane."""
+    return wp.vector(below(v[0], hi), below(v[1], hi), below(v[2], hi), below(v[3], hi),
+                     below(v[4], hi), below(v[5], hi), below(v[6], hi), below(v[7], hi))
+
+
+@wp.func
 def open_mask8(v: Any, lo: Any, hi: Any):
     """1 where lo < v < hi (NaN: 0), per lane. Products of per-lane selects, no ``and``: Warp
     turns ``and`` into branches, which LLVM does not vectorise."""

@@ -235,6 +235,40 @@ def test_results_do_not_depend_on_the_thread_count(sphere):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("with_colour", [True, False])
+def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour):
+    # a pinhole camera's frames go through the 8-lane kernel; the voxel-by-voxel one must give the
+    # same TSDF, weights and colours bit for bit, in the hard cases too: noisy depth, depth edges
+    # (sphere against a wall), NaN, inf, negative, zero and out-of-range pixels, a surface nearer than
+    # min_depth's band (voxels behind the near plane), voxels projecting outside the image, weights > 1
+    rng = np.random.default_rng(7)
+    centre, radius = np.array([0.1, -0.05, 1.0]), 0.35
+    rays = _rays(K)
+    vols = [TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0, min_depth=0.15) for _ in range(2)]
+    vols[1]._lanes = False
+    for k, yaw in enumerate((-12, 0, 9, 0)):
+        R = _rot([0, 1, 0], yaw) @ _rot([1, 0, 0], 3 * k - 4)
+        T = _pose(R, centre - R @ np.array([0, 0, 1.0]) + rng.normal(0, 0.01, 3))
+        sphere = _sphere_depth(T, centre, radius, rays)
+        wall = _plane_depth(np.array([0.1, 0.05, 1.0]), 2.2, rays)
+        depth = np.where(sphere > 0, sphere, wall) + rng.normal(0, 0.004, (H, W)).astype(np.float32)
+        depth[:3, :] = 0.17  # a band crossing the near plane
+        depth[5:8, ::7] = np.nan
+        depth[9, ::5] = np.inf
+        depth[10, ::3] = -0.5
+        depth[11, ::2] = 0.0
+        depth[12, ::4] = 9.0
+        colour = rng.random((3, H, W), dtype=np.float32) if with_colour else None
+        for vol in vols:
+            vol.integrate(depth, colour, K, T)
+    a, b = vols
+    n = a.n_blocks * 512
+    assert a.n_blocks == b.n_blocks > 0 and (a.tw.numpy()[:n, 1] > 1).any()
+    np.testing.assert_array_equal(a.tw.numpy()[:n].view(np.uint32), b.tw.numpy()[:n].view(np.uint32))
+    np.testing.assert_array_equal(a.colour.numpy()[:n].view(np.uint32), b.colour.numpy()[:n].view(np.uint32))
+    assert (a.colour.numpy()[:n, 3] > 0).any() == with_colour
+
+
 def test_a_lens_camera_integrates_and_raycasts_through_its_distortion():
     # a tilted plane seen through a radial-tangential lens: the depth of each lens pixel in closed
     # form (its ray from an independent numpy undistortion); fused and raycast through the same lens
