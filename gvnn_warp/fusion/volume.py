@@ -29,6 +29,7 @@ from ..kernels.core.launch import launch_chunks, wp_launch
 from ..kernels.fusion import integrate_lanes as I_
 from ..kernels.fusion import kernels as K_
 from ..kernels.fusion import marching
+from ..kernels.fusion import raycast_lanes as RL_
 from ..kernels.fusion import raycasting as R_
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
@@ -315,11 +316,16 @@ class TSDFVolume:
         wp_launch(R_.depth_range, dim=1, inputs=[self.coords, self._n_blocks, R_cw, t_cw, fx, fy, cx, cy,
                                                  self.voxel_size * BLOCK, self.min_depth, _TILE, margin, tiles_x,
                                                  tiles_y, near, far], device="cpu")
-        n_tiled = 64 * (-(-width // 8)) * (-(-height // 8))  # (the kernel runs over 8 x 8 tiles of pixels)
-        launch_chunks(R_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays,
-                                  wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc), R_cw, self.voxel_size, self.truncation,
-                                  self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin, tiles_x, tiles_y,
-                                  near, far, height, start, 2.0 * self.truncation, depth, colour])
+        n_tiled = 64 * (-(-width // 8)) * (-(-height // 8))  # (the kernels run over 8 x 8 tiles of pixels)
+        pose = [wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc)]
+        rest = [self.voxel_size, self.truncation, self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin,
+                tiles_x, tiles_y, near, far, height, start, 2.0 * self.truncation, depth, colour]
+        if self._lanes and self._n_blocks < RL_.MAX_BLOCKS:  # (a tile's row of 8 rays at a time: the same values)
+            launch_chunks(RL_.raycast_rows, n_tiled // 8, [self.table, self.mask, self.tw, self.colour, rays,
+                                                           *pose, *rest])
+        else:
+            launch_chunks(R_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays, *pose, R_cw,
+                                                *rest])
         launch_chunks(R_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
         return (depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width),
                 np.ascontiguousarray(normal.numpy().reshape(height, width, 3).transpose(2, 0, 1)))

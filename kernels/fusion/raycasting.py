@@ -80,58 +80,41 @@ def block_exit(p: wp.vec3, direction: wp.vec3, inv_direction: wp.vec3, b: wp.vec
     return wp.max(t, 0.0)
 
 
-@wp.kernel
-def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
-            tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4),
-            rays: wp.array(dtype=wp.vec3), R_wc: wp.mat33, t_wc: wp.vec3, R_cw: wp.mat33, voxel: float, trunc: float,
-            min_depth: float, max_depth: float, fx: float, fy: float, cx: float, cy: float, tile: int, margin: int,
-            tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32), H: int,
-            start: wp.array(dtype=wp.float32), start_margin: float,
-            out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
-    """Each pixel: march its ray through the z range of the blocks that project onto its tile
-    (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
-    inside blocks - to the first crossing from positive to negative (refined by a Newton step on the
-    trilinear values, or else linearly between trilinear values that bracket it). Writes the
-    crossing's depth (0: none) and colour (three planes; the nearest voxel's). The normals come from
-    the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
-    the pixel's surface is expected; where it is positive and finite the ray starts ``start_margin``
-    (in z) before it if that is beyond its tile's range, and goes back to the tile's range if it
-    reads a negative value with no positive one just before it."""
-    # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
-    # read the same voxels, run one after the other (the voxels are read from memory once)
-    e = offset + wp.tid()
-    n_pix = out_depth.shape[0]
-    W = n_pix // H
-    tiles_w = (W + 7) // 8
-    tile_k = e // 64
-    px = (tile_k % tiles_w) * 8 + (e % 8)
-    py = (tile_k // tiles_w) * 8 + (e % 64) // 8
-    if px >= W or py >= H:
-        return
-    k = py * W + px
-    out_depth[k] = 0.0
-    out_colour[k] = 0.0
-    out_colour[n_pix + k] = 0.0
-    out_colour[2 * n_pix + k] = 0.0
-    r = rays[k]
-    if r[2] <= 0.0:
-        return
-    tx = int(wp.floor((fx * r[0] + cx) / float(tile))) + margin
-    ty = int(wp.floor((fy * r[1] + cy) / float(tile))) + margin
-    if tx < 0 or ty < 0 or tx >= tiles_x or ty >= tiles_y:
-        return
-    t_end = wp.min(max_depth, far[ty * tiles_x + tx])
-    t_tile = wp.max(min_depth, near[ty * tiles_x + tx])
-    t = t_tile
+@wp.func
+def ray_range(r: wp.vec3, k: int, fx: float, fy: float, cx: float, cy: float, tile: int, margin: int, tiles_x: int,
+              tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32), min_depth: float,
+              max_depth: float, start: wp.array(dtype=wp.float32), start_margin: float):
+    """Where pixel ``k``'s ray (``r``) marches: (ok: it has a ray and its tile a range, t the start,
+    t_tile the tile's near end, t_end its far end, hinted: t is from ``start``) (see :func:`raycast`)."""
+    ok = bool(r[2] > 0.0)
+    t = float(0.0)
+    t_tile = float(0.0)
+    t_end = float(0.0)
     hinted = bool(False)  # started from ``start``: a negative value read with no positive one just before it
     # (the first value, or the first after unobserved voxels) sends the ray back to t_tile, once
-    if start.shape[0] > 0:
-        s0 = start[k]
-        if s0 > 0.0 and s0 < 1.0e30 and s0 - start_margin > t:  # (NaN fails)
-            t = s0 - start_margin
-            hinted = True
-    if t_end <= t_tile:
-        return
+    if ok:
+        tx = int(wp.floor((fx * r[0] + cx) / float(tile))) + margin
+        ty = int(wp.floor((fy * r[1] + cy) / float(tile))) + margin
+        if tx < 0 or ty < 0 or tx >= tiles_x or ty >= tiles_y:
+            ok = False
+        else:
+            t_end = wp.min(max_depth, far[ty * tiles_x + tx])
+            t_tile = wp.max(min_depth, near[ty * tiles_x + tx])
+            t = t_tile
+            if start.shape[0] > 0:
+                s0 = start[k]
+                if s0 > 0.0 and s0 < 1.0e30 and s0 - start_margin > t:  # (NaN fails)
+                    t = s0 - start_margin
+                    hinted = True
+            if t_end <= t_tile:
+                ok = False
+    return ok, t, t_tile, t_end, hinted
+
+
+@wp.func
+def ray_steps(R_wc: wp.mat33, r: wp.vec3, voxel: float, trunc: float):
+    """(direction (world, z = 1 in the camera), its length (metres per unit of z), the reciprocals of
+    its components (0 where a component is 0), a voxel and the march's band step in units of t)."""
     direction = R_wc * wp.vec3(r[0], r[1], 1.0)
     scale = wp.length(direction)  # metres per unit of z
     inv_scale = 1.0 / scale
@@ -141,50 +124,18 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             inv_direction[a] = 1.0 / direction[a]
     voxel_t = voxel * inv_scale  # a voxel, in units of t
     band_t = 0.8 * trunc * inv_scale
+    return direction, scale, inv_direction, voxel_t, band_t
+
+
+@wp.func
+def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2),
+               colour: wp.array(dtype=wp.vec4), t_wc: wp.vec3, direction: wp.vec3, scale: float, voxel: float,
+               crossed: bool, prev_t: float, prev_f: float, cross_t: float, cross_f: float):
+    """After a march: (the crossing's ray parameter, 0 if none; the colour of the voxel nearest to it),
+    from the last positive value (``prev_t``, ``prev_f``) and the first non-positive one (``cross_t``,
+    ``cross_f``) when ``crossed``."""
     inv_voxel = 1.0 / voxel
-    block_len = voxel * float(BLOCK)
-    prev_t = float(0.0)
-    prev_f = float(0.0)
-    have_prev = bool(False)
     hit = float(0.0)
-    last = wp.vec3i(SENTINEL, 0, 0)  # the block looked up last, and its index
-    blk = int(-1)
-    crossed = bool(False)
-    cross_t = float(0.0)
-    cross_f = float(0.0)
-    while t < t_end:
-        p = t_wc + t * direction
-        i = hashing.voxel_of_point(p, inv_voxel)
-        bc = voxel_block(i)
-        if not hashing.same(bc, last):
-            last = bc
-            blk = find_block(table, mask, bc)
-        if blk < 0:  # no block: on to where the ray leaves this block's space
-            have_prev = False
-            t += block_exit(p, direction, inv_direction, bc, voxel, block_len) + 0.01 * voxel_t
-            continue
-        kk = blk * BLOCK_VOXELS + voxel_offset(i)
-        if tw[kk][1] <= 0.0:
-            have_prev = False
-            t += voxel_t
-            continue
-        f = tw[kk][0]
-        if f <= 0.0 and hinted and not have_prev:
-            # (the start fell behind the first surface, or inside a band stretched along a grazing ray:
-            # march from the tile's range as without a start; where the full march would find no
-            # crossing either, this one finds none)
-            hinted = False
-            t = t_tile
-            continue
-        if f <= 0.0:
-            crossed = have_prev  # (a negative value first: the back of a surface, or inside it: no hit)
-            cross_t = t
-            cross_f = f
-            break
-        prev_t = t
-        prev_f = f
-        have_prev = True
-        t += wp.max(voxel_t, band_t * f)
     bracket = bool(False)  # the Newton step did not apply: refine by bracketing
     if crossed:
         # where the nearest voxels' values cross zero (their linear interpolation; the depth if
@@ -225,15 +176,103 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
                 fa, oka = hashing.trilinear(table, mask, tw, t_wc + ta * direction, inv_voxel)
         if oka and okb and fa > 0.0 and fb <= 0.0:
             hit = ta + (tb - ta) * fa / (fa - fb)
+    rgb = wp.vec3(0.0)
+    if hit > 0.0:
+        q = t_wc + hit * direction
+        c = hashing.voxel_of_point(q, inv_voxel)
+        cb = find_block(table, mask, voxel_block(c))
+        if cb >= 0:  # the colour of the voxel nearest to the hit (colours are kept near the surface only)
+            cc = colour[cb * BLOCK_VOXELS + voxel_offset(c)]
+            rgb = wp.vec3(cc[0], cc[1], cc[2])
+    return hit, rgb
+
+
+@wp.kernel
+def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
+            tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4),
+            rays: wp.array(dtype=wp.vec3), R_wc: wp.mat33, t_wc: wp.vec3, R_cw: wp.mat33, voxel: float, trunc: float,
+            min_depth: float, max_depth: float, fx: float, fy: float, cx: float, cy: float, tile: int, margin: int,
+            tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32), H: int,
+            start: wp.array(dtype=wp.float32), start_margin: float,
+            out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
+    """Each pixel: march its ray through the z range of the blocks that project onto its tile
+    (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
+    inside blocks - to the first crossing from positive to negative (refined by a Newton step on the
+    trilinear values, or else linearly between trilinear values that bracket it). Writes the
+    crossing's depth (0: none) and colour (three planes; the nearest voxel's). The normals come from
+    the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
+    the pixel's surface is expected; where it is positive and finite the ray starts ``start_margin``
+    (in z) before it if that is beyond its tile's range, and goes back to the tile's range if it
+    reads a negative value with no positive one just before it."""
+    # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
+    # read the same voxels, run one after the other (the voxels are read from memory once)
+    e = offset + wp.tid()
+    n_pix = out_depth.shape[0]
+    W = n_pix // H
+    tiles_w = (W + 7) // 8
+    tile_k = e // 64
+    px = (tile_k % tiles_w) * 8 + (e % 8)
+    py = (tile_k // tiles_w) * 8 + (e % 64) // 8
+    if px >= W or py >= H:
+        return
+    k = py * W + px
+    out_depth[k] = 0.0
+    out_colour[k] = 0.0
+    out_colour[n_pix + k] = 0.0
+    out_colour[2 * n_pix + k] = 0.0
+    r = rays[k]
+    ok, t, t_tile, t_end, hinted = ray_range(r, k, fx, fy, cx, cy, tile, margin, tiles_x, tiles_y, near, far,
+                                             min_depth, max_depth, start, start_margin)
+    if not ok:
+        return
+    direction, scale, inv_direction, voxel_t, band_t = ray_steps(R_wc, r, voxel, trunc)
+    inv_voxel = 1.0 / voxel
+    block_len = voxel * float(BLOCK)
+    prev_t = float(0.0)
+    prev_f = float(0.0)
+    have_prev = bool(False)
+    last = wp.vec3i(SENTINEL, 0, 0)  # the block looked up last, and its index
+    blk = int(-1)
+    crossed = bool(False)
+    cross_t = float(0.0)
+    cross_f = float(0.0)
+    while t < t_end:
+        p = t_wc + t * direction
+        i = hashing.voxel_of_point(p, inv_voxel)
+        bc = voxel_block(i)
+        if not hashing.same(bc, last):
+            last = bc
+            blk = find_block(table, mask, bc)
+        if blk < 0:  # no block: on to where the ray leaves this block's space
+            have_prev = False
+            t += block_exit(p, direction, inv_direction, bc, voxel, block_len) + 0.01 * voxel_t
+            continue
+        kk = blk * BLOCK_VOXELS + voxel_offset(i)
+        if tw[kk][1] <= 0.0:
+            have_prev = False
+            t += voxel_t
+            continue
+        f = tw[kk][0]
+        if f <= 0.0 and hinted and not have_prev:
+            # (the start fell behind the first surface, or inside a band stretched along a grazing ray:
+            # march from the tile's range as without a start; where the full march would find no
+            # crossing either, this one finds none)
+            hinted = False
+            t = t_tile
+            continue
+        if f <= 0.0:
+            crossed = have_prev  # (a negative value first: the back of a surface, or inside it: no hit)
+            cross_t = t
+            cross_f = f
+            break
+        prev_t = t
+        prev_f = f
+        have_prev = True
+        t += wp.max(voxel_t, band_t * f)
+    hit, rgb = refine_hit(table, mask, tw, colour, t_wc, direction, scale, voxel, crossed, prev_t, prev_f,
+                          cross_t, cross_f)
     if hit <= 0.0:
         return
-    q = t_wc + hit * direction
-    c = hashing.voxel_of_point(q, inv_voxel)
-    cb = find_block(table, mask, voxel_block(c))
-    rgb = wp.vec3(0.0)
-    if cb >= 0:  # the colour of the voxel nearest to the hit (colours are kept near the surface only)
-        cc = colour[cb * BLOCK_VOXELS + voxel_offset(c)]
-        rgb = wp.vec3(cc[0], cc[1], cc[2])
     out_depth[k] = hit
     out_colour[k] = rgb[0]
     out_colour[n_pix + k] = rgb[1]

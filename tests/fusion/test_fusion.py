@@ -153,6 +153,32 @@ def test_raycast_from_a_start_depth(sphere):
         vol.raycast(K, T, H, W, start_depth=true[:, :-1])
 
 
+def test_the_8_lane_raycast_equals_the_ray_by_ray_one(sphere):
+    # the raycast marches a tile's row of 8 rays as lanes; the ray-by-ray kernel must give the same
+    # depth, colour and normals bit for bit: rows wider than the image (a width that is not a multiple
+    # of 8), rays that miss, starts from a depth (invalid values, starts behind the surface: the march
+    # begins again), a pose from far away and one whose nearest rays start inside the band, a lens camera
+    vol, centre, radius, poses, rays = sphere
+    true = _sphere_depth(poses[2], centre, radius, rays)
+    start = np.where(np.arange(W)[None] % 3 == 0, true + 2.5 * vol.truncation, true).astype(np.float32)
+    start[::5, ::2] = np.nan
+    far = _pose(_rot([0, 1, 0], 30), centre - _rot([0, 1, 0], 30) @ np.array([0, 0, 2.8]))
+    near = _pose(np.eye(3), centre - np.array([0.0, 0.0, radius + vol.min_depth + 0.5 * vol.truncation]))
+    calls = [(K, poses[2], H, W, None), (K, poses[2], H, W, start), (K, far, 117, 151, None),
+             (K, near, H, W, None), ((K, (-0.2, 0.05, 0.001, -0.001, 0.0)), poses[4], H, W, None)]
+    try:
+        for camera, T, h, w, s in calls:
+            out = []
+            for lanes in (True, False):
+                vol._lanes = lanes
+                out.append(vol.raycast(camera, T, h, w, start_depth=s))
+            assert (out[0][0] > 0).mean() > 0.05
+            for a, b in zip(*out):
+                np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+    finally:
+        vol._lanes = True
+
+
 def test_trilinear_value_and_gradient_match_finite_differences(sphere):
     # hashing.trilinear_grad (the raycast's Newton step): its value is hashing.trilinear's and its
     # gradient the trilinear interpolant's, checked by central differences inside the band, across
