@@ -106,7 +106,7 @@ class TSDFVolume:
         self.pixel_stride = pixel_stride
         self.max_blocks = int(mem * 2**20 // BYTES_PER_BLOCK)
         self._calls = 0
-        self._lanes = True  # (False: the voxel-by-voxel kernel for every camera; the tests compare the two)
+        self._lanes = True  # (False: the voxel-by-voxel and ray-by-ray kernels; the tests compare them)
         self._rays: dict = {}  # (camera, size) -> (rays, the longest ray's length)
         self._mc_tables = (wp.array(np.asarray(marching.MC_RANGE, np.int32), dtype=wp.int32, device="cpu"),
                            wp.array(np.asarray(marching.MC_TRI, np.int32), dtype=wp.int32, device="cpu"))
@@ -260,11 +260,10 @@ class TSDFVolume:
                      f"{self.voxel_size:g} m: use larger voxels or allow more memory")
             self._allocate_blocks(min(self.max_blocks, 2 * self.capacity))
         # 3. update every voxel of those blocks
-        # (a pinhole camera: the row's 8 voxels as lanes, the same values; else voxel by voxel)
-        lanes = self._lanes and model == 0 and H * W <= I_.MAX_PIXELS
-        camera_args = [fx, fy, cx, cy] if lanes else [fx, fy, cx, cy, model, dist]
-        launch_chunks(I_.integrate_pinhole if lanes else K_.integrate, n_active * BLOCK * BLOCK,
-                      [active, self.coords, depth_w, image, int(has_colour), W, H, *camera_args,
+        # (a block's row of 8 voxels as lanes, the same values as voxel by voxel)
+        lanes = self._lanes and H * W <= I_.MAX_PIXELS
+        launch_chunks(I_.integrate_rows if lanes else K_.integrate, n_active * BLOCK * BLOCK,
+                      [active, self.coords, depth_w, image, int(has_colour), W, H, fx, fy, cx, cy, model, dist,
                        wp.mat33(*R_cw.ravel()), wp.vec3(*t_cw), self.voxel_size, self.truncation, self.min_depth,
                        self.max_depth, self.tw, self.colour])
         return IntegrateReport(valid, n_active, self.n_blocks - before, self.n_blocks)

@@ -10,8 +10,8 @@ camera), its ``weight`` (0: never observed) and a ``colour`` (RGB in [0, 1]).
 
 - :mod:`.hashing`: ``@wp.func`` s of the hash table and of voxel lookups (no launches);
 - :mod:`.kernels`: the thin kernels of integration (blocks touched by a depth image, block
-  insertion, integration); :mod:`.integrate_lanes`: the integration for a pinhole camera, a block's
-  row of 8 voxels as 8 lanes; :mod:`.raycasting`: raycasting (:mod:`.raycast_lanes`: a tile's row of 8
+  insertion, integration); :mod:`.integrate_lanes`: the integration with a block's row of 8 voxels
+  as 8 lanes; :mod:`.raycasting`: raycasting (:mod:`.raycast_lanes`: a tile's row of 8
   rays marched together); :mod:`.marching`: marching cubes;
 - the host object that checks, grows its arrays and launches (numpy in and out) is
   ``gvnn_warp.fusion.TSDFVolume``.

@@ -1,22 +1,24 @@
-"""The TSDF integration for a pinhole camera, the 8 voxels of a block's row as 8 lanes (a thin
-kernel and its ``@wp.func`` s; the host is ``gvnn_warp.fusion.TSDFVolume``).
+"""The TSDF integration, the 8 voxels of a block's row as 8 lanes (a thin kernel and its
+``@wp.func`` s; the host is ``gvnn_warp.fusion.TSDFVolume``).
 
 :func:`.kernels.integrate` handles a row's 8 voxels one after another, each behind a chain of
 tests (in front of the camera, inside the image, a valid depth, in the band, in front of it) that
 LLVM compiles as branches. Here the row's projections, depth reads, signed distances and updates
 are length-8 vectors (``kernels.core.lanes``), the tests are 0/1 masks, and the row's weights and
 colours are read and written as whole rows (only where a lane changes: a row none of whose
-voxels is updated is not written). The values are those of :func:`.kernels.integrate` bit for
-bit, operation for operation (the tests check it); a lens camera, or an image of more than
-:data:`MAX_PIXELS` pixels (the lanes carry pixel indices as float32), takes that kernel.
+voxels is updated is not written); a lens camera's projection (:func:`.kernels.project`) is
+called lane by lane. The values are those of :func:`.kernels.integrate` bit for bit, operation
+for operation (the tests check it); an image of more than :data:`MAX_PIXELS` pixels (the lanes
+carry pixel indices as float32) takes that kernel.
 """
 
 import warp as wp
 
-from ..core.kinds import LANES_MODULE_OPTIONS, vec8f
+from ..core.kinds import LANES_MODULE_OPTIONS, vec8d, vec8f
 from ..core.lanes import above8, at_least8, below8, hsum8, iota8, open_mask8, select8, splat8
 from ..sampling.lanes import floor_lanes, gather_lanes
 from .hashing import BLOCK, BLOCK_VOXELS
+from .kernels import project
 
 MAX_PIXELS = 1 << 24  # pixel indices are exact as float32 up to here
 
@@ -61,12 +63,12 @@ def depth_bilinear_lanes(depth: wp.array(dtype=wp.float32), u: vec8f, v: vec8f, 
 
 
 @wp.kernel(module="unique", enable_backward=False, module_options=LANES_MODULE_OPTIONS)
-def integrate_pinhole(offset: int, active: wp.array(dtype=wp.int32), coords: wp.array(dtype=wp.vec3i),
-                      depth: wp.array(dtype=wp.float32), image: wp.array(dtype=wp.float32), has_colour: int,
-                      W: int, H: int, fx: float, fy: float, cx: float, cy: float,
+def integrate_rows(offset: int, active: wp.array(dtype=wp.int32), coords: wp.array(dtype=wp.vec3i),
+                   depth: wp.array(dtype=wp.float32), image: wp.array(dtype=wp.float32), has_colour: int,
+                   W: int, H: int, fx: float, fy: float, cx: float, cy: float, model: int, dist: vec8d,
                       R_cw: wp.mat33, t_cw: wp.vec3, voxel: float, trunc: float, min_depth: float, max_depth: float,
                       tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4)):
-    """:func:`.kernels.integrate` for a pinhole camera (``model`` 0), the row's voxels as 8 lanes."""
+    """:func:`.kernels.integrate` with the row's voxels as 8 lanes (a lens's projection lane by lane)."""
     e = offset + wp.tid()
     rows = BLOCK * BLOCK
     a = e // rows
@@ -82,12 +84,23 @@ def integrate_pinhole(offset: int, active: wp.array(dtype=wp.int32), coords: wp.
     qy = splat8(p[1]) + xs * step[1]
     qz = splat8(p[2]) + xs * step[2]
     front = above8(qz, min_depth)
-    z = select8(front, qz, splat8(1.0))  # (a finite quotient in every lane)
-    u = wp.cw_div(fx * qx, z) + splat8(cx)
-    v = wp.cw_div(fy * qy, z) + splat8(cy)
+    u = splat8(0.0)
+    v = splat8(0.0)
+    in_lens = front  # (a lens: where the point is in its domain)
+    if model == 0:
+        z = select8(front, qz, splat8(1.0))  # (a finite quotient in every lane)
+        u = wp.cw_div(fx * qx, z) + splat8(cx)
+        v = wp.cw_div(fy * qy, z) + splat8(cy)
+    else:  # (the lens model lane by lane, in float64 as the voxel-by-voxel kernel does)
+        for x in range(BLOCK):
+            if front[x] != 0.0:
+                ux, vx, ok = project(wp.vec3(qx[x], qy[x], qz[x]), fx, fy, cx, cy, model, dist)
+                u[x] = ux
+                v[x] = vx
+                in_lens[x] = wp.where(ok, 1.0, 0.0)
     iu = floor_lanes(u + splat8(0.5))
     iv = floor_lanes(v + splat8(0.5))
-    inside = wp.cw_mul(wp.cw_mul(front, wp.cw_mul(at_least8(iu, 0.0), at_least8(iv, 0.0))),
+    inside = wp.cw_mul(wp.cw_mul(in_lens, wp.cw_mul(at_least8(iu, 0.0), at_least8(iv, 0.0))),
                        wp.cw_mul(below8(iu, float(W)), below8(iv, float(H))))
     pix = select8(inside, wp.cw_mul(iv, splat8(float(W))) + iu, splat8(0.0))
     d = gather_lanes(depth, 0, pix, inside)
@@ -131,4 +144,4 @@ def integrate_pinhole(offset: int, active: wp.array(dtype=wp.int32), coords: wp.
             for x in range(BLOCK):
                 colour[base + x] = wp.vec4(c0[x], c1[x], c2[x], wc1[x])
 
-__all__ = ["MAX_PIXELS", "integrate_pinhole"]
+__all__ = ["MAX_PIXELS", "integrate_rows"]

@@ -261,13 +261,15 @@ def test_results_do_not_depend_on_the_thread_count(sphere):
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("with_colour", [True, False])
-def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour):
+@pytest.mark.parametrize("with_colour, lens", [(True, False), (False, False), (True, True)])
+def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour, lens):
     # a pinhole camera's frames go through the 8-lane kernel; the voxel-by-voxel one must give the
     # same TSDF, weights and colours bit for bit, in the hard cases too: noisy depth, depth edges
     # (sphere against a wall), NaN, inf, negative, zero and out-of-range pixels, a surface nearer than
-    # min_depth's band (voxels behind the near plane), voxels projecting outside the image, weights > 1
+    # min_depth's band (voxels behind the near plane), voxels projecting outside the image, weights > 1;
+    # through a pinhole and a radial-tangential lens
     rng = np.random.default_rng(7)
+    camera = (K, (-0.5, 0.0, 0.001, -0.002, 0.0)) if lens else K  # (its domain ends inside the image)
     centre, radius = np.array([0.1, -0.05, 1.0]), 0.35
     rays = _rays(K)
     vols = [TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0, min_depth=0.15) for _ in range(2)]
@@ -286,7 +288,7 @@ def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour):
         depth[12, ::4] = 9.0
         colour = rng.random((3, H, W), dtype=np.float32) if with_colour else None
         for vol in vols:
-            vol.integrate(depth, colour, K, T)
+            vol.integrate(depth, colour, camera, T)
     a, b = vols
     n = a.n_blocks * 512
     assert a.n_blocks == b.n_blocks > 0 and (a.tw.numpy()[:n, 1] > 1).any()
