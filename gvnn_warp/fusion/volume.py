@@ -304,7 +304,7 @@ class TSDFVolume:
         n = height * width
         depth = wp.empty(n, dtype=wp.float32, device="cpu")
         colour = wp.empty(3 * n, dtype=wp.float32, device="cpu")
-        normal = wp.empty(n, dtype=wp.vec3, device="cpu")
+        normal = wp.empty(3 * n, dtype=wp.float32, device="cpu")
         R_wc, t_wc = T[:3, :3], T[:3, 3]
         R_cw, t_cw = wp.mat33(*R_wc.T.ravel()), wp.vec3(*(-R_wc.T @ t_wc))
         # the z range of the blocks over each tile of 8 x 8 (ideal) pixels: where each ray starts and stops
@@ -327,7 +327,7 @@ class TSDFVolume:
                                                 *rest])
         launch_chunks(R_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
         return (depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width),
-                np.ascontiguousarray(normal.numpy().reshape(height, width, 3).transpose(2, 0, 1)))
+                normal.numpy().reshape(3, height, width))
 
     # ------------------------------------------------------------------------------ surfaces
 

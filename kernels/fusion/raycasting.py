@@ -281,14 +281,18 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
 
 @wp.kernel
 def depth_normals(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array(dtype=wp.vec3), W: int, H: int,
-                  max_jump: float, normal: wp.array(dtype=wp.vec3)):
+                  max_jump: float, normal: wp.array(dtype=wp.float32)):
     """Unit normals (camera frame, facing the camera) of a depth image from its neighbours' points
     (the cross product of the central differences along x and y, as KinectFusion's normal map);
-    zero where a neighbour has no depth or lies more than ``max_jump`` (relative) farther or nearer."""
+    zero where a neighbour has no depth or lies more than ``max_jump`` (relative) farther or nearer;
+    ``normal`` three planes of H * W (x, y, z)."""
     k = offset + wp.tid()
     x = k % W
     y = k // W
-    normal[k] = wp.vec3(0.0)
+    n_pix = W * H
+    normal[k] = 0.0
+    normal[n_pix + k] = 0.0
+    normal[2 * n_pix + k] = 0.0
     if x < 1 or y < 1 or x >= W - 1 or y >= H - 1:
         return
     d = depth[k]
@@ -314,7 +318,9 @@ def depth_normals(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array
     r = rays[k]
     if wp.dot(n, wp.vec3(r[0], r[1], 1.0)) > 0.0:  # (facing the camera)
         n = -n
-    normal[k] = n
+    normal[k] = n[0]
+    normal[n_pix + k] = n[1]
+    normal[2 * n_pix + k] = n[2]
 
 
 __all__ = ["block_exit", "depth_normals", "depth_range", "raycast"]
