@@ -119,7 +119,8 @@ class ModelTracker:
                     raise TrackingStopped(i, result(i), e) from e
                 s = time.perf_counter()
                 # (at the pose frame i - 1 was just integrated at: its depth tells the rays where to start)
-                ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W, start_depth=prev_depth)
+                ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W, start_depth=prev_depth,
+                                                       normals=False)
                 # (the live depth too: the aligner's occlusion test and depth term use it)
                 T, info = self.aligner.align(to_gray(ref_colour), ref_depth[None], to_gray(rgb), depth)
                 T = np.asarray(T, dtype=np.float64)

@@ -270,8 +270,8 @@ class TSDFVolume:
 
     # ------------------------------------------------------------------------------ raycasting
 
-    def raycast(self, camera, T_world_cam, height: int, width: int, *,
-                start_depth=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def raycast(self, camera, T_world_cam, height: int, width: int, *, start_depth=None,
+                normals: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The model seen by ``camera`` at ``T_world_cam``: (depth (H, W) float32 metres, 0 where no
         surface; colour (3, H, W); normals (3, H, W) unit, camera frame, facing the camera, zero where
         unknown or at a depth edge), the first crossing of each pixel's ray from positive to negative
@@ -286,11 +286,15 @@ class TSDFVolume:
         frame saw as free space, is passed over). If that ray reads a negative value with no
         positive one just before it (the start was behind the surface, or in a band stretched along
         a grazing ray), it marches again from the nearest block, as without a start. About half the
-        march's steps."""
+        march's steps.
+
+        ``normals=False``: no normals (None in their place; frame-to-model tracking does not use them)."""
         fn = "raycast"
         if not (isinstance(height, int) and isinstance(width, int) and height >= 2 and width >= 2):
             fail(_name(fn), ValueError, f"arguments 'height' and 'width' must be integers >= 2, got {height!r}, "
                                         f"{width!r}")
+        if not isinstance(normals, bool):
+            fail(_name(fn), TypeError, f"argument 'normals' must be True or False, got {normals!r}")
         if start_depth is None:
             start = wp.empty(0, dtype=wp.float32, device="cpu")
         else:
@@ -304,7 +308,6 @@ class TSDFVolume:
         n = height * width
         depth = wp.empty(n, dtype=wp.float32, device="cpu")
         colour = wp.empty(3 * n, dtype=wp.float32, device="cpu")
-        normal = wp.empty(3 * n, dtype=wp.float32, device="cpu")
         R_wc, t_wc = T[:3, :3], T[:3, 3]
         R_cw, t_cw = wp.mat33(*R_wc.T.ravel()), wp.vec3(*(-R_wc.T @ t_wc))
         # the z range of the blocks over each tile of 8 x 8 (ideal) pixels: where each ray starts and stops
@@ -325,9 +328,12 @@ class TSDFVolume:
         else:
             launch_chunks(R_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays, *pose, R_cw,
                                                 *rest])
-        launch_chunks(R_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
-        return (depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width),
-                normal.numpy().reshape(3, height, width))
+        normal = None
+        if normals:
+            normal = wp.empty(3 * n, dtype=wp.float32, device="cpu")
+            launch_chunks(R_.depth_normals, n, [depth, rays, width, height, _NORMAL_JUMP, normal])
+            normal = normal.numpy().reshape(3, height, width)
+        return depth.numpy().reshape(height, width), colour.numpy().reshape(3, height, width), normal
 
     # ------------------------------------------------------------------------------ surfaces
 

@@ -151,6 +151,13 @@ def test_raycast_from_a_start_depth(sphere):
     assert (d4[true > 0] == 0).mean() > 0.99
     with pytest.raises(ValueError, match=r"TSDFVolume.raycast: argument 'start_depth' must be \(120, 160\)"):
         vol.raycast(K, T, H, W, start_depth=true[:, :-1])
+    # without normals (frame-to-model tracking does not use them): the same depth and colour
+    d5, c5, n5 = vol.raycast(K, T, H, W, start_depth=true[None], normals=False)
+    assert n5 is None
+    np.testing.assert_array_equal(d5, d1)
+    np.testing.assert_array_equal(c5, c1)
+    with pytest.raises(TypeError, match=r"TSDFVolume.raycast: argument 'normals' must be True or False"):
+        vol.raycast(K, T, H, W, normals="no")
 
 
 def test_the_8_lane_raycast_equals_the_ray_by_ray_one(sphere):
