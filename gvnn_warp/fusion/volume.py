@@ -324,7 +324,7 @@ class TSDFVolume:
                 tiles_x, tiles_y, near, far, height, start, 2.0 * self.truncation, depth, colour]
         if self._lanes and self._n_blocks < RL_.MAX_BLOCKS:  # (a tile's row of 8 rays at a time: the same values)
             launch_chunks(RL_.raycast_rows, n_tiled // 8, [self.table, self.mask, self.tw, self.colour, rays,
-                                                           *pose, *rest])
+                                                           *pose, *rest], grain=256)  # (8 rays an element)
         else:
             launch_chunks(R_.raycast, n_tiled, [self.table, self.mask, self.tw, self.colour, rays, *pose, R_cw,
                                                 *rest])

@@ -331,15 +331,18 @@ def launch(
 
 
 
-def launch_chunks(kernel: wp.Kernel, n: int, args: Sequence, chunks_per_thread: int = 4) -> None:
+def launch_chunks(kernel: wp.Kernel, n: int, args: Sequence, chunks_per_thread: int = 4, grain: int = 4096) -> None:
     """A forward-only kernel whose first argument is an element offset, over elements [0, n), cut
     into contiguous chunks run on :func:`get_num_threads` threads (for kernels outside the
-    float32/float64 :class:`FloatKernel` family, e.g. the TSDF's). Each element must write only its
-    own outputs, so any cut gives the same result."""
+    float32/float64 :class:`FloatKernel` family, e.g. the TSDF's): ``chunks_per_thread`` chunks a
+    thread, each of at least about ``grain`` elements (fewer chunks for a short range; a kernel
+    whose elements are heavy, e.g. a row of 8 rays, passes a smaller grain so that its chunks still
+    share out over the threads). Each element must write only its own outputs, so any cut gives the
+    same result."""
     if n <= 0:
         return
     n_threads = threads.get_num_threads()
-    count = max(1, min(n_threads * chunks_per_thread, n // 4096 + 1))
+    count = max(1, min(n_threads * chunks_per_thread, n // max(1, grain) + 1))
     step = -(-n // count)
     chunks = [(start, min(step, n - start)) for start in range(0, n, step)]
     ensure_loaded(kernel, dim=chunks[0][1], inputs=[chunks[0][0], *args], device="cpu")  # (before the threads)
