@@ -69,6 +69,8 @@ def integrate_rows(offset: int, active: wp.array(dtype=wp.int32), coords: wp.arr
                       R_cw: wp.mat33, t_cw: wp.vec3, voxel: float, trunc: float, min_depth: float, max_depth: float,
                       tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4)):
     """:func:`.kernels.integrate` with the row's voxels as 8 lanes (a lens's projection lane by lane)."""
+    # (the row as in :func:`.kernels.integrate`, written out: through a function the two share this
+    # kernel took 1-8% longer in five A/B pairs)
     e = offset + wp.tid()
     rows = BLOCK * BLOCK
     a = e // rows

@@ -21,7 +21,7 @@ from ..core.lanes import above8, at_least8, hsum8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
 from .integrate_lanes import below_lanes
-from .raycasting import ray_range, ray_steps, refine_hit
+from .raycasting import clear_pixel, ray_range, ray_steps, refine_hit
 
 vec8i = wp.types.vector(length=8, dtype=wp.int32)
 MAX_BLOCKS = 1 << 22  # block indices (float32 lanes) and voxel indices (int32 lanes) are exact up to here
@@ -97,10 +97,7 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     scale = zero
     for lane in range(lanes):
         k = py * W + px0 + lane
-        out_depth[k] = 0.0
-        out_colour[k] = 0.0
-        out_colour[n_pix + k] = 0.0
-        out_colour[2 * n_pix + k] = 0.0
+        clear_pixel(k, out_depth, out_colour)
         r = rays[k]
         ok, t0, tt, te, hi = ray_range(r, k, fx, fy, cx, cy, tile, margin, tiles_x, tiles_y, near, far,
                                        min_depth, max_depth, start, start_margin)

@@ -81,6 +81,16 @@ def block_exit(p: wp.vec3, direction: wp.vec3, inv_direction: wp.vec3, b: wp.vec
 
 
 @wp.func
+def clear_pixel(k: int, out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
+    """Pixel ``k`` of the raycast's outputs set to no surface (depth 0, black; colour in three planes)."""
+    n_pix = out_depth.shape[0]
+    out_depth[k] = 0.0
+    out_colour[k] = 0.0
+    out_colour[n_pix + k] = 0.0
+    out_colour[2 * n_pix + k] = 0.0
+
+
+@wp.func
 def ray_range(r: wp.vec3, k: int, fx: float, fy: float, cx: float, cy: float, tile: int, margin: int, tiles_x: int,
               tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32), min_depth: float,
               max_depth: float, start: wp.array(dtype=wp.float32), start_margin: float):
@@ -216,10 +226,7 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     if px >= W or py >= H:
         return
     k = py * W + px
-    out_depth[k] = 0.0
-    out_colour[k] = 0.0
-    out_colour[n_pix + k] = 0.0
-    out_colour[2 * n_pix + k] = 0.0
+    clear_pixel(k, out_depth, out_colour)
     r = rays[k]
     ok, t, t_tile, t_end, hinted = ray_range(r, k, fx, fy, cx, cy, tile, margin, tiles_x, tiles_y, near, far,
                                              min_depth, max_depth, start, start_margin)
@@ -323,4 +330,4 @@ def depth_normals(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array
     normal[2 * n_pix + k] = n[2]
 
 
-__all__ = ["block_exit", "depth_normals", "depth_range", "raycast"]
+__all__ = ["block_exit", "clear_pixel", "depth_normals", "depth_range", "raycast"]
