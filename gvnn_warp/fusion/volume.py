@@ -36,9 +36,10 @@ from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
 from ..odometry.inputs import as_numpy, fail, lens_camera, real_number
 
-__all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "MapFull", "TSDFVolume"]
+__all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "MAX_BLOCKS", "MapFull", "TSDFVolume"]
 
 BYTES_PER_BLOCK = BLOCK_VOXELS * (8 + 16)  # per voxel: TSDF and weight, colour and its weight (float32)
+MAX_BLOCKS = (2**31 - 1) // BLOCK_VOXELS  # the kernels index voxels (block * BLOCK_VOXELS + voxel) in int32
 _FIRST_BLOCKS = 1024  # blocks allocated at first (10 MiB); doubled as needed
 _TILE = 8  # pixels per side of the tiles of the raycast's depth range
 _NORMAL_JUMP = 0.05  # a raycast normal needs its neighbours' depths within 5% (else it is a depth edge)
@@ -72,7 +73,8 @@ class TSDFVolume:
             at least one voxel).
         max_memory_mb: the most memory the voxels may take; :meth:`integrate` refuses a frame that
             would need more (:class:`MapFull`, a ValueError saying how much the map holds and what
-            to change).
+            to change). At most :data:`MAX_BLOCKS` blocks (48 GiB) whatever it allows: the kernels
+            index voxels with 32-bit integers.
         min_depth, max_depth: metres; depths outside (and 0, NaN, negative) are not used.
         pixel_stride: every ``pixel_stride``-th pixel on each axis decides which blocks a frame
             allocates (every pixel updates the voxels: a block is 8 voxels, tens of pixels wide at
@@ -104,7 +106,7 @@ class TSDFVolume:
         self.voxel_size, self.truncation = float(v), float(trunc)
         self.min_depth, self.max_depth = float(lo), float(hi)
         self.pixel_stride = pixel_stride
-        self.max_blocks = int(mem * 2**20 // BYTES_PER_BLOCK)
+        self.max_blocks = min(int(mem * 2**20 // BYTES_PER_BLOCK), MAX_BLOCKS)
         self._calls = 0
         self._lanes = True  # (False: the voxel-by-voxel and ray-by-ray kernels; the tests compare them)
         self._rays: dict = {}  # (camera, size) -> (rays, the longest ray's length)
@@ -257,7 +259,9 @@ class TSDFVolume:
                 fail(_name(fn), MapFull,
                      f"the map needs more than {self.max_blocks} blocks of {BLOCK}^3 voxels "
                      f"({self.max_blocks * BYTES_PER_BLOCK / 2**20:.3g} MiB, max_memory_mb) at a voxel size of "
-                     f"{self.voxel_size:g} m: use larger voxels or allow more memory")
+                     f"{self.voxel_size:g} m: use larger voxels"
+                     + (" (the most blocks a map can index)" if self.max_blocks == MAX_BLOCKS else
+                        " or allow more memory"))
             self._allocate_blocks(min(self.max_blocks, 2 * self.capacity))
         # 3. update every voxel of those blocks
         # (a block's row of 8 voxels as lanes, the same values as voxel by voxel)
@@ -274,9 +278,9 @@ class TSDFVolume:
                 normals: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The model seen by ``camera`` at ``T_world_cam``: (depth (H, W) float32 metres, 0 where no
         surface; colour (3, H, W); normals (3, H, W) unit, camera frame, facing the camera, zero where
-        unknown or at a depth edge), the first crossing of each pixel's ray from positive to negative
-        TSDF within [min_depth, max_depth]; the normals from the rendered depth's neighbours (as
-        KinectFusion's normal map).
+        unknown or at a depth edge; None with ``normals=False``), the first crossing of each pixel's
+        ray from positive to negative TSDF within [min_depth, max_depth]; the normals from the
+        rendered depth's neighbours (as KinectFusion's normal map).
 
         ``start_depth`` (H, W) or (1, H, W) metres, optional: where the surface is expected, e.g. the
         depth of the frame just integrated at this pose (frame-to-model tracking raycasts there). Each
@@ -322,7 +326,7 @@ class TSDFVolume:
         pose = [wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc)]
         rest = [self.voxel_size, self.truncation, self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin,
                 tiles_x, tiles_y, near, far, height, start, 2.0 * self.truncation, depth, colour]
-        if self._lanes and self._n_blocks < RL_.MAX_BLOCKS:  # (a tile's row of 8 rays at a time: the same values)
+        if self._lanes:  # (a tile's row of 8 rays at a time: the same values)
             launch_chunks(RL_.raycast_rows, n_tiled // 8, [self.table, self.mask, self.tw, self.colour, rays,
                                                            *pose, *rest], grain=256)  # (8 rays an element)
         else:

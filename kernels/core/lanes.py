@@ -114,6 +114,13 @@ def below8(v: Any, hi: Any):
 
 
 @wp.func
+def less8(a: Any, b: Any):
+    """1 where a < b, lane by lane (NaN: 0)."""
+    return wp.vector(below(a[0], b[0]), below(a[1], b[1]), below(a[2], b[2]), below(a[3], b[3]),
+                     below(a[4], b[4]), below(a[5], b[5]), below(a[6], b[6]), below(a[7], b[7]))
+
+
+@wp.func
 def open_mask8(v: Any, lo: Any, hi: Any):
     """1 where lo < v < hi (NaN: 0), per lane. Products of per-lane selects, no ``and``: Warp
     turns ``and`` into branches, which LLVM does not vectorise."""

@@ -8,31 +8,20 @@ are length-8 vectors (``kernels.core.lanes``), the tests are 0/1 masks, and the 
 colours are read and written as whole rows (only where a lane changes: a row none of whose
 voxels is updated is not written); a lens camera's projection (:func:`.kernels.project`) is
 called lane by lane. The values are those of :func:`.kernels.integrate` bit for bit, operation
-for operation (the tests check it); an image of more than :data:`MAX_PIXELS` pixels (the lanes
-carry pixel indices as float32) takes that kernel.
+for operation (both built with the same compiler flags but the vectoriser's depth; the tests check
+it); an image of more than :data:`MAX_PIXELS` pixels (the lanes carry pixel indices as float32)
+takes that kernel.
 """
 
 import warp as wp
 
 from ..core.kinds import LANES_MODULE_OPTIONS, vec8d, vec8f
-from ..core.lanes import above8, at_least8, below8, hsum8, iota8, open_mask8, select8, splat8
+from ..core.lanes import above8, at_least8, below8, hsum8, iota8, less8, open_mask8, select8, splat8
 from ..sampling.lanes import floor_lanes, gather_lanes
 from .hashing import BLOCK, BLOCK_VOXELS
 from .kernels import project
 
 MAX_PIXELS = 1 << 24  # pixel indices are exact as float32 up to here
-
-
-@wp.func
-def below_lanes(v: vec8f, hi: vec8f):
-    """1 where v < hi (lane by lane), else 0 (NaN: 0)."""
-    one = float(1.0)
-    zero = float(0.0)
-    return vec8f(
-        wp.where(v[0] < hi[0], one, zero), wp.where(v[1] < hi[1], one, zero), wp.where(v[2] < hi[2], one, zero),
-        wp.where(v[3] < hi[3], one, zero), wp.where(v[4] < hi[4], one, zero), wp.where(v[5] < hi[5], one, zero),
-        wp.where(v[6] < hi[6], one, zero), wp.where(v[7] < hi[7], one, zero),
-    )
 
 
 @wp.func
@@ -53,7 +42,7 @@ def depth_bilinear_lanes(depth: wp.array(dtype=wp.float32), u: vec8f, v: vec8f, 
     hi = wp.max(wp.max(a, b), wp.max(c, d))
     valid = wp.cw_mul(wp.cw_mul(open_mask8(a, min_depth, max_depth), open_mask8(b, min_depth, max_depth)),
                       wp.cw_mul(open_mask8(c, min_depth, max_depth), open_mask8(d, min_depth, max_depth)))
-    use = wp.cw_mul(wp.cw_mul(inside, valid), below_lanes(hi - lo, 0.05 * nearest))
+    use = wp.cw_mul(wp.cw_mul(inside, valid), less8(hi - lo, 0.05 * nearest))
     fx = u - x0
     fy = v - y0
     one = splat8(1.0)
@@ -66,8 +55,8 @@ def depth_bilinear_lanes(depth: wp.array(dtype=wp.float32), u: vec8f, v: vec8f, 
 def integrate_rows(offset: int, active: wp.array(dtype=wp.int32), coords: wp.array(dtype=wp.vec3i),
                    depth: wp.array(dtype=wp.float32), image: wp.array(dtype=wp.float32), has_colour: int,
                    W: int, H: int, fx: float, fy: float, cx: float, cy: float, model: int, dist: vec8d,
-                      R_cw: wp.mat33, t_cw: wp.vec3, voxel: float, trunc: float, min_depth: float, max_depth: float,
-                      tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4)):
+                   R_cw: wp.mat33, t_cw: wp.vec3, voxel: float, trunc: float, min_depth: float, max_depth: float,
+                   tw: wp.array(dtype=wp.vec2), colour: wp.array(dtype=wp.vec4)):
     """:func:`.kernels.integrate` with the row's voxels as 8 lanes (a lens's projection lane by lane)."""
     # (the row as in :func:`.kernels.integrate`, written out: through a function the two share this
     # kernel took 1-8% longer in five A/B pairs)

@@ -9,22 +9,20 @@ distinct block the row enters: neighbouring rays mostly enter the same) and the 
 lane by lane. A lane that has stopped waits for the others. Each ray's start
 (:func:`.raycasting.ray_range`) and its crossing's refinement (:func:`.raycasting.refine_hit`) are
 the scalar kernel's own functions, and every step the same operations, so the outputs are the
-scalar kernel's bit for bit (the tests check it). Block indices ride in float32 lanes, voxel
-indices in int32 ones: exact below :data:`MAX_BLOCKS` blocks (the host takes the scalar kernel
-beyond).
+scalar kernel's bit for bit (both built with the same compiler flags but the vectoriser's
+depth; the tests check it). Block indices ride in float32 lanes, voxel indices in int32 ones,
+exact for any map the host allows (fewer than 2^22 blocks).
 """
 
 import warp as wp
 
 from ..core.kinds import LANES_MODULE_OPTIONS, vec8f
-from ..core.lanes import above8, at_least8, hsum8, select8, splat8
+from ..core.lanes import above8, at_least8, hsum8, less8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
-from .integrate_lanes import below_lanes
 from .raycasting import clear_pixel, ray_range, ray_steps, refine_hit
 
 vec8i = wp.types.vector(length=8, dtype=wp.int32)
-MAX_BLOCKS = 1 << 22  # block indices (float32 lanes) and voxel indices (int32 lanes) are exact up to here
 
 
 @wp.func
@@ -188,7 +186,7 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         have_prev = select8(no_block + unobserved, zero, select8(forward, one, have_prev))
         hinted = select8(restart, zero, hinted)
         t = t_next
-        active = wp.cw_mul(active - cross, below_lanes(t, t_end))
+        active = wp.cw_mul(active - cross, less8(t, t_end))
     for lane in range(lanes):
         if crossed[lane] != 0.0:
             hit, rgb = refine_hit(table, mask, tw, colour, t_wc, wp.vec3(dx[lane], dy[lane], dz[lane]), scale[lane],
@@ -201,4 +199,4 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
                 out_colour[2 * n_pix + k] = rgb[2]
 
 
-__all__ = ["MAX_BLOCKS", "raycast_rows"]
+__all__ = ["raycast_rows"]

@@ -160,26 +160,47 @@ def test_raycast_from_a_start_depth(sphere):
         vol.raycast(K, T, H, W, normals="no")
 
 
-def test_the_8_lane_raycast_equals_the_ray_by_ray_one(sphere):
+def _kernels_run(monkeypatch):
+    """The names of the kernels TSDFVolume launches over threads from now on (a list that fills)."""
+    import gvnn_warp.fusion.volume as volume_module
+
+    names, launch = [], volume_module.launch_chunks
+
+    def spy(kernel, *args, **kwargs):
+        names.append(kernel.key)
+        return launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(volume_module, "launch_chunks", spy)
+    return names
+
+
+def test_the_8_lane_raycast_equals_the_ray_by_ray_one(sphere, monkeypatch):
     # the raycast marches a tile's row of 8 rays as lanes; the ray-by-ray kernel must give the same
     # depth, colour and normals bit for bit: rows wider than the image (a width that is not a multiple
-    # of 8), rays that miss, starts from a depth (invalid values, starts behind the surface: the march
-    # begins again), a pose from far away and one whose nearest rays start inside the band, a lens camera
+    # of 8, with hits in the last, partial tiles), rays that miss, starts from a depth (invalid values,
+    # starts behind the surface: the march begins again), a pose from far away and one whose nearest
+    # rays start inside the band, a lens camera
     vol, centre, radius, poses, rays = sphere
+    kernels = _kernels_run(monkeypatch)
     true = _sphere_depth(poses[2], centre, radius, rays)
     start = np.where(np.arange(W)[None] % 3 == 0, true + 2.5 * vol.truncation, true).astype(np.float32)
     start[::5, ::2] = np.nan
     far = _pose(_rot([0, 1, 0], 30), centre - _rot([0, 1, 0], 30) @ np.array([0, 0, 2.8]))
     near = _pose(np.eye(3), centre - np.array([0.0, 0.0, radius + vol.min_depth + 0.5 * vol.truncation]))
     calls = [(K, poses[2], H, W, None), (K, poses[2], H, W, start), (K, far, 117, 151, None),
-             (K, near, H, W, None), ((K, (-0.2, 0.05, 0.001, -0.001, 0.0)), poses[4], H, W, None)]
+             (K, near, H, W, None), (K, near, 117, 151, None),
+             ((K, (-0.2, 0.05, 0.001, -0.001, 0.0)), poses[4], H, W, None)]
     try:
         for camera, T, h, w, s in calls:
             out = []
             for lanes in (True, False):
                 vol._lanes = lanes
+                del kernels[:]
                 out.append(vol.raycast(camera, T, h, w, start_depth=s))
+                assert ("raycast_rows" if lanes else "raycast") in kernels
             assert (out[0][0] > 0).mean() > 0.05
+            if w % 8:  # (hits in the last, partial tile column and row of the near pose)
+                assert (out[0][0][:, 144:] > 0).any() == (out[0][0][112:] > 0).any() == (T is near)
             for a, b in zip(*out):
                 np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
     finally:
@@ -269,8 +290,8 @@ def test_results_do_not_depend_on_the_thread_count(sphere):
 
 
 @pytest.mark.parametrize("with_colour, lens", [(True, False), (False, False), (True, True)])
-def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour, lens):
-    # a pinhole camera's frames go through the 8-lane kernel; the voxel-by-voxel one must give the
+def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour, lens, monkeypatch):
+    # frames are integrated by the 8-lane kernel; the voxel-by-voxel one must give the
     # same TSDF, weights and colours bit for bit, in the hard cases too: noisy depth, depth edges
     # (sphere against a wall), NaN, inf, negative, zero and out-of-range pixels, a surface nearer than
     # min_depth's band (voxels behind the near plane), voxels projecting outside the image, weights > 1;
@@ -281,6 +302,7 @@ def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour, lens)
     rays = _rays(K)
     vols = [TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0, min_depth=0.15) for _ in range(2)]
     vols[1]._lanes = False
+    kernels = _kernels_run(monkeypatch)
     for k, yaw in enumerate((-12, 0, 9, 0)):
         R = _rot([0, 1, 0], yaw) @ _rot([1, 0, 0], 3 * k - 4)
         T = _pose(R, centre - R @ np.array([0, 0, 1.0]) + rng.normal(0, 0.01, 3))
@@ -295,7 +317,9 @@ def test_the_8_lane_integration_equals_the_voxel_by_voxel_one(with_colour, lens)
         depth[12, ::4] = 9.0
         colour = rng.random((3, H, W), dtype=np.float32) if with_colour else None
         for vol in vols:
+            del kernels[:]
             vol.integrate(depth, colour, camera, T)
+            assert ("integrate_rows" if vol._lanes else "integrate") in kernels
     a, b = vols
     n = a.n_blocks * 512
     assert a.n_blocks == b.n_blocks > 0 and (a.tw.numpy()[:n, 1] > 1).any()
@@ -361,6 +385,10 @@ def test_memory_limit_and_growth():
     assert grown.n_blocks > 1024 and grown.memory_bytes == grown.n_blocks * 512 * 24
     d, _, _ = grown.raycast(K, _pose(t=(4.0, 0, 0)), H, W)
     assert np.median(np.abs(d[d > 0] - 2.0)) < 0.002
+    # voxels are indexed with 32-bit integers: no memory allowance takes a map past that
+    from gvnn_warp.fusion.volume import MAX_BLOCKS
+
+    assert TSDFVolume(0.01, max_memory_mb=1e6).max_blocks == MAX_BLOCKS and MAX_BLOCKS * 512 < 2**31
 
 
 @pytest.mark.parametrize("call, error, message", [
