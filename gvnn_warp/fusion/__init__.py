@@ -9,6 +9,6 @@ Everything is numpy and Warp: no torch. The kernels are :mod:`gvnn_warp.kernels.
 """
 
 from .ply import write_ply
-from .volume import BYTES_PER_BLOCK, IntegrateReport, MapFull, TSDFVolume
+from .volume import BYTES_PER_BLOCK, MAX_BLOCKS, IntegrateReport, MapFull, TSDFVolume
 
-__all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "MapFull", "TSDFVolume", "write_ply"]
+__all__ = ["BYTES_PER_BLOCK", "MAX_BLOCKS", "IntegrateReport", "MapFull", "TSDFVolume", "write_ply"]
