@@ -98,8 +98,9 @@ class TSDFVolume:
                                                 f"0 < min_depth < max_depth, got {min_depth!r}, {max_depth!r}")
         mem = real_number(max_memory_mb)
         if not (math.isfinite(mem) and mem * 2**20 >= BYTES_PER_BLOCK):
-            fail(_name("__init__"), ValueError, f"argument 'max_memory_mb' must hold at least one block "
-                                                f"({BYTES_PER_BLOCK / 2**20:.3f} MiB), got {max_memory_mb!r}")
+            fail(_name("__init__"), ValueError, f"argument 'max_memory_mb' must be a finite number of MiB that holds "
+                                                f"at least one block ({BYTES_PER_BLOCK / 2**20:.3f} MiB), got "
+                                                f"{max_memory_mb!r}")
         if not (isinstance(pixel_stride, int) and pixel_stride >= 1):
             fail(_name("__init__"), ValueError, f"argument 'pixel_stride' must be an integer >= 1, got "
                                                 f"{pixel_stride!r}")
@@ -159,6 +160,10 @@ class TSDFVolume:
         dist = None
         if isinstance(camera, tuple) and len(camera) == 2:
             camera, dist = camera
+            d = np.asarray(dist, dtype=np.float64) if isinstance(dist, (list, tuple, np.ndarray)) else None
+            if d is None or d.shape != (5,) or not np.all(np.isfinite(d)):
+                fail(_name(fn), ValueError, f"argument 'camera' as (K, dist) needs dist = 5 finite radial-tangential "
+                                            f"coefficients (k1, k2, p1, p2, k3), got {dist!r}")
         K, model, packed = lens_camera(_name(fn), camera, None, dist)
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             fail(_name(fn), ValueError, f"argument 'camera' must have a finite (3, 3) K with fx, fy > 0, got {K}")
@@ -198,8 +203,9 @@ class TSDFVolume:
     def integrate(self, depth, colour, camera, T_world_cam) -> IntegrateReport:
         """Fuse one frame: ``depth`` (H, W) or (1, H, W) metres (0, NaN, negative or out of
         [min_depth, max_depth]: no depth), ``colour`` (3, H, W) RGB in [0, 1] or None, ``camera``
-        (see :meth:`_camera`), ``T_world_cam`` (4, 4). Returns an :class:`IntegrateReport`; a frame
-        with no valid depth changes nothing (``valid_pixels`` 0)."""
+        a (3, 3) K, a ``(K, dist)`` pair (radial-tangential: 5 coefficients k1, k2, p1, p2, k3) or a
+        camera of ``gvnn_warp.cameras`` (any lens model), ``T_world_cam`` (4, 4). Returns an
+        :class:`IntegrateReport`; a frame with no valid depth changes nothing (``valid_pixels`` 0)."""
         fn = "integrate"
         d = as_numpy(_name(fn), "depth", depth, (2, 3))
         if d.ndim == 3:
@@ -276,11 +282,12 @@ class TSDFVolume:
 
     def raycast(self, camera, T_world_cam, height: int, width: int, *, start_depth=None,
                 normals: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """The model seen by ``camera`` at ``T_world_cam``: (depth (H, W) float32 metres, 0 where no
-        surface; colour (3, H, W); normals (3, H, W) unit, camera frame, facing the camera, zero where
-        unknown or at a depth edge; None with ``normals=False``), the first crossing of each pixel's
-        ray from positive to negative TSDF within [min_depth, max_depth]; the normals from the
-        rendered depth's neighbours (as KinectFusion's normal map).
+        """The model seen by ``camera`` (as :meth:`integrate` takes it) at ``T_world_cam``: (depth
+        (H, W) float32 metres, 0 where no surface; colour (3, H, W); normals (3, H, W) unit, camera
+        frame, facing the camera, zero where unknown or at a depth edge; None with
+        ``normals=False``), the first crossing of each pixel's ray from positive to negative TSDF
+        within [min_depth, max_depth]; the normals from the rendered depth's neighbours (as
+        KinectFusion's normal map).
 
         ``start_depth`` (H, W) or (1, H, W) metres, optional: where the surface is expected, e.g. the
         depth of the frame just integrated at this pose (frame-to-model tracking raycasts there). Each
@@ -297,7 +304,7 @@ class TSDFVolume:
         if not (isinstance(height, int) and isinstance(width, int) and height >= 2 and width >= 2):
             fail(_name(fn), ValueError, f"arguments 'height' and 'width' must be integers >= 2, got {height!r}, "
                                         f"{width!r}")
-        if not isinstance(normals, bool):
+        if not isinstance(normals, (bool, np.bool_)):
             fail(_name(fn), TypeError, f"argument 'normals' must be True or False, got {normals!r}")
         if start_depth is None:
             start = wp.empty(0, dtype=wp.float32, device="cpu")

@@ -222,7 +222,8 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             ("intrinsics", f"fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
                            f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
                            f"({seq.intrinsics_source})"),
-            ("ms per pair", f"{result.ms_per_pair:.2f}"),
+            ("ms per pair", f"{result.ms_per_pair:.2f}") if tracker is None else
+            ("ms per frame", f"{result.ms_per_pair:.2f} (raycast of the model, alignment, integration)"),
             ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {frames_text(unconverged)})" if unconverged
                                                            else ""))]
     if seq.intrinsics_override is not None:

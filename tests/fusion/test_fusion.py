@@ -158,6 +158,7 @@ def test_raycast_from_a_start_depth(sphere):
     np.testing.assert_array_equal(c5, c1)
     with pytest.raises(TypeError, match=r"TSDFVolume.raycast: argument 'normals' must be True or False"):
         vol.raycast(K, T, H, W, normals="no")
+    assert vol.raycast(K, T, H, W, normals=np.bool_(False))[2] is None
 
 
 def _kernels_run(monkeypatch):
@@ -403,7 +404,9 @@ def test_memory_limit_and_growth():
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, np.eye(2), np.eye(4)), ValueError,
      r"argument 'camera' must have a finite \(3, 3\) K"),
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, (K, (0.1, 0.2)), np.eye(4)), ValueError,
-     r"argument 'dist' must be 5 finite coefficients"),
+     r"TSDFVolume.integrate: argument 'camera' as \(K, dist\) needs dist = 5 finite radial-tangential"),
+    (lambda v: TSDFVolume(0.01, max_memory_mb=float("inf")), ValueError,
+     r"TSDFVolume.__init__: argument 'max_memory_mb' must be a finite number of MiB"),
     (lambda v: v.raycast(K, np.eye(4), 0, W), ValueError, r"TSDFVolume.raycast: arguments 'height' and 'width'"),
     (lambda v: TSDFVolume(0.0), ValueError, r"TSDFVolume.__init__: argument 'voxel_size' must be a positive"),
     (lambda v: TSDFVolume(0.01, 0.001), ValueError, r"argument 'truncation' must be at least the voxel size"),
