@@ -160,6 +160,13 @@ def hsum8(v: Any):
 
 
 @wp.func
+def any8(m: Any):
+    """True if a lane of the 0/1 mask ``m`` is 1 (a float32 sum in a tree: exact, and shorter than
+    :func:`hsum8`'s chain)."""
+    return ((m[0] + m[1]) + (m[2] + m[3])) + ((m[4] + m[5]) + (m[6] + m[7])) > type(m[0])(0.0)
+
+
+@wp.func
 def interpolate8(v00: Any, v10: Any, v01: Any, v11: Any, wx1: Any, wy1: Any):
     """:func:`interpolate` on 8 lanes."""
     ones = splat8(type(wx1[0])(1.0))

@@ -16,7 +16,7 @@ takes that kernel.
 import warp as wp
 
 from ..core.kinds import LANES_MODULE_OPTIONS, vec8d, vec8f
-from ..core.lanes import above8, at_least8, below8, hsum8, iota8, less8, open_mask8, select8, splat8
+from ..core.lanes import above8, any8, at_least8, below8, iota8, less8, open_mask8, select8, splat8
 from ..sampling.lanes import floor_lanes, gather_lanes
 from .hashing import BLOCK, BLOCK_VOXELS
 from .kernels import project
@@ -98,11 +98,11 @@ def integrate_rows(offset: int, active: wp.array(dtype=wp.int32), coords: wp.arr
     valid = wp.cw_mul(inside, open_mask8(d, min_depth, max_depth))
     sdf = d - qz
     band = wp.cw_mul(valid, below8(wp.abs(sdf), trunc))
-    if hsum8(band) > wp.float64(0.0):  # in the band: the depth at the projection itself
+    if any8(band):  # in the band: the depth at the projection itself
         d = depth_bilinear_lanes(depth, u, v, W, H, d, band, min_depth, max_depth)
         sdf = d - qz
     update = wp.cw_mul(valid, at_least8(sdf, -trunc))
-    if hsum8(update) > wp.float64(0.0):
+    if any8(update):
         t0 = vec8f(tw[base][0], tw[base + 1][0], tw[base + 2][0], tw[base + 3][0],
                    tw[base + 4][0], tw[base + 5][0], tw[base + 6][0], tw[base + 7][0])
         w0 = vec8f(tw[base][1], tw[base + 1][1], tw[base + 2][1], tw[base + 3][1],
@@ -114,7 +114,7 @@ def integrate_rows(offset: int, active: wp.array(dtype=wp.int32), coords: wp.arr
         for x in range(BLOCK):
             tw[base + x] = wp.vec2(t1[x], w1[x])
         paint = wp.cw_mul(update, below8(sdf, trunc))
-        if has_colour != 0 and hsum8(paint) > wp.float64(0.0):
+        if has_colour != 0 and any8(paint):
             n = W * H
             r = gather_lanes(image, 0, pix, paint)
             g = gather_lanes(image, n, pix, paint)

@@ -17,7 +17,7 @@ exact for any map the host allows (fewer than 2^22 blocks).
 import warp as wp
 
 from ..core.kinds import LANES_MODULE_OPTIONS, vec8f
-from ..core.lanes import above8, at_least8, hsum8, less8, select8, splat8
+from ..core.lanes import above8, any8, at_least8, less8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
 from .raycasting import clear_pixel, ray_range, ray_steps, refine_hit
@@ -127,7 +127,7 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     last_y = zero
     last_z = zero
     blk = splat8(-1.0)
-    while hsum8(active) > wp.float64(0.0):
+    while any8(active):
         px = splat8(t_wc[0]) + wp.cw_mul(t, dx)
         py_ = splat8(t_wc[1]) + wp.cw_mul(t, dy)
         pz = splat8(t_wc[2]) + wp.cw_mul(t, dz)
@@ -140,7 +140,7 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         local = (gx - bx * 8.0) + (gy - by * 8.0) * 8.0 + (gz - bz * 8.0) * 64.0
         changed = wp.cw_mul(active, one - wp.cw_mul(wp.cw_mul(equal8(bx, last_x), equal8(by, last_y)),
                                                      equal8(bz, last_z)))
-        if hsum8(changed) > wp.float64(0.0):  # (lane by lane; a block looked up once per step)
+        if any8(changed):  # (lane by lane; a block looked up once per step)
             seen_x = float(SENTINEL)
             seen_y = float(0.0)
             seen_z = float(0.0)
