@@ -34,7 +34,7 @@ from ..kernels.fusion import raycasting as R_
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
-from ..odometry.inputs import as_numpy, fail, lens_camera, real_number
+from ..odometry.inputs import as_numpy, dist_array, fail, lens_camera, real_number
 
 __all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "MAX_BLOCKS", "MapFull", "TSDFVolume"]
 
@@ -160,7 +160,7 @@ class TSDFVolume:
         dist = None
         if isinstance(camera, tuple) and len(camera) == 2:
             camera, dist = camera
-            d = np.asarray(dist, dtype=np.float64) if isinstance(dist, (list, tuple, np.ndarray)) else None
+            d = dist_array(_name(fn), "camera", dist)
             if d is None or d.shape != (5,) or not np.all(np.isfinite(d)):
                 fail(_name(fn), ValueError, f"argument 'camera' as (K, dist) needs dist = 5 finite radial-tangential "
                                             f"coefficients (k1, k2, p1, p2, k3), got {dist!r}")

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..kernels.geometry import lens as _lens
 
-__all__ = ["as_numpy", "fail", "initial_pose", "is_torch", "lens_camera", "real_number"]
+__all__ = ["as_numpy", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera", "real_number"]
 
 MIN_SIDE = 4  # smallest side (pixels) of an image the aligner takes, and of a pyramid level
 RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)
@@ -58,6 +58,16 @@ def as_numpy(fn: str, name: str, x, ndims: tuple[int, ...]) -> np.ndarray:
     return x
 
 
+def dist_array(fn: str, name: str, dist) -> np.ndarray | None:
+    """Distortion coefficients as a float64 numpy array (a list, tuple, numpy array or CPU torch
+    tensor of one dimension; None stays None); their number and values are the caller's to check."""
+    if dist is None:
+        return None
+    if isinstance(dist, (list, tuple)):
+        dist = np.asarray(dist, dtype=np.float64)
+    return as_numpy(fn, name, dist, (1,)).astype(np.float64)
+
+
 def lens_camera(fn: str, K, model, dist):
     """(K (3, 3) float64, model name, packed dist (8,) float64 or None for the pinhole) from K and
     the ``model`` / ``dist`` arguments, or from a camera of ``gvnn_warp.cameras``."""
@@ -80,9 +90,7 @@ def lens_camera(fn: str, K, model, dist):
             fail(fn, ValueError, "argument 'dist' must be None for the pinhole model")
         return K, model, None
     n = _lens.N_COEFFS[mid]
-    if isinstance(dist, (list, tuple)):
-        dist = np.asarray(dist, dtype=np.float64)
-    coeffs = None if dist is None else as_numpy(fn, "dist", dist, (1,)).astype(np.float64)
+    coeffs = dist_array(fn, "dist", dist)
     if coeffs is None or coeffs.shape != (n,) or not np.all(np.isfinite(coeffs)):
         got = None if coeffs is None else coeffs.tolist()
         fail(fn, ValueError, f"argument 'dist' must be {n} finite coefficients for the {model} model, got {got}")

@@ -355,6 +355,20 @@ def test_a_lens_camera_integrates_and_raycasts_through_its_distortion():
     assert np.percentile(np.abs(depth - pinhole_true)[both], 90) > VOXEL
 
 
+def test_a_lens_camera_takes_its_coefficients_as_a_tuple_an_array_or_a_tensor():
+    torch = pytest.importorskip("torch")
+    dist = (-0.25, 0.08, 0.001, -0.002, 0.0)
+    depth = _plane_depth(np.array([0.25, -0.1, 1.0]), 1.2, _rays(K, dist))
+    out = []
+    for coeffs in (dist, np.array(dist), torch.tensor(dist, dtype=torch.float64)):
+        vol = TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0)
+        vol.integrate(depth, None, (K, coeffs), np.eye(4))
+        out.append(vol.raycast((K, coeffs), np.eye(4), H, W)[0])
+    assert (out[0] > 0).mean() > 0.9
+    for d in out[1:]:
+        np.testing.assert_array_equal(d, out[0])
+
+
 def test_invalid_depth_is_skipped_and_a_frame_without_any_changes_nothing():
     rays = _rays(K)
     depth = _plane_depth(np.array([0, 0, 1.0]), 1.0, rays)
