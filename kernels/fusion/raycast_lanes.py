@@ -20,7 +20,7 @@ from ..core.kinds import LANES_MODULE_OPTIONS, vec8f
 from ..core.lanes import above8, any8, at_least8, less8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
-from .raycasting import clear_pixel, ray_range, ray_steps, refine_hit
+from .raycasting import ray_range, ray_steps, refine_hit, set_pixel
 
 vec8i = wp.types.vector(length=8, dtype=wp.int32)
 
@@ -95,7 +95,7 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     scale = zero
     for lane in range(lanes):
         k = py * W + px0 + lane
-        clear_pixel(k, out_depth, out_colour)
+        set_pixel(k, 0.0, wp.vec3(0.0), out_depth, out_colour)
         r = rays[k]
         ok, t0, tt, te, hi = ray_range(r, k, fx, fy, cx, cy, tile, margin, tiles_x, tiles_y, near, far,
                                        min_depth, max_depth, start, start_margin)
@@ -163,8 +163,8 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         w = vec8f(tw[kk[0]][1], tw[kk[1]][1], tw[kk[2]][1], tw[kk[3]][1], tw[kk[4]][1], tw[kk[5]][1], tw[kk[6]][1],
                   tw[kk[7]][1])
         no_block = active - has_block
-        observed = wp.cw_mul(active - no_block, above8(w, 0.0))
-        unobserved = active - no_block - observed
+        observed = wp.cw_mul(has_block, above8(w, 0.0))
+        unobserved = has_block - observed
         negative = observed - wp.cw_mul(observed, above8(f, 0.0))
         restart = wp.cw_mul(wp.cw_mul(negative, hinted), one - have_prev)
         cross = negative - restart
@@ -194,11 +194,7 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             hit, rgb = refine_hit(table, mask, tw, colour, t_wc, wp.vec3(dx[lane], dy[lane], dz[lane]), scale[lane],
                                   voxel, True, prev_t[lane], prev_f[lane], cross_t[lane], cross_f[lane])
             if hit > 0.0:
-                k = py * W + px0 + lane
-                out_depth[k] = hit
-                out_colour[k] = rgb[0]
-                out_colour[n_pix + k] = rgb[1]
-                out_colour[2 * n_pix + k] = rgb[2]
+                set_pixel(py * W + px0 + lane, hit, rgb, out_depth, out_colour)
 
 
 __all__ = ["raycast_rows"]

@@ -81,13 +81,14 @@ def block_exit(p: wp.vec3, direction: wp.vec3, inv_direction: wp.vec3, b: wp.vec
 
 
 @wp.func
-def clear_pixel(k: int, out_depth: wp.array(dtype=wp.float32), out_colour: wp.array(dtype=wp.float32)):
-    """Pixel ``k`` of the raycast's outputs set to no surface (depth 0, black; colour in three planes)."""
+def set_pixel(k: int, depth: float, rgb: wp.vec3, out_depth: wp.array(dtype=wp.float32),
+              out_colour: wp.array(dtype=wp.float32)):
+    """Pixel ``k`` of the raycast's outputs: its depth and colour (three planes; 0 and black: no surface)."""
     n_pix = out_depth.shape[0]
-    out_depth[k] = 0.0
-    out_colour[k] = 0.0
-    out_colour[n_pix + k] = 0.0
-    out_colour[2 * n_pix + k] = 0.0
+    out_depth[k] = depth
+    out_colour[k] = rgb[0]
+    out_colour[n_pix + k] = rgb[1]
+    out_colour[2 * n_pix + k] = rgb[2]
 
 
 @wp.func
@@ -226,7 +227,7 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     if px >= W or py >= H:
         return
     k = py * W + px
-    clear_pixel(k, out_depth, out_colour)
+    set_pixel(k, 0.0, wp.vec3(0.0), out_depth, out_colour)
     r = rays[k]
     ok, t, t_tile, t_end, hinted = ray_range(r, k, fx, fy, cx, cy, tile, margin, tiles_x, tiles_y, near, far,
                                              min_depth, max_depth, start, start_margin)
@@ -278,12 +279,8 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         t += wp.max(voxel_t, band_t * f)
     hit, rgb = refine_hit(table, mask, tw, colour, t_wc, direction, scale, voxel, crossed, prev_t, prev_f,
                           cross_t, cross_f)
-    if hit <= 0.0:
-        return
-    out_depth[k] = hit
-    out_colour[k] = rgb[0]
-    out_colour[n_pix + k] = rgb[1]
-    out_colour[2 * n_pix + k] = rgb[2]
+    if hit > 0.0:
+        set_pixel(k, hit, rgb, out_depth, out_colour)
 
 
 @wp.kernel
@@ -330,4 +327,4 @@ def depth_normals(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array
     normal[2 * n_pix + k] = n[2]
 
 
-__all__ = ["block_exit", "clear_pixel", "depth_normals", "depth_range", "raycast"]
+__all__ = ["block_exit", "set_pixel", "depth_normals", "depth_range", "raycast"]
