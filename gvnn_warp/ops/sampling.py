@@ -65,16 +65,15 @@ warp_frame_depth = warp_op(
 )
 
 
-def _row_lanes_kernel(C, H, W, min_depth, padding):
+def _row_lanes_kernel(C, H, W, min_depth, padding, image_grad=True):
     if not sampling_kernels.fits_row_lanes(H, W):
         raise ValueError(f"warp_frame_depth_lanes: needs W % 8 == 0 and H*W <= 2^24, got H={H}, W={W}")
-    return sampling_kernels.warp_frame_depth_lanes(C, padding)
+    return sampling_kernels.warp_frame_depth_lanes(C, padding, image_grad)
 
 
-def _row_lanes_backward_kernel(needs, C, H, W, min_depth, padding):
+def _row_lanes_backward_kernel(needs, *params):
     # without the image's gradient (bit 0 of needs), the variant compiled without its code
-    _row_lanes_kernel(C, H, W, min_depth, padding)
-    return sampling_kernels.warp_frame_depth_lanes(C, padding, bool(needs & 1))
+    return _row_lanes_kernel(*params, image_grad=bool(needs & 1))
 
 
 # the same values, a row's pixels 8 at a time (W % 8 == 0, H*W <= 2^24; SIMD arithmetic), a kernel
