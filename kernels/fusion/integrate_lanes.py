@@ -135,4 +135,5 @@ def integrate_rows(offset: int, active: wp.array(dtype=wp.int32), coords: wp.arr
             for x in range(BLOCK):
                 colour[base + x] = wp.vec4(c0[x], c1[x], c2[x], wc1[x])
 
+
 __all__ = ["MAX_PIXELS", "integrate_rows"]
