@@ -17,6 +17,7 @@ SHIFT = 3  # log2(BLOCK)
 MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is never more than half full)
 SENTINEL = wp.constant(-(2**31))  # a block coordinate no block has: an unused candidate slot, no block yet
 
+_vec8i = wp.types.vector(length=8, dtype=wp.int32)
 
 # MurmurHash3's finaliser constants 0x85EBCA6B and 0xC2B2AE35, written as the int32 of the same bits: Warp
 # declares an integer literal as int32, and one above 2**31 made clang warn of the conversion at every
@@ -99,47 +100,54 @@ def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtyp
                    inv_voxel: float):
     """Trilinear TSDF at world point ``p`` from the 8 voxels around it and its gradient: (value, d value
     / d p (per metre; the gradient of the trilinear interpolant, exact where the TSDF is linear),
-    ok); ``ok`` is False if one of them is unobserved (no block, or weight 0). One block lookup when
-    the 8 share a block (about 2 times in 3), else one per voxel."""
+    ok); ``ok`` is False if one of them is unobserved (no block, or weight 0). One block lookup per
+    distinct block of the 8: one about 2 times in 3, two, four or eight at a block's edge (a lookup per
+    voxel there made the raycast 3-7% slower)."""
     g = p * inv_voxel
     f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
     i0 = wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2]))
     t = g - f0
+    b0 = voxel_block(i0)
     local = voxel_offset(i0)
     lx = local % BLOCK
     ly = (local // BLOCK) % BLOCK
     lz = local // (BLOCK * BLOCK)
-    shared = int(-2)  # the block all 8 lie in (-1: not allocated), or -2: they do not share one
-    if lx < BLOCK - 1 and ly < BLOCK - 1 and lz < BLOCK - 1:
-        shared = find_block(table, mask, voxel_block(i0))
+    # the axes on which the 8 voxels reach into the next block: 1, 2, 4 or 8 distinct blocks, each
+    # looked up once (corner c's block is corner (c & reach)'s, found first: its bits are a subset of c's)
+    reach = wp.where(lx == BLOCK - 1, 1, 0) + wp.where(ly == BLOCK - 1, 2, 0) + wp.where(lz == BLOCK - 1, 4, 0)
+    blocks = _vec8i(-1)
     value = float(0.0)
     grad = wp.vec3(0.0)
-    ok = bool(shared != -1)
-    if ok:
-        for c in range(8):
-            dx = c & 1
-            dy = (c >> 1) & 1
-            dz = (c >> 2) & 1
-            k = int(-1)
-            if shared >= 0:
-                k = shared * BLOCK_VOXELS + local + dx + BLOCK * (dy + BLOCK * dz)
-            else:
-                k = find_voxel(table, mask, i0 + wp.vec3i(dx, dy, dz))
-            w = float(0.0)
-            if k >= 0:
-                w = tw[k][1]
-            if w <= 0.0:
-                ok = False
-            else:
-                v = tw[k][0]
-                wx = wp.where(dx == 1, t[0], 1.0 - t[0])
-                wy = wp.where(dy == 1, t[1], 1.0 - t[1])
-                wz = wp.where(dz == 1, t[2], 1.0 - t[2])
-                sx = wp.where(dx == 1, 1.0, -1.0)
-                sy = wp.where(dy == 1, 1.0, -1.0)
-                sz = wp.where(dz == 1, 1.0, -1.0)
-                value += wx * wy * wz * v
-                grad += v * wp.vec3(sx * wy * wz, wx * sy * wz, wx * wy * sz)
+    ok = bool(True)
+    for c in range(8):
+        dx = c & 1
+        dy = (c >> 1) & 1
+        dz = (c >> 2) & 1
+        cb = c & reach
+        blk = int(-1)
+        if cb == c:
+            blk = find_block(table, mask, b0 + wp.vec3i(dx, dy, dz))
+            blocks[c] = blk
+        else:
+            blk = blocks[cb]
+        w = float(0.0)
+        k = int(0)
+        if blk >= 0:
+            k = blk * BLOCK_VOXELS + ((lx + dx) & (BLOCK - 1)) + BLOCK * (((ly + dy) & (BLOCK - 1))
+                                                                     + BLOCK * ((lz + dz) & (BLOCK - 1)))
+            w = tw[k][1]
+        if w <= 0.0:
+            ok = False
+        else:
+            v = tw[k][0]
+            wx = wp.where(dx == 1, t[0], 1.0 - t[0])
+            wy = wp.where(dy == 1, t[1], 1.0 - t[1])
+            wz = wp.where(dz == 1, t[2], 1.0 - t[2])
+            sx = wp.where(dx == 1, 1.0, -1.0)
+            sy = wp.where(dy == 1, 1.0, -1.0)
+            sz = wp.where(dz == 1, 1.0, -1.0)
+            value += wx * wy * wz * v
+            grad += v * wp.vec3(sx * wy * wz, wx * sy * wz, wx * wy * sz)
     return value, grad * inv_voxel, ok
 
 

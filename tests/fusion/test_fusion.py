@@ -251,6 +251,71 @@ def test_trilinear_value_and_gradient_match_finite_differences(sphere):
     assert np.median(np.linalg.norm(grad[ok], axis=1)) > 0.5 / vol.truncation  # (a TSDF: ~1 / truncation)
 
 
+def test_trilinear_across_blocks_matches_a_plain_lookup(sphere):
+    # hashing.trilinear_grad looks up each distinct block of the 8 voxels once: against a plain
+    # numpy lookup of every voxel through the block coordinates, at points whose 8 voxels reach
+    # into the next block on none, one, two and all three axes, in the band and beyond it
+    # (unobserved or unallocated voxels: not ok, value 0)
+    import warp as wp
+    from gvnn_warp.kernels.fusion import hashing
+
+    @wp.kernel
+    def probe(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), pts: wp.array(dtype=wp.vec3),
+              inv_voxel: float, value: wp.array(dtype=float), grad: wp.array(dtype=wp.vec3), ok: wp.array(dtype=int)):
+        i = wp.tid()
+        v, g, o = hashing.trilinear_grad(table, mask, tw, pts[i], inv_voxel)
+        value[i] = v
+        grad[i] = g
+        ok[i] = wp.where(o, 1, 0)
+
+    vol, centre, radius, _, _ = sphere
+    n_blocks = vol.n_blocks
+    coords, tw = vol.coords.numpy()[:n_blocks], vol.tw.numpy()
+    index = {tuple(c): i for i, c in enumerate(coords)}
+
+    def voxel(v):  # (tsdf, weight) of integer voxel v; weight 0 where its block is not allocated
+        b = tuple(np.floor_divide(v, 8))
+        if b not in index:
+            return 0.0, 0.0
+        lx, ly, lz = np.asarray(v) - 8 * np.asarray(b)
+        return tuple(tw[index[b] * 512 + lx + 8 * (ly + 8 * lz)])
+
+    rng = np.random.default_rng(7)
+    d = rng.normal(size=(300, 3)) * [0.5, 0.5, 1.0]
+    d[:, 2] = -np.abs(d[:, 2])
+    near = centre + (radius + rng.uniform(-1.5, 1.5, (300, 1)) * vol.truncation) * d / np.linalg.norm(
+        d, axis=1, keepdims=True)
+    cells = np.floor(near / VOXEL).astype(np.int64)
+    reach = np.array([[(k >> a) & 1 for a in range(3)] for k in range(8)])[rng.integers(0, 8, 300)]
+    cells = np.where(reach == 1, 8 * np.floor_divide(cells, 8) + 7, cells)  # (the 8 voxels reach over those axes)
+    frac = rng.uniform(0.02, 0.98, (300, 3))
+    pts = ((cells + frac) * VOXEL).astype(np.float32)
+    out = [wp.empty(len(pts), dtype=float, device="cpu"), wp.empty(len(pts), dtype=wp.vec3, device="cpu"),
+           wp.empty(len(pts), dtype=int, device="cpu")]
+    wp.launch(probe, dim=len(pts), inputs=[vol.table, vol.mask, vol.tw, wp.array(pts, dtype=wp.vec3, device="cpu"),
+                                           1.0 / vol.voxel_size, *out], device="cpu")
+    value, grad, ok = (a.numpy() for a in out)
+    g = pts.astype(np.float64) / VOXEL
+    i0, t = np.floor(g).astype(np.int64), g - np.floor(g)
+    for n in range(len(pts)):
+        ref, ref_grad, ref_ok = 0.0, np.zeros(3), True
+        for c in range(8):
+            dc = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
+            f, w = voxel(i0[n] + dc)
+            if w <= 0:
+                ref_ok = False
+                continue
+            wts = np.where(dc == 1, t[n], 1 - t[n])
+            ref += wts.prod() * f
+            ref_grad += f * np.array([(2 * dc[a] - 1) * np.prod(np.delete(wts, a)) for a in range(3)]) / VOXEL
+        assert bool(ok[n]) == ref_ok, n
+        if ref_ok:
+            np.testing.assert_allclose(value[n], ref, atol=1e-5)
+            np.testing.assert_allclose(grad[n], ref_grad, atol=1e-3 / VOXEL)
+    assert ok.sum() > 100 and (~ok.astype(bool)).sum() > 10
+    assert all(ok[(reach.sum(1) == r)].sum() > 5 for r in range(4))  # (every kind of reach, observed)
+
+
 def test_world_translation_across_block_boundaries_changes_nothing(sphere):
     # the same frames with the world moved by an offset that crosses many blocks, into negative
     # coordinates (floor division of negative voxel indices): the same depth and the same mesh, moved
