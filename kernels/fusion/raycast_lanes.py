@@ -20,7 +20,7 @@ from ..core.kinds import LANES_MODULE_OPTIONS, vec8f
 from ..core.lanes import above8, any8, at_least8, less8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
-from .raycasting import ray_range, ray_steps, refine_hit, set_pixel
+from .raycasting import ray_range, ray_steps, refine_hit, set_pixel, voxel_colour
 
 vec8i = wp.types.vector(length=8, dtype=wp.int32)
 
@@ -95,7 +95,6 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     scale = zero
     for lane in range(lanes):
         k = py * W + px0 + lane
-        set_pixel(k, 0.0, wp.vec3(0.0), out_depth, out_colour)
         r = rays[k]
         ok, t0, tt, te, hi = ray_range(r, k, fx, fy, cx, cy, tile, margin, tiles_x, tiles_y, near, far,
                                        min_depth, max_depth, start, start_margin)
@@ -189,12 +188,18 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         hinted = select8(restart, zero, hinted)
         t = t_next
         active = wp.cw_mul(active - cross, less8(t, t_end))
+    hits = zero
+    kcs = vec8i(-1)
     for lane in range(lanes):
         if crossed[lane] != 0.0:
-            hit, rgb = refine_hit(table, mask, tw, colour, t_wc, wp.vec3(dx[lane], dy[lane], dz[lane]), scale[lane],
-                                  voxel, True, prev_t[lane], prev_f[lane], cross_t[lane], cross_f[lane])
-            if hit > 0.0:
-                set_pixel(py * W + px0 + lane, hit, rgb, out_depth, out_colour)
-
+            hit, kc = refine_hit(table, mask, tw, t_wc, wp.vec3(dx[lane], dy[lane], dz[lane]), scale[lane], voxel,
+                                 True, prev_t[lane], prev_f[lane], cross_t[lane], cross_f[lane])
+            hits[lane] = hit
+            kcs[lane] = kc
+    for lane in range(lanes):  # (the colours read after every lane's refinement: their cache misses overlap)
+        if hits[lane] > 0.0:
+            set_pixel(py * W + px0 + lane, hits[lane], voxel_colour(colour, kcs[lane]), out_depth, out_colour)
+        else:
+            set_pixel(py * W + px0 + lane, 0.0, wp.vec3(0.0), out_depth, out_colour)
 
 __all__ = ["raycast_rows"]

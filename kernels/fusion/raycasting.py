@@ -139,12 +139,12 @@ def ray_steps(R_wc: wp.mat33, r: wp.vec3, voxel: float, trunc: float):
 
 
 @wp.func
-def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2),
-               colour: wp.array(dtype=wp.vec4), t_wc: wp.vec3, direction: wp.vec3, scale: float, voxel: float,
-               crossed: bool, prev_t: float, prev_f: float, cross_t: float, cross_f: float):
-    """After a march: (the crossing's ray parameter, 0 if none; the colour of the voxel nearest to it),
-    from the last positive value (``prev_t``, ``prev_f``) and the first non-positive one (``cross_t``,
-    ``cross_f``) when ``crossed``."""
+def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), t_wc: wp.vec3,
+               direction: wp.vec3, scale: float, voxel: float, crossed: bool, prev_t: float, prev_f: float,
+               cross_t: float, cross_f: float):
+    """After a march: (the crossing's ray parameter, 0 if none; the index of the voxel nearest to it,
+    whose colour is the pixel's (:func:`voxel_colour`), -1 if none), from the last positive value
+    (``prev_t``, ``prev_f``) and the first non-positive one (``cross_t``, ``cross_f``) when ``crossed``."""
     inv_voxel = 1.0 / voxel
     hit = float(0.0)
     bracket = bool(False)  # the Newton step did not apply: refine by bracketing
@@ -187,15 +187,23 @@ def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp
                 fa, oka = hashing.trilinear(table, mask, tw, t_wc + ta * direction, inv_voxel)
         if oka and okb and fa > 0.0 and fb <= 0.0:
             hit = ta + (tb - ta) * fa / (fa - fb)
-    rgb = wp.vec3(0.0)
-    if hit > 0.0:
-        q = t_wc + hit * direction
-        c = hashing.voxel_of_point(q, inv_voxel)
+    kc = int(-1)
+    if hit > 0.0:  # the voxel nearest to the hit (colours are kept near the surface only)
+        c = hashing.voxel_of_point(t_wc + hit * direction, inv_voxel)
         cb = find_block(table, mask, voxel_block(c))
-        if cb >= 0:  # the colour of the voxel nearest to the hit (colours are kept near the surface only)
-            cc = colour[cb * BLOCK_VOXELS + voxel_offset(c)]
-            rgb = wp.vec3(cc[0], cc[1], cc[2])
-    return hit, rgb
+        if cb >= 0:
+            kc = cb * BLOCK_VOXELS + voxel_offset(c)
+    return hit, kc
+
+
+@wp.func
+def voxel_colour(colour: wp.array(dtype=wp.vec4), kc: int):
+    """The colour of voxel ``kc`` (black if -1)."""
+    rgb = wp.vec3(0.0)
+    if kc >= 0:
+        cc = colour[kc]
+        rgb = wp.vec3(cc[0], cc[1], cc[2])
+    return rgb
 
 
 @wp.kernel
@@ -277,10 +285,9 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         prev_f = f
         have_prev = True
         t += wp.max(voxel_t, band_t * f)
-    hit, rgb = refine_hit(table, mask, tw, colour, t_wc, direction, scale, voxel, crossed, prev_t, prev_f,
-                          cross_t, cross_f)
+    hit, kc = refine_hit(table, mask, tw, t_wc, direction, scale, voxel, crossed, prev_t, prev_f, cross_t, cross_f)
     if hit > 0.0:
-        set_pixel(k, hit, rgb, out_depth, out_colour)
+        set_pixel(k, hit, voxel_colour(colour, kc), out_depth, out_colour)
 
 
 @wp.kernel
