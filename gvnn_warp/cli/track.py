@@ -59,7 +59,7 @@ from pathlib import Path
 
 from ..datasets.tum import DatasetError, read_tum
 from ..odometry.sequence import LENS_MODES, RESULT_FILES, make_aligner, track_sequence
-from ..odometry.tracking import KeyframePolicy
+from ..odometry.tracking import INITS, KeyframePolicy
 from .args import UsageError, bounded_int, description, finite_float, output_dir, positive_float
 from .runner import INSTALL_HINTS, command_main, missing_packages
 
@@ -135,7 +135,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keyframe-valid", type=finite_float(0, 1), default=None, metavar="F",
                    help=f"with --keyframes: new keyframe below this fraction of usable pixels "
                         f"(default: {kf.min_valid:g})")
-    p.add_argument("--init", choices=("identity", "velocity"), default="identity",
+    p.add_argument("--init", choices=INITS, default="identity",
                    help="initial guess: identity or constant velocity")
     p.add_argument("--levels", type=bounded_int(1, MAX_LEVELS), default=None, metavar="L",
                    help="pyramid levels (default: the aligner's, as many as keep the coarsest level >= 6 px; "
@@ -236,9 +236,6 @@ def check_method(args: argparse.Namespace):
             raise UsageError(f"--model tracks with the direct aligner (--method direct), not --method {method}")
         if getattr(args, "keyframes", False):
             raise UsageError("--model tracks against the model, not keyframes: use one of --model, --keyframes")
-        if getattr(args, "color", False) or getattr(args, "init", "identity") != "identity":
-            raise UsageError("--model aligns grey images from the identity (the model's raycast is the reference): "
-                             "not with --color or --init velocity")
     voxel = getattr(args, "voxel", None) or FUSE_VOXEL
     if fusing and getattr(args, "truncation", None) is not None and args.truncation < voxel:
         raise UsageError(f"--truncation {args.truncation:g} is less than a voxel ({voxel:g})")
@@ -300,7 +297,7 @@ def run(args: argparse.Namespace) -> int:
         if args.model:
             from ..fusion.sequence import ModelTracker
 
-            tracker = ModelTracker(seq, aligner, volume, depth=predictor)
+            tracker = ModelTracker(seq, aligner, volume, depth=predictor, color=args.color, init=args.init)
     # an image that cannot be read while tracking is one line naming it (and, past frame 1, where the
     # results of the frames before it were written), status 1: gvnn_warp.cli.runner prints InputErrors
     report = track_sequence(

@@ -3,8 +3,8 @@ against the model (what ``gvnn-warp track --fuse`` / ``--model`` run; no torch).
 
 - :func:`fuse_sequence`: every frame integrated at its estimated pose;
 - :class:`ModelTracker`: frame-to-model tracking (KinectFusion's loop): each new frame is aligned
-  by the direct aligner to the model raycast at the previous frame's pose (its depth, and the grey
-  of its colour, as the reference frame), then integrated at the pose found. The model averages
+  by the direct aligner to the model raycast at the previous frame's pose (its depth, and its
+  colour or the grey of it, as the reference frame), then integrated at the pose found. The model averages
   every earlier frame, so the reference is less noisy than the previous frame and errors do not
   chain from frame to frame as they do in frame-to-frame odometry;
 - :func:`render_picture`: a PNG of the model raycast from a pose, its colour shaded by the normals.
@@ -24,7 +24,7 @@ import numpy as np
 from ..datasets.images import to_gray
 from ..datasets.tum import TUMSequence
 from ..errors import InputError
-from ..odometry.tracking import TrackingStopped, TrackResult, info_converged, info_valid_fraction
+from ..odometry.tracking import INITS, TrackingStopped, TrackResult, info_converged, info_valid_fraction
 from ..progress import progress_bar
 from .volume import IntegrateReport, MapFull, TSDFVolume
 
@@ -83,23 +83,33 @@ class ModelTracker:
     """Frame-to-model tracking (see the module docstring): ``tracker(n, start_pose, progress)`` ->
     :class:`TrackResult` over the first ``n`` frames of ``seq``, with ``volume`` holding the model
     at the end and ``fuse`` its integration statistics. ``aligner``: a ``DirectAligner`` for the
-    sequence's camera (grey images); ``seconds`` per frame count the raycast, the alignment and the
-    integration. A frame that cannot be read, or a map that outgrows the volume's memory, raises
-    ``TrackingStopped`` with the result of the frames before it. ``depth``: see the module
-    docstring."""
+    sequence's camera, grey images, or colour ones with ``color`` (an aligner made with
+    ``color=True``); ``init``: each alignment's initial guess, ``"identity"`` (the frame is where
+    the previous one was) or ``"velocity"`` (the previous frame's motion again), as
+    :func:`gvnn_warp.odometry.tracking.track`'s; ``seconds`` per frame count the raycast, the
+    alignment and the integration. A frame that cannot be read, or a map that outgrows the volume's
+    memory, raises ``TrackingStopped`` with the result of the frames before it. ``depth``: see the
+    module docstring."""
 
-    def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume, depth=None):
+    def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume, depth=None, *, color: bool = False,
+                 init: str = "identity"):
+        if init not in INITS:
+            raise ValueError(f"ModelTracker: argument 'init' must be one of {', '.join(map(repr, INITS))}, "
+                             f"got {init!r}")
         self.seq, self.aligner, self.volume, self.depth = seq, aligner, volume, depth
+        self.color, self.init = bool(color), init
         self.fuse = FuseReport()
 
     def __call__(self, n: int, start_pose: np.ndarray, progress: bool = True) -> TrackResult:
         seq, vol, camera = self.seq, self.volume, camera_of(self.seq)
         H, W = seq.height, seq.width
+        channels = (lambda rgb: rgb) if self.color else to_gray
         poses = np.full((n, 4, 4), np.nan)
         poses[0] = start_pose
         converged, finite = np.ones(n, bool), np.ones(n, bool)
         valid, seconds = np.full(n, np.nan), np.zeros(n)
         infos: list = [None]
+        step = np.eye(4)  # the previous frame's motion, T_{i-1, i-2}
         def result(m: int) -> TrackResult:  # the first m frames
             return TrackResult(poses[:m].copy(), np.arange(-1, m - 1), converged[:m].copy(), finite[:m].copy(),
                                valid[:m].copy(), seconds[:m].copy(), list(range(max(m - 1, 1))), infos[:m])
@@ -122,10 +132,12 @@ class ModelTracker:
                 ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W, start_depth=prev_depth,
                                                        normals=False)
                 # (the live depth too: the aligner's occlusion test and depth term use it)
-                T, info = self.aligner.align(to_gray(ref_colour), ref_depth[None], to_gray(rgb), depth)
+                guess = step if self.init == "velocity" else None
+                T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth, init=guess)
                 T = np.asarray(T, dtype=np.float64)
                 if not np.all(np.isfinite(T)):
-                    finite[i], T = False, np.eye(4)
+                    finite[i], T = False, (np.eye(4) if guess is None else guess)
+                step = T
                 poses[i] = poses[i - 1] @ np.linalg.inv(T)
                 converged[i], valid[i] = info_converged(info), info_valid_fraction(info)
                 t = time.perf_counter()

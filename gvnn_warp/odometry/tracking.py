@@ -33,6 +33,7 @@ from ..errors import InputError
 from ..progress import progress_bar
 
 __all__ = [
+    "INITS",
     "KeyframePolicy",
     "TrackingStopped",
     "TrackResult",
@@ -178,6 +179,7 @@ def _motion(T: np.ndarray) -> tuple[float, float]:
 
 _PREPARE_POOL: ThreadPoolExecutor | None = None
 _PREPARE_POOL_LOCK = threading.Lock()
+INITS = ("identity", "velocity")  # an alignment's initial guess: see track's ``init``
 
 
 def _prepare_pool() -> ThreadPoolExecutor:
@@ -200,7 +202,7 @@ class Tracker:
     def __init__(self, aligner, n_frames: int, *, start_pose: np.ndarray | None = None,
                  keyframes: KeyframePolicy | None = None, init: str = "identity", warmup: bool = True,
                  pipeline: bool | None = None):
-        if init not in ("identity", "velocity"):
+        if init not in INITS:
             raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
         if n_frames < 1:
             raise ValueError(f"track: need at least one frame, got {n_frames}")

@@ -579,3 +579,47 @@ def test_model_tracking_with_a_depth_source_scales_with_its_units(tmp_path):
     n = vols[0].n_blocks * 512
     assert vols[1].n_blocks == vols[0].n_blocks > 0
     assert np.array_equal(vols[1].tw.numpy()[:n], vols[0].tw.numpy()[:n])
+
+
+def test_model_tracking_takes_colour_and_a_constant_velocity_start(tmp_path):
+    # ModelTracker's color and init as the frame-to-frame tracker's: the aligner sees RGB reference
+    # and live images (the model's raycast colour and the frame's) and, with init="velocity", starts
+    # each alignment from the motion it found for the frame before; the poses stay on the truth
+    from gvnn_warp.cli import main
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.fusion.sequence import ModelTracker
+    from gvnn_warp.odometry import DirectAligner
+
+    assert main(["render", "--out", str(tmp_path / "seq"), "--frames", "6", "--size", "160x120", "--seed", "4",
+                 "--no-progress"]) == 0
+    seq = read_tum(tmp_path / "seq")
+
+    class Spy:
+        def __init__(self, aligner):
+            self.aligner, self.calls = aligner, []
+
+        def align(self, ref_image, ref_depth, live_image, live_depth=None, init=None):
+            T, info = self.aligner.align(ref_image, ref_depth, live_image, live_depth, init=init)
+            self.calls.append((ref_image.shape, live_image.shape, None if init is None else np.array(init),
+                               np.array(T)))
+            return T, info
+
+    runs = {}
+    for color, init in ((False, "identity"), (True, "velocity")):
+        spy = Spy(DirectAligner(seq.K, color=color))
+        tracker = ModelTracker(seq, spy, TSDFVolume(0.01, max_depth=10.0), color=color, init=init)
+        runs[color] = tracker(len(seq), seq.gt_poses[0], progress=False).poses
+        channels = 3 if color else 1
+        assert all(r[0] == l[0] == channels for r, l, _, _ in spy.calls)
+        inits = [c[2] for c in spy.calls]
+        if init == "identity":
+            assert all(g is None for g in inits)
+        else:
+            np.testing.assert_array_equal(inits[0], np.eye(4))
+            for before, after in zip(spy.calls, spy.calls[1:]):
+                np.testing.assert_array_equal(after[2], before[3])  # (the previous frame's motion)
+    for poses in runs.values():
+        err = np.linalg.norm(poses[:, :3, 3] - seq.gt_poses[: len(seq), :3, 3], axis=1)
+        assert err.max() < 0.02, err  # (the camera moves 1.5 cm a frame, 7.5 cm in all)
+    with pytest.raises(ValueError, match="ModelTracker: argument 'init'"):
+        ModelTracker(seq, DirectAligner(seq.K), TSDFVolume(0.02), init="constant")

@@ -496,11 +496,12 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and images[2].name in err[0] and "stopped at frame 2" in err[0], err
     assert json.loads((out / "metrics.json").read_text())["partial"]
-    for argv, message in ((["--model", "--color"], "not with --color"), (["--model", "--init", "velocity"],
-                                                                          "not with --color or --init velocity")):
-        with pytest.raises(SystemExit) as e:
-            main(["track", str(data), "--out", str(tmp_path / "o"), *argv])
-        assert e.value.code == 2 and message in capsys.readouterr().err
+    # colour and a constant-velocity start reach the model tracking (and its report)
+    out = tmp_path / "model_rgb_velocity"
+    assert main(["track", str(data), "--out", str(out), "--no-progress", "--model", "--voxel", "0.02", "--color",
+                 "--init", "velocity", "--max-frames", "2"]) == 0
+    settings = json.loads((out / "metrics.json").read_text())["settings"]
+    assert settings["mode"] == "frame-to-model" and settings["init"] == "velocity" and settings["channels"] == "rgb"
 
 
 def test_track_cli_without_ground_truth(tmp_path, monkeypatch):
