@@ -203,7 +203,7 @@ class Tracker:
                  keyframes: KeyframePolicy | None = None, init: str = "identity", warmup: bool = True,
                  pipeline: bool | None = None):
         if init not in INITS:
-            raise ValueError(f"track: init must be 'identity' or 'velocity', got {init!r}")
+            raise ValueError(f"track: init must be one of {', '.join(map(repr, INITS))}, got {init!r}")
         if n_frames < 1:
             raise ValueError(f"track: need at least one frame, got {n_frames}")
         self.fa = frame_aligner(aligner)

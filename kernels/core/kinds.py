@@ -26,6 +26,7 @@ mat34f = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 mat34d = wp.types.matrix(shape=(3, 4), dtype=wp.float64)
 vec8f = wp.types.vector(length=8, dtype=wp.float32)  # 8 lanes of a SIMD-friendly kernel
 vec8d = wp.types.vector(length=8, dtype=wp.float64)
+vec8i = wp.types.vector(length=8, dtype=wp.int32)  # 8 lanes' indices
 vec16f = wp.types.vector(length=16, dtype=wp.float32)  # 8 (x, y) pairs
 vec16d = wp.types.vector(length=16, dtype=wp.float64)
 
@@ -193,4 +194,5 @@ __all__ = [
     "vec16f",
     "vec8d",
     "vec8f",
+    "vec8i",
 ]

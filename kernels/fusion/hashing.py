@@ -11,13 +11,13 @@ per block index, x fastest: ``tw`` (vec2: the TSDF and its weight, read together
 
 import warp as wp
 
+from ..core.kinds import vec8i
+
 BLOCK = 8  # voxels per block side
 BLOCK_VOXELS = BLOCK * BLOCK * BLOCK
 SHIFT = 3  # log2(BLOCK)
 MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is never more than half full)
 SENTINEL = wp.constant(-(2**31))  # a block coordinate no block has: an unused candidate slot, no block yet
-
-_vec8i = wp.types.vector(length=8, dtype=wp.int32)
 
 # MurmurHash3's finaliser constants 0x85EBCA6B and 0xC2B2AE35, written as the int32 of the same bits: Warp
 # declares an integer literal as int32, and one above 2**31 made clang warn of the conversion at every
@@ -115,7 +115,7 @@ def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtyp
     # the axes on which the 8 voxels reach into the next block: 1, 2, 4 or 8 distinct blocks, each
     # looked up once (corner c's block is corner (c & reach)'s, found first: its bits are a subset of c's)
     reach = wp.where(lx == BLOCK - 1, 1, 0) + wp.where(ly == BLOCK - 1, 2, 0) + wp.where(lz == BLOCK - 1, 4, 0)
-    blocks = _vec8i(-1)
+    blocks = vec8i(-1)
     value = float(0.0)
     grad = wp.vec3(0.0)
     ok = bool(True)

@@ -16,13 +16,11 @@ exact for any map the host allows (fewer than 2^22 blocks).
 
 import warp as wp
 
-from ..core.kinds import LANES_MODULE_OPTIONS, vec8f
+from ..core.kinds import LANES_MODULE_OPTIONS, vec8f, vec8i
 from ..core.lanes import above8, any8, at_least8, less8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
 from .raycasting import ray_range, ray_steps, refine_hit, set_pixel, voxel_colour
-
-vec8i = wp.types.vector(length=8, dtype=wp.int32)
 
 
 @wp.func
@@ -201,5 +199,6 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
             set_pixel(py * W + px0 + lane, hits[lane], voxel_colour(colour, kcs[lane]), out_depth, out_colour)
         else:
             set_pixel(py * W + px0 + lane, 0.0, wp.vec3(0.0), out_depth, out_colour)
+
 
 __all__ = ["raycast_rows"]

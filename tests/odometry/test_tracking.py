@@ -462,7 +462,7 @@ def test_real_kinect_frames_track_fuse_and_track_against_the_model(tmp_path, cap
     assert "radial-tangential" in capsys.readouterr().out
 
 
-def test_track_cli_fusion_options_and_limits(tmp_path, capsys):
+def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
     from gvnn_warp.cli import main
 
     data = _render(tmp_path, frames=3, size="64x48")
@@ -497,9 +497,20 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys):
     assert len(err) == 1 and images[2].name in err[0] and "stopped at frame 2" in err[0], err
     assert json.loads((out / "metrics.json").read_text())["partial"]
     # colour and a constant-velocity start reach the model tracking (and its report)
+    from gvnn_warp.fusion import sequence as fusion_sequence
+
+    made = []
+
+    class Recording(fusion_sequence.ModelTracker):
+        def __init__(self, *args, **kwargs):
+            made.append((kwargs.get("color"), kwargs.get("init"), args[1].color))
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(fusion_sequence, "ModelTracker", Recording)
     out = tmp_path / "model_rgb_velocity"
     assert main(["track", str(data), "--out", str(out), "--no-progress", "--model", "--voxel", "0.02", "--color",
                  "--init", "velocity", "--max-frames", "2"]) == 0
+    assert made == [(True, "velocity", True)]  # (and the aligner made for colour)
     settings = json.loads((out / "metrics.json").read_text())["settings"]
     assert settings["mode"] == "frame-to-model" and settings["init"] == "velocity" and settings["channels"] == "rgb"
 
