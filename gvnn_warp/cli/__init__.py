@@ -1,5 +1,6 @@
 """The gvnn-warp command line: render RGB-D sequences, track the camera through them or through real
-TUM RGB-D folders, and demos of the layers (align, flow, learned VO).
+TUM RGB-D folders and fuse them into a map, learn depth from video without labels, and demos of the
+layers (align, flow, learned VO).
 
 Every command checks its arguments before it starts (a bad one gets a one-line error after the
 usage line and exit status 2), checks that the packages it needs are installed, and exits with one

@@ -31,6 +31,7 @@ __all__ = [
     "plain_text",
     "positive_float",
     "positive_int",
+    "refuse_earlier_run",
     "seed",
 ]
 
@@ -44,14 +45,15 @@ class UsageError(ValueError):
     usage line and exits with status 2, as argparse does for a bad single argument."""
 
 
-def image_size(min_side: int, max_side: int = MAX_SIDE) -> Callable[[str], tuple[int, int]]:
-    """``type=`` for ``--size WxH``: returns (width, height), each side in [min_side, max_side]."""
+def image_size(min_side: int, max_side: int = MAX_SIDE, example: str = "160x120") -> Callable[[str], tuple[int, int]]:
+    """``type=`` for ``--size WxH``: returns (width, height), each side in [min_side, max_side];
+    ``example``: a size the command takes, for the message."""
 
     def parse(text: str) -> tuple[int, int]:
         try:
             w, h = (int(v) for v in text.lower().split("x"))
         except ValueError:
-            raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 160x120, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"size must be WxH, e.g. {example}, got {text!r}") from None
         if not (min_side <= w <= max_side and min_side <= h <= max_side):
             raise argparse.ArgumentTypeError(
                 f"each side must be between {min_side} and {max_side} pixels, got {text!r}"
@@ -159,6 +161,14 @@ def output_dir(text: str) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise argparse.ArgumentTypeError(f"cannot write to {str(parent)!r}")
     return path
+
+
+def refuse_earlier_run(out: Path, resume: bool, overwrite: bool) -> None:
+    """A training command's ``--out``: refuse a folder that holds an earlier run's checkpoint unless
+    ``--resume`` continues it or ``--overwrite`` starts again (one line, before any work)."""
+    if (out / "checkpoint.pt").exists() and not (resume or overwrite):
+        raise UsageError(f"--out {out} already holds a training run ({out / 'checkpoint.pt'}); pass --resume to "
+                         "continue it, --overwrite to start again, or choose another folder")
 
 
 _MARKUP = [

@@ -42,6 +42,7 @@ from .args import (  # noqa: E402
     output_dir,
     positive_float,
     positive_int,
+    refuse_earlier_run,
     seed,
 )
 from .runner import command_main  # noqa: E402
@@ -49,7 +50,7 @@ from .runner import command_main  # noqa: E402
 __all__ = ["add_parser", "run", "run_eval", "run_train"]
 
 REQUIRES = ("torch", "matplotlib")  # checked by gvnn_warp.cli before run()
-_SIZE = image_size(64, 1024)
+_SIZE = image_size(64, 1024, example="128x96")
 _DEFAULT_GAP = 4  # DepthConfig's (not imported here: that would import torch for --help)
 _POSES = ("direct", "network")  # gvnn_warp.depth.train.POSES, the default first (a test checks they agree)
 
@@ -94,7 +95,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    "(default: 8)")
     t.add_argument("--lr", type=positive_float, default=5e-4, metavar="LR", help="Adam's step size (default: 5e-4)")
     t.add_argument("--seed", type=seed, default=0, metavar="S", help="seed (default: 0)")
-    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (a new run if there is none)")
+    t.add_argument("--overwrite", action="store_true", help="start again in an OUT that holds an earlier run")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
     e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files")
@@ -117,6 +119,7 @@ def run_train(args: argparse.Namespace) -> int:
     # torch (through gvnn_warp.depth) only now: after gvnn_warp.cli checked it is installed
     from ..depth.train import DepthConfig, train
 
+    refuse_earlier_run(args.out, args.resume, args.overwrite)
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
         gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, norm=args.norm, pose=args.pose, ema=args.ema,

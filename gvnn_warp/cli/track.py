@@ -171,7 +171,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "track",
-        help="direct RGB-D odometry over a TUM RGB-D folder; trajectory, evo metrics and figures",
+        help="direct RGB-D odometry over a TUM RGB-D folder; trajectory, evo metrics and figures, and a TSDF "
+             "map with --fuse or --model",
         description=description(__doc__),
     )
     add_arguments(p)

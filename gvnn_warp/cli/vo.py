@@ -45,6 +45,7 @@ from .args import (  # noqa: E402
     output_dir,
     positive_float,
     positive_int,
+    refuse_earlier_run,
     seed,
 )
 from .runner import command_main  # noqa: E402
@@ -94,7 +95,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=_SIZE, default=None, metavar="WxH", help="image size WxH (default: 128x96)")
     p.add_argument("--seed", type=seed, default=None, metavar="S",
                    help="seed of weights, trajectories and batches (default: 0)")
-    p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.pt")
+    p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.pt (a new run if there is none)")
+    p.add_argument("--overwrite", action="store_true", help="start again in a DIR that holds an earlier run")
     p.add_argument("--loss", choices=_losses(), default=None,
                    help="per-pixel penalty: l1, l2, or an M-estimator of gvnn_warp.functional.perpixel (default: l1)")
     p.add_argument("--loss-scale", type=positive_float, default=None, metavar="X",
@@ -176,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
     # (--help and the other commands never load it) and after OMP_WAIT_POLICY is set above
     from ..vo.train import ConfigError, check_config, train
 
+    refuse_earlier_run(args.out, args.resume, args.overwrite)
     try:  # every check that needs several options, or the checkpoint to resume, before any work
         cfg = _config(args)
         check_config(cfg)

@@ -130,6 +130,8 @@ class TUMSequence:
             where ``gt_valid`` is False), or None without ``groundtruth.txt``.
         gt_valid: (N,) bool, or None.
         gt_timestamps, gt_raw_poses: the ground-truth file as read (for evaluation tools).
+        listed: the numbers of colour and depth images ``rgb.txt`` and ``depth.txt`` list (those
+            the association left without a partner are not frames); ``max_difference``: its seconds.
     """
 
     root: Path
@@ -148,6 +150,8 @@ class TUMSequence:
     gt_raw_poses: np.ndarray | None = field(default=None, repr=False)
     dist: np.ndarray | None = None
     intrinsics_override: str | None = None
+    listed: tuple[int, int] = (0, 0)
+    max_difference: float = DEFAULT_MAX_DIFFERENCE
 
     def __len__(self) -> int:
         return len(self.rgb_files)
@@ -236,6 +240,15 @@ def read_tum(
     if not (math.isfinite(max_difference) and max_difference > 0):
         raise ValueError(f"read_tum: max_difference must be a positive number, got {max_difference}")
 
+    if not (root / "rgb.txt").exists():  # (the folder itself is likely not a TUM folder: say what one holds)
+        inside = sorted(p.parent.name for p in root.glob("*/rgb.txt"))
+        hint = ""
+        if len(inside) == 1:
+            hint = f"; its subfolder {inside[0]} is one"
+        elif inside:
+            hint = f"; its subfolders {', '.join(inside[:3])}{', ...' if len(inside) > 3 else ''} are"
+        raise DatasetError(f"{root / 'rgb.txt'}: missing colour list file (a TUM RGB-D folder lists its images in "
+                           f"rgb.txt and depth.txt{hint})")
     rgb_times, rgb_rows, _ = read_table(root / "rgb.txt", 2, "colour list")
     depth_times, depth_rows, _ = read_table(root / "depth.txt", 2, "depth list")
     pairs = associate(rgb_times, depth_times, max_difference)
@@ -253,6 +266,7 @@ def read_tum(
         dist=dist,
         timestamps=rgb_times[pairs[:, 0]], depth_timestamps=depth_times[pairs[:, 1]],
         rgb_files=rgb_files, depth_files=depth_files, depth_scale=float(depth_scale),
+        listed=(len(rgb_rows), len(depth_rows)), max_difference=float(max_difference),
     )
     gt_path = root / "groundtruth.txt"
     if gt_path.exists():

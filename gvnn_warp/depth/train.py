@@ -26,6 +26,7 @@ import json
 import math
 import os
 import signal
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -286,6 +287,9 @@ def train(cfg: DepthConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     ck_path = out / "checkpoint.pt"
     ck = _resume(cfg, ck_path)
+    if cfg.resume and rank == 0:
+        print(f"depth train: resuming {ck_path} at step {ck['step']}" if ck is not None else
+              f"depth train: no checkpoint in {out} to resume: a new run", file=sys.stderr)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames,

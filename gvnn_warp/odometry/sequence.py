@@ -217,8 +217,11 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
         metrics["stopped_at_frame"] = stopped.frame
         metrics["stopped_by"] = str(stopped)
     K = seq.K
-    depth_text = "" if predictor is None else ", depth predicted"
-    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method}{depth_text})"),
+    notes = [note for note, given in (("RGB", method == "direct" and not gray),
+                                      ("constant-velocity start", method == "direct" and init == "velocity"),
+                                      ("depth predicted", predictor is not None)) if given]
+    notes_text = "".join(f", {note}" for note in notes)
+    rows = [("frames", f"{n} ({seq.width}x{seq.height}, {metrics['settings']['mode']}, method {method}{notes_text})"),
             ("intrinsics", f"fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
                            f"{' with radial-tangential distortion' if seq.dist is not None else ''} "
                            f"({seq.intrinsics_source})"),
@@ -226,6 +229,10 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
             ("ms per frame", f"{result.ms_per_pair:.2f} (raycast of the model, alignment, integration)"),
             ("unconverged pairs", f"{len(unconverged)}" + (f" (frames {frames_text(unconverged)})" if unconverged
                                                            else ""))]
+    unpaired = metrics["colour_images_without_depth"] = max(seq.listed[0] - len(seq), 0)
+    if unpaired:  # (colour images whose depth image is missing or too far in time)
+        rows.append(("note", f"{unpaired} of the {seq.listed[0]} colour images listed have no depth image within "
+                             f"{seq.max_difference:g} s: not frames (TUM's association)"))
     if seq.intrinsics_override is not None:
         differs = "differs" in seq.intrinsics_override or "cannot be read" in seq.intrinsics_override
         rows.append(("warning" if differs else "note", seq.intrinsics_override))

@@ -83,6 +83,10 @@ def read_checkpoint(path: str | Path, what: str = "checkpoint") -> dict:
                               f"({type(e).__name__}; written by an older version, or not a checkpoint)") from None
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         found = ck.get("format", 1) if isinstance(ck, dict) else "?"
+        if isinstance(found, str) and found.startswith("gvnn_warp.depth/"):  # (depth.train's formats)
+            raise CheckpointError(f"{what} {path}: a depth network's checkpoint (gvnn-warp depth train), not a "
+                                  "learned-VO one (gvnn-warp vo); track takes it with --depth predicted "
+                                  "--checkpoint")
         raise CheckpointError(f"{what} {path}: checkpoint format {found}, this gvnn_warp reads format "
                               f"{CHECKPOINT_FORMAT} (written by another version: train it again with gvnn-warp vo)")
     missing = [k for k in ("config", "model", "network", "step") if k not in ck]

@@ -338,6 +338,12 @@ def test_errors_name_the_file(tmp_path):
     with pytest.raises(DatasetError) as e:
         read_tum(tmp_path)
     assert "rgb.txt: missing colour list file" in _one_line(e)
+    # the parent of TUM folders: its subfolders named
+    (tmp_path / "seq_b").mkdir()
+    (tmp_path / "seq_b" / "rgb.txt").write_text("")
+    with pytest.raises(DatasetError) as e:
+        read_tum(tmp_path)
+    assert "rgb.txt and depth.txt; its subfolder seq_b is one)" in _one_line(e)
 
     with pytest.raises(DatasetError, match="nowhere: no such directory"):
         read_tum(tmp_path / "nowhere")

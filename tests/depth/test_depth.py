@@ -328,10 +328,34 @@ def test_cli_data_errors_are_one_line(folders, tmp_path, capsys):
     assert len(err) == 1 and "missing" in err[0]
 
 
+def test_training_commands_keep_an_earlier_run(tmp_path, capsys):
+    # depth train and vo refuse an --out holding a checkpoint unless --resume or --overwrite (one
+    # line, status 2, before any work); --resume with nothing to resume says it starts a new run
+    for command in (["depth", "train", "--data", str(tmp_path / "missing")], ["vo", "--motion", "so3"]):
+        out = tmp_path / command[0]
+        out.mkdir()
+        (out / "checkpoint.pt").write_bytes(b"an earlier run")
+        with pytest.raises(SystemExit) as e:
+            main([*command, "--out", str(out), "--steps", "1", "--no-progress"])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and "already holds a training run" in err and "--overwrite" in err
+    # --overwrite gets past it (to the missing data folder: status 1, one line)
+    out = tmp_path / "depth"
+    assert main(["depth", "train", "--data", str(tmp_path / "missing"), "--out", str(out), "--steps", "1",
+                 "--no-progress", "--overwrite"]) == 1
+    assert "missing" in capsys.readouterr().err
+    assert main(["depth", "train", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "new"), "--steps",
+                 "1", "--no-progress", "--resume"]) == 1
+    assert "no checkpoint in" in capsys.readouterr().err
+
+
 def test_cli_rejects_sizes_the_network_cannot_take(capsys):
     with pytest.raises(SystemExit) as e:
         main(["depth", "train", "--data", "x", "--out", "y", "--size", "100x96"])
     assert e.value.code == 2 and "multiple of 32" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main(["depth", "train", "--data", "x", "--out", "y", "--size", "128x96x"])
+    assert e.value.code == 2 and "e.g. 128x96" in capsys.readouterr().err  # (a size it takes)
 
 
 def test_load_checkpoint_refuses_other_files(tmp_path):

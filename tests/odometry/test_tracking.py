@@ -452,6 +452,7 @@ def test_real_kinect_frames_track_fuse_and_track_against_the_model(tmp_path, cap
 
     seq = read_tum(REAL)
     assert seq.dist is not None and len(seq) == 5  # (six colour frames, five with a depth image within 20 ms)
+    assert seq.listed == (6, 6) and seq.max_difference == 0.02
     for extra in (["--fuse"], ["--model"]):  # (--fuse tracks frame to frame, then fuses)
         out = tmp_path / "-".join(extra)
         assert main(["track", str(REAL), "--out", str(out), "--no-progress", *extra]) == 0
@@ -459,7 +460,9 @@ def test_real_kinect_frames_track_fuse_and_track_against_the_model(tmp_path, cap
         assert m["ate_rmse_m"] < 0.01 and m["unconverged_pairs"] == 0, (extra, m["ate_rmse_m"])
         v, f, _ = read_ply(out / "mesh.ply")
         assert len(f) > 10000 and m["fusion"]["frames_skipped"] == []
-    assert "radial-tangential" in capsys.readouterr().out
+        assert m["colour_images_without_depth"] == 1  # (said in the summary too)
+    out = capsys.readouterr().out
+    assert "radial-tangential" in out and "1 of the 6 colour images listed have no depth image within 0.02 s" in out
 
 
 def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
@@ -511,6 +514,7 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
     assert main(["track", str(data), "--out", str(out), "--no-progress", "--model", "--voxel", "0.02", "--color",
                  "--init", "velocity", "--max-frames", "2"]) == 0
     assert made == [(True, "velocity", True)]  # (and the aligner made for colour)
+    assert "frame-to-model, method direct, RGB, constant-velocity start)" in capsys.readouterr().out
     settings = json.loads((out / "metrics.json").read_text())["settings"]
     assert settings["mode"] == "frame-to-model" and settings["init"] == "velocity" and settings["channels"] == "rgb"
 
@@ -979,11 +983,15 @@ def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
     torch.save({"format": 2, "config": {}, "model": {}}, old)
     text = tmp_path / "notes.txt"
     text.write_text("not a checkpoint\n")
+    depth_ck = tmp_path / "depth.pt"  # (the format gvnn-warp depth train writes)
+    torch.save({"format": "gvnn_warp.depth/1", "config": {}}, depth_ck)
     cases = [
         (["--method", "vo"], "--method vo needs --checkpoint CKPT"),
         (["--method", "vo+direct", "--checkpoint", str(tmp_path / "none.pt")], "none.pt: no such file"),
         (["--method", "vo", "--checkpoint", str(old)], "checkpoint format 2, this gvnn_warp reads format 4"),
         (["--method", "vo", "--checkpoint", str(text)], "notes.txt: not a gvnn-warp vo checkpoint"),
+        (["--method", "vo", "--checkpoint", str(depth_ck)], "depth.pt: a depth network's checkpoint (gvnn-warp depth "
+                                                            "train), not a learned-VO one"),
         (["--checkpoint", str(old)], "--checkpoint is used by --method vo and vo+direct only"),
         (["--method", "vo", "--checkpoint", str(tmp_path)], "not a file"),
     ]
