@@ -26,6 +26,7 @@ import numpy as np
 import warp as wp
 
 from ..kernels.core.launch import launch_chunks, wp_launch
+from ..kernels.core.threads import get_num_threads
 from ..kernels.fusion import integrate_lanes as I_
 from ..kernels.fusion import kernels as K_
 from ..kernels.fusion import marching
@@ -283,7 +284,8 @@ class TSDFVolume:
     def raycast(self, camera, T_world_cam, height: int, width: int, *, start_depth=None,
                 normals: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The model seen by ``camera`` (as :meth:`integrate` takes it) at ``T_world_cam``: (depth
-        (H, W) float32 metres, 0 where no surface; colour (3, H, W); normals (3, H, W) unit, camera
+        (H, W) float32 metres, 0 where no surface; colour (3, H, W), trilinear between the voxels around
+        the surface point that hold a colour (black if none does); normals (3, H, W) unit, camera
         frame, facing the camera, zero where unknown or at a depth edge; None with
         ``normals=False``), the first crossing of each pixel's ray from positive to negative TSDF
         within [min_depth, max_depth]; the normals from the rendered depth's neighbours (as
@@ -324,11 +326,15 @@ class TSDFVolume:
         # the z range of the blocks over each tile of 8 x 8 (ideal) pixels: where each ray starts and stops
         margin = 0 if model == 0 else max(width, height) // _TILE  # (a lens's ideal pixels reach beyond the image)
         tiles_x, tiles_y = -(-width // _TILE) + 2 * margin, -(-height // _TILE) + 2 * margin
-        near = wp.full(tiles_x * tiles_y, 1.0e30, dtype=wp.float32, device="cpu")
-        far = wp.zeros(tiles_x * tiles_y, dtype=wp.float32, device="cpu")
-        wp_launch(R_.depth_range, dim=1, inputs=[self.coords, self._n_blocks, R_cw, t_cw, fx, fy, cx, cy,
-                                                 self.voxel_size * BLOCK, self.min_depth, _TILE, margin, tiles_x,
-                                                 tiles_y, near, far], device="cpu")
+        n_tiles = tiles_x * tiles_y
+        parts = max(1, min(get_num_threads(), self._n_blocks // 1024))  # (each thread its share of the blocks)
+        near = wp.full(parts * n_tiles, 1.0e30, dtype=wp.float32, device="cpu")
+        far = wp.zeros(parts * n_tiles, dtype=wp.float32, device="cpu")
+        launch_chunks(R_.depth_range, parts, [self.coords, self._n_blocks, parts, R_cw, t_cw, fx, fy, cx, cy,
+                                              self.voxel_size * BLOCK, self.min_depth, _TILE, margin, tiles_x,
+                                              tiles_y, near, far], chunks_per_thread=1, grain=1)
+        if parts > 1:
+            launch_chunks(R_.merge_ranges, n_tiles, [parts, n_tiles, near, far])
         n_tiled = 64 * (-(-width // 8)) * (-(-height // 8))  # (the kernels run over 8 x 8 tiles of pixels)
         pose = [wp.mat33(*R_wc.ravel()), wp.vec3(*t_wc)]
         rest = [self.voxel_size, self.truncation, self.min_depth, self.max_depth, fx, fy, cx, cy, _TILE, margin,

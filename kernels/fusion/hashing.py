@@ -96,29 +96,20 @@ def voxel_of_point(p: wp.vec3, inv_voxel: float):
 
 
 @wp.func
-def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
-                   inv_voxel: float):
-    """Trilinear TSDF at world point ``p`` from the 8 voxels around it and its gradient: (value, d value
-    / d p (per metre; the gradient of the trilinear interpolant, exact where the TSDF is linear),
-    ok); ``ok`` is False if one of them is unobserved (no block, or weight 0). One block lookup per
-    distinct block of the 8: one about 2 times in 3, two, four or eight at a block's edge (a lookup per
-    voxel there made the raycast 3-7% slower)."""
-    g = p * inv_voxel
-    f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
-    i0 = wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2]))
-    t = g - f0
+def corner_voxels(table: wp.array(dtype=wp.vec4i), mask: int, i0: wp.vec3i):
+    """Indices in the voxel arrays of the 8 voxels ``i0 + (c & 1, (c >> 1) & 1, (c >> 2) & 1)``, corner
+    ``c`` in lane ``c`` (-1 where the block is not allocated). One block lookup per distinct block of
+    the 8: one about 2 times in 3, two, four or eight at a block's edge (a lookup per voxel there made
+    the raycast 3-7% slower)."""
     b0 = voxel_block(i0)
-    local = voxel_offset(i0)
-    lx = local % BLOCK
-    ly = (local // BLOCK) % BLOCK
-    lz = local // (BLOCK * BLOCK)
-    # the axes on which the 8 voxels reach into the next block: 1, 2, 4 or 8 distinct blocks, each
-    # looked up once (corner c's block is corner (c & reach)'s, found first: its bits are a subset of c's)
+    lx = i0[0] - (b0[0] << SHIFT)
+    ly = i0[1] - (b0[1] << SHIFT)
+    lz = i0[2] - (b0[2] << SHIFT)
+    # the axes on which the 8 voxels reach into the next block: corner c's block is corner (c & reach)'s,
+    # found first (its bits are a subset of c's)
     reach = wp.where(lx == BLOCK - 1, 1, 0) + wp.where(ly == BLOCK - 1, 2, 0) + wp.where(lz == BLOCK - 1, 4, 0)
     blocks = vec8i(-1)
-    value = float(0.0)
-    grad = wp.vec3(0.0)
-    ok = bool(True)
+    out = vec8i(-1)
     for c in range(8):
         dx = c & 1
         dy = (c >> 1) & 1
@@ -130,11 +121,34 @@ def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtyp
             blocks[c] = blk
         else:
             blk = blocks[cb]
-        w = float(0.0)
-        k = int(0)
         if blk >= 0:
-            k = blk * BLOCK_VOXELS + ((lx + dx) & (BLOCK - 1)) + BLOCK * (((ly + dy) & (BLOCK - 1))
-                                                                     + BLOCK * ((lz + dz) & (BLOCK - 1)))
+            out[c] = blk * BLOCK_VOXELS + ((lx + dx) & (BLOCK - 1)) + BLOCK * (((ly + dy) & (BLOCK - 1))
+                                                                         + BLOCK * ((lz + dz) & (BLOCK - 1)))
+    return out
+
+
+@wp.func
+def voxel_cell(p: wp.vec3, inv_voxel: float):
+    """(the voxel whose cell of 8 voxels (it and the next ones on each axis) holds world point ``p``,
+    ``p``'s position in that cell, each coordinate in [0, 1))."""
+    g = p * inv_voxel
+    f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
+    return wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2])), g - f0
+
+
+@wp.func
+def trilinear_grad_of(tw: wp.array(dtype=wp.vec2), kk: vec8i, t: wp.vec3, inv_voxel: float):
+    """:func:`trilinear_grad` from the cell's voxels (:func:`corner_voxels`) and the position in it."""
+    value = float(0.0)
+    grad = wp.vec3(0.0)
+    ok = bool(True)
+    for c in range(8):
+        dx = c & 1
+        dy = (c >> 1) & 1
+        dz = (c >> 2) & 1
+        k = kk[c]
+        w = float(0.0)
+        if k >= 0:
             w = tw[k][1]
         if w <= 0.0:
             ok = False
@@ -149,6 +163,46 @@ def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtyp
             value += wx * wy * wz * v
             grad += v * wp.vec3(sx * wy * wz, wx * sy * wz, wx * wy * sz)
     return value, grad * inv_voxel, ok
+
+
+@wp.func
+def trilinear_grad(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), p: wp.vec3,
+                   inv_voxel: float):
+    """Trilinear TSDF at world point ``p`` from the 8 voxels around it and its gradient: (value, d value
+    / d p (per metre; the gradient of the trilinear interpolant, exact where the TSDF is linear),
+    ok); ``ok`` is False if one of them is unobserved (no block, or weight 0)."""
+    i0, t = voxel_cell(p, inv_voxel)
+    return trilinear_grad_of(tw, corner_voxels(table, mask, i0), t, inv_voxel)
+
+
+@wp.func
+def trilinear_colour_of(colour: wp.array(dtype=wp.vec4), kk: vec8i, t: wp.vec3):
+    """:func:`trilinear_colour` from the cell's voxels (:func:`corner_voxels`) and the position in it."""
+    rgb = wp.vec3(0.0)
+    total = float(0.0)
+    for c in range(8):
+        k = kk[c]
+        if k >= 0:
+            cc = colour[k]
+            if cc[3] > 0.0:
+                wx = wp.where((c & 1) == 1, t[0], 1.0 - t[0])
+                wy = wp.where(((c >> 1) & 1) == 1, t[1], 1.0 - t[1])
+                wz = wp.where(((c >> 2) & 1) == 1, t[2], 1.0 - t[2])
+                r = wx * wy * wz
+                rgb += r * wp.vec3(cc[0], cc[1], cc[2])
+                total += r
+    if total > 0.0:
+        rgb = rgb / total
+    return rgb
+
+
+@wp.func
+def trilinear_colour(table: wp.array(dtype=wp.vec4i), mask: int, colour: wp.array(dtype=wp.vec4), p: wp.vec3,
+                     inv_voxel: float):
+    """Colour at world point ``p``: the trilinear weights of the 8 voxels around it, over those that
+    hold a colour (colour weight > 0), renormalised; black if none does."""
+    i0, t = voxel_cell(p, inv_voxel)
+    return trilinear_colour_of(colour, corner_voxels(table, mask, i0), t)
 
 
 @wp.func

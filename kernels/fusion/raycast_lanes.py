@@ -20,7 +20,10 @@ from ..core.kinds import LANES_MODULE_OPTIONS, vec8f, vec8i
 from ..core.lanes import above8, any8, at_least8, less8, select8, splat8
 from ..sampling.lanes import floor_lanes
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block
-from .raycasting import ray_range, ray_steps, refine_hit, set_pixel, voxel_colour
+from .raycasting import hit_colour, ray_range, ray_steps, refine_hit, set_pixel
+
+mat83i = wp.types.matrix(shape=(8, 3), dtype=wp.int32)  # a row of 8 lanes' vec3i / vec8i
+mat88i = wp.types.matrix(shape=(8, 8), dtype=wp.int32)
 
 
 @wp.func
@@ -187,16 +190,20 @@ def raycast_rows(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         t = t_next
         active = wp.cw_mul(active - cross, less8(t, t_end))
     hits = zero
-    kcs = vec8i(-1)
+    cells = mat83i()  # each lane's refinement's cell of 8 voxels, and their indices
+    voxels = mat88i()
     for lane in range(lanes):
         if crossed[lane] != 0.0:
-            hit, kc = refine_hit(table, mask, tw, t_wc, wp.vec3(dx[lane], dy[lane], dz[lane]), scale[lane], voxel,
-                                 True, prev_t[lane], prev_f[lane], cross_t[lane], cross_f[lane])
+            hit, cell, kk = refine_hit(table, mask, tw, t_wc, wp.vec3(dx[lane], dy[lane], dz[lane]), scale[lane], voxel,
+                                       True, prev_t[lane], prev_f[lane], cross_t[lane], cross_f[lane])
             hits[lane] = hit
-            kcs[lane] = kc
+            cells[lane] = cell
+            voxels[lane] = kk
     for lane in range(lanes):  # (the colours read after every lane's refinement: their cache misses overlap)
         if hits[lane] > 0.0:
-            set_pixel(py * W + px0 + lane, hits[lane], voxel_colour(colour, kcs[lane]), out_depth, out_colour)
+            q = t_wc + hits[lane] * wp.vec3(dx[lane], dy[lane], dz[lane])
+            set_pixel(py * W + px0 + lane, hits[lane],
+                      hit_colour(table, mask, colour, q, inv_voxel, cells[lane], voxels[lane]), out_depth, out_colour)
         else:
             set_pixel(py * W + px0 + lane, 0.0, wp.vec3(0.0), out_depth, out_colour)
 

@@ -7,6 +7,7 @@ Conventions as in :mod:`.kernels` (a leading ``offset``, flat images, a camera a
 
 import warp as wp
 
+from ..core.kinds import vec8i
 from . import hashing
 from .hashing import BLOCK, BLOCK_VOXELS, SENTINEL, find_block, voxel_block, voxel_offset
 
@@ -14,14 +15,19 @@ wp.set_module_options({"enable_backward": False})  # (no gradients here: half th
 
 
 @wp.kernel
-def depth_range(coords: wp.array(dtype=wp.vec3i), n_blocks: int, R_cw: wp.mat33, t_cw: wp.vec3, fx: float,
-                fy: float, cx: float, cy: float, block_len: float, min_depth: float, tile: int, margin: int,
-                tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32), far: wp.array(dtype=wp.float32)):
-    """One thread: for each tile of ``tile`` x ``tile`` ideal pixels (``fx xn + cx``, ``fy yn + cy``
-    of the ray; ``margin`` tiles around the image for lenses), the nearest and farthest z of the
-    blocks whose bounding box projects onto it (``far`` 0: no block; ``near`` must start large).
-    A block that reaches the near plane covers every tile from ``min_depth`` on."""
-    for bi in range(n_blocks):
+def depth_range(offset: int, coords: wp.array(dtype=wp.vec3i), n_blocks: int, parts: int, R_cw: wp.mat33,
+                t_cw: wp.vec3, fx: float, fy: float, cx: float, cy: float, block_len: float, min_depth: float,
+                tile: int, margin: int, tiles_x: int, tiles_y: int, near: wp.array(dtype=wp.float32),
+                far: wp.array(dtype=wp.float32)):
+    """Element ``part`` of ``parts`` (every ``parts``-th block, its own ``tiles_x * tiles_y``
+    slice of ``near`` and ``far``; :func:`merge_ranges` then takes the slices' extremes): for each
+    tile of ``tile`` x ``tile`` ideal pixels (``fx xn + cx``, ``fy yn + cy`` of the ray; ``margin``
+    tiles around the image for lenses), the nearest and farthest z of the blocks whose bounding box
+    projects onto it (``far`` 0: no block; ``near`` must start large). A block that reaches the
+    near plane covers every tile from ``min_depth`` on."""
+    part = offset + wp.tid()
+    base = part * tiles_x * tiles_y
+    for bi in range(part, n_blocks, parts):  # (every parts-th block: the parts' work alike)
         b = coords[bi]
         o = block_len * wp.vec3(float(b[0]), float(b[1]), float(b[2]))
         zlo = float(1.0e30)
@@ -59,9 +65,19 @@ def depth_range(coords: wp.array(dtype=wp.vec3i), n_blocks: int, R_cw: wp.mat33,
         zlo = wp.max(zlo, min_depth)
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
-                k = ty * tiles_x + tx
+                k = base + ty * tiles_x + tx
                 near[k] = wp.min(near[k], zlo)
                 far[k] = wp.max(far[k], zhi)
+
+
+@wp.kernel
+def merge_ranges(offset: int, parts: int, n_tiles: int, near: wp.array(dtype=wp.float32),
+                 far: wp.array(dtype=wp.float32)):
+    """Tile ``k``: :func:`depth_range`'s parts' nearest and farthest z, into the first part's slice."""
+    k = offset + wp.tid()
+    for part in range(1, parts):
+        near[k] = wp.min(near[k], near[part * n_tiles + k])
+        far[k] = wp.max(far[k], far[part * n_tiles + k])
 
 
 @wp.func
@@ -142,12 +158,15 @@ def ray_steps(R_wc: wp.mat33, r: wp.vec3, voxel: float, trunc: float):
 def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp.vec2), t_wc: wp.vec3,
                direction: wp.vec3, scale: float, voxel: float, crossed: bool, prev_t: float, prev_f: float,
                cross_t: float, cross_f: float):
-    """After a march: (the crossing's ray parameter, 0 if none; the index of the voxel nearest to it,
-    whose colour is the pixel's (:func:`voxel_colour`), -1 if none), from the last positive value
-    (``prev_t``, ``prev_f``) and the first non-positive one (``cross_t``, ``cross_f``) when ``crossed``."""
+    """After a march: (the crossing's ray parameter, 0 if none; the cell of 8 voxels the Newton step
+    read and their indices (:func:`.hashing.corner_voxels`), for :func:`hit_colour`), from the last
+    positive value (``prev_t``, ``prev_f``) and the first non-positive one (``cross_t``,
+    ``cross_f``) when ``crossed``."""
     inv_voxel = 1.0 / voxel
     hit = float(0.0)
     bracket = bool(False)  # the Newton step did not apply: refine by bracketing
+    cell = wp.vec3i(SENTINEL, 0, 0)
+    kk = vec8i(-1)
     if crossed:
         # where the nearest voxels' values cross zero (their linear interpolation; the depth if
         # neither refinement applies, e.g. an unobserved voxel among the 8 of a trilinear value)
@@ -156,7 +175,9 @@ def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp
         # one Newton step on the trilinear values from there: exact where the TSDF is linear along
         # the ray; accepted when it moves less than a voxel and the value falls along the ray, as at
         # a front surface
-        f0, g0, ok0 = hashing.trilinear_grad(table, mask, tw, t_wc + t0 * direction, inv_voxel)
+        cell, frac = hashing.voxel_cell(t_wc + t0 * direction, inv_voxel)
+        kk = hashing.corner_voxels(table, mask, cell)
+        f0, g0, ok0 = hashing.trilinear_grad_of(tw, kk, frac, inv_voxel)
         slope = wp.dot(g0, direction)  # d value / d t
         bracket = True
         if ok0 and slope < 0.0:
@@ -187,23 +208,19 @@ def refine_hit(table: wp.array(dtype=wp.vec4i), mask: int, tw: wp.array(dtype=wp
                 fa, oka = hashing.trilinear(table, mask, tw, t_wc + ta * direction, inv_voxel)
         if oka and okb and fa > 0.0 and fb <= 0.0:
             hit = ta + (tb - ta) * fa / (fa - fb)
-    kc = int(-1)
-    if hit > 0.0:  # the voxel nearest to the hit (colours are kept near the surface only)
-        c = hashing.voxel_of_point(t_wc + hit * direction, inv_voxel)
-        cb = find_block(table, mask, voxel_block(c))
-        if cb >= 0:
-            kc = cb * BLOCK_VOXELS + voxel_offset(c)
-    return hit, kc
+    return hit, cell, kk
 
 
 @wp.func
-def voxel_colour(colour: wp.array(dtype=wp.vec4), kc: int):
-    """The colour of voxel ``kc`` (black if -1)."""
-    rgb = wp.vec3(0.0)
-    if kc >= 0:
-        cc = colour[kc]
-        rgb = wp.vec3(cc[0], cc[1], cc[2])
-    return rgb
+def hit_colour(table: wp.array(dtype=wp.vec4i), mask: int, colour: wp.array(dtype=wp.vec4), q: wp.vec3,
+               inv_voxel: float, cell: wp.vec3i, kk: vec8i):
+    """The colour at surface point ``q`` (:func:`.hashing.trilinear_colour`), its cell's voxels taken
+    from :func:`refine_hit`'s when it is the same cell (most hits: no second block lookup)."""
+    c, frac = hashing.voxel_cell(q, inv_voxel)
+    voxels = kk
+    if not hashing.same(c, cell):
+        voxels = hashing.corner_voxels(table, mask, c)
+    return hashing.trilinear_colour_of(colour, voxels, frac)
 
 
 @wp.kernel
@@ -218,8 +235,8 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
     inside blocks - to the first crossing from positive to negative (refined by a Newton step on the
     trilinear values, or else linearly between trilinear values that bracket it). Writes the
-    crossing's depth (0: none) and colour (three planes; the nearest voxel's). The normals come from
-    the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
+    crossing's depth (0: none) and colour (three planes; trilinear, :func:`.hashing.trilinear_colour`).
+    The normals come from the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
     the pixel's surface is expected; where it is positive and finite the ray starts ``start_margin``
     (in z) before it if that is beyond its tile's range, and goes back to the tile's range if it
     reads a negative value with no positive one just before it."""
@@ -285,9 +302,11 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
         prev_f = f
         have_prev = True
         t += wp.max(voxel_t, band_t * f)
-    hit, kc = refine_hit(table, mask, tw, t_wc, direction, scale, voxel, crossed, prev_t, prev_f, cross_t, cross_f)
-    if hit > 0.0:
-        set_pixel(k, hit, voxel_colour(colour, kc), out_depth, out_colour)
+    hit, cell, corners = refine_hit(table, mask, tw, t_wc, direction, scale, voxel, crossed, prev_t, prev_f,
+                                    cross_t, cross_f)
+    if hit > 0.0:  # (its colour: trilinear, from the voxels around the hit that hold one)
+        set_pixel(k, hit, hit_colour(table, mask, colour, t_wc + hit * direction, inv_voxel, cell, corners),
+                  out_depth, out_colour)
 
 
 @wp.kernel
@@ -334,4 +353,4 @@ def depth_normals(offset: int, depth: wp.array(dtype=wp.float32), rays: wp.array
     normal[2 * n_pix + k] = n[2]
 
 
-__all__ = ["block_exit", "set_pixel", "depth_normals", "depth_range", "raycast"]
+__all__ = ["block_exit", "set_pixel", "depth_normals", "depth_range", "merge_ranges", "raycast"]

@@ -315,6 +315,42 @@ def test_trilinear_across_blocks_matches_a_plain_lookup(sphere):
     assert ok.sum() > 100 and (~ok.astype(bool)).sum() > 10
     assert all(ok[(reach.sum(1) == r)].sum() > 5 for r in range(4))  # (every kind of reach, observed)
 
+    # hashing.trilinear_colour at the same points, on random colours (a quarter of the voxels with no
+    # colour): the trilinear weights of the voxels that hold one, renormalised; black where none does
+    @wp.kernel
+    def probe_colour(table: wp.array(dtype=wp.vec4i), mask: int, colour: wp.array(dtype=wp.vec4),
+                     pts: wp.array(dtype=wp.vec3), inv_voxel: float, rgb: wp.array(dtype=wp.vec3)):
+        i = wp.tid()
+        rgb[i] = hashing.trilinear_colour(table, mask, colour, pts[i], inv_voxel)
+
+    n_vox = n_blocks * 512
+    colours = np.zeros((vol.colour.shape[0], 4), np.float32)
+    colours[:n_vox, :3] = rng.uniform(0, 1, (n_vox, 3))
+    colours[:n_vox, 3] = np.where(rng.uniform(0, 1, n_vox) < 0.25, 0.0, rng.uniform(0.5, 3.0, n_vox))
+    rgb = wp.empty(len(pts), dtype=wp.vec3, device="cpu")
+    wp.launch(probe_colour, dim=len(pts), inputs=[vol.table, vol.mask, wp.array(colours, dtype=wp.vec4, device="cpu"),
+                                                  wp.array(pts, dtype=wp.vec3, device="cpu"), 1.0 / vol.voxel_size,
+                                                  rgb], device="cpu")
+    rgb = rgb.numpy()
+    partial = black = 0
+    for n in range(len(pts)):
+        ref, total, held = np.zeros(3), 0.0, 0
+        for c in range(8):
+            dc = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
+            v = i0[n] + dc
+            b = tuple(np.floor_divide(v, 8))
+            if b not in index:
+                continue
+            lx, ly, lz = v - 8 * np.asarray(b)
+            cc = colours[index[b] * 512 + lx + 8 * (ly + 8 * lz)]
+            if cc[3] > 0:
+                r = np.where(dc == 1, t[n], 1 - t[n]).prod()
+                ref, total, held = ref + r * cc[:3], total + r, held + 1
+        np.testing.assert_allclose(rgb[n], ref / total if total > 0 else 0.0, atol=2e-5)
+        partial += 0 < held < 8
+        black += held == 0
+    assert partial > 50 and black > 5
+
 
 def test_world_translation_across_block_boundaries_changes_nothing(sphere):
     # the same frames with the world moved by an offset that crosses many blocks, into negative
@@ -623,3 +659,26 @@ def test_model_tracking_takes_colour_and_a_constant_velocity_start(tmp_path):
         assert err.max() < 0.02, err  # (the camera moves 1.5 cm a frame, 7.5 cm in all)
     with pytest.raises(ValueError, match="ModelTracker: argument 'init'"):
         ModelTracker(seq, DirectAligner(seq.K), TSDFVolume(0.02), init="constant")
+
+
+def test_raycast_colour_is_interpolated_between_voxels():
+    # a fronto-parallel plane at 1 m whose colour ramps along x by 0.02 a voxel: the raycast's colour
+    # at each hit is the ramp's value there to a fraction of a voxel's step (trilinear between the
+    # voxels; the nearest voxel's colour, as before, is off by 0.4 of a step (median))
+    rays = _rays(K)
+    depth = _plane_depth(np.array([0, 0, 1.0]), 1.0, rays)
+    x = rays[..., 0] * depth  # (world x of each pixel's point: the camera is at the origin)
+    ramp = np.clip(0.5 + 0.02 * x / VOXEL, 0.0, 1.0).astype(np.float32)
+    image = np.stack([ramp, 1.0 - ramp, np.full_like(ramp, 0.5)])
+    vol = TSDFVolume(VOXEL, 4 * VOXEL, max_depth=4.0)
+    for _ in range(3):
+        vol.integrate(depth, image, K, np.eye(4))
+    out_depth, colour, _ = vol.raycast(K, np.eye(4), H, W)
+    hit = (out_depth > 0) & (ramp > 0.05) & (ramp < 0.95)
+    hit[:, :4] = hit[:, -4:] = hit[:4] = hit[-4:] = False  # (the plane's edge)
+    truth = np.clip(0.5 + 0.02 * rays[..., 0] * out_depth / VOXEL, 0.0, 1.0)
+    err = np.abs(colour[0] - truth)[hit]
+    assert hit.sum() > 0.5 * H * W
+    assert np.median(err) < 0.1 * 0.02, np.median(err)  # (the nearest voxel's colour: 0.008)
+    np.testing.assert_allclose(colour[1][hit], 1.0 - colour[0][hit], atol=1e-5)
+    np.testing.assert_allclose(colour[2][hit], 0.5, atol=1e-5)
