@@ -43,6 +43,7 @@ BYTES_PER_BLOCK = BLOCK_VOXELS * (8 + 16)  # per voxel: TSDF and weight, colour 
 MAX_BLOCKS = (2**31 - 1) // BLOCK_VOXELS  # the kernels index voxels (block * BLOCK_VOXELS + voxel) in int32
 _FIRST_BLOCKS = 1024  # blocks allocated at first (10 MiB); doubled as needed
 _TILE = 8  # pixels per side of the tiles of the raycast's depth range
+_BLOCKS_PER_PART = 1024  # the raycast's depth range: the blocks are shared out between threads from 2 x this
 _NORMAL_JUMP = 0.05  # a raycast normal needs its neighbours' depths within 5% (else it is a depth edge)
 
 
@@ -327,7 +328,7 @@ class TSDFVolume:
         margin = 0 if model == 0 else max(width, height) // _TILE  # (a lens's ideal pixels reach beyond the image)
         tiles_x, tiles_y = -(-width // _TILE) + 2 * margin, -(-height // _TILE) + 2 * margin
         n_tiles = tiles_x * tiles_y
-        parts = max(1, min(get_num_threads(), self._n_blocks // 1024))  # (each thread its share of the blocks)
+        parts = max(1, min(get_num_threads(), self._n_blocks // _BLOCKS_PER_PART))  # (the threads share the blocks)
         near = wp.full(parts * n_tiles, 1.0e30, dtype=wp.float32, device="cpu")
         far = wp.zeros(parts * n_tiles, dtype=wp.float32, device="cpu")
         launch_chunks(R_.depth_range, parts, [self.coords, self._n_blocks, parts, R_cw, t_cw, fx, fy, cx, cy,

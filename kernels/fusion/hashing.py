@@ -130,7 +130,7 @@ def corner_voxels(table: wp.array(dtype=wp.vec4i), mask: int, i0: wp.vec3i):
 @wp.func
 def voxel_cell(p: wp.vec3, inv_voxel: float):
     """(the voxel whose cell of 8 voxels (it and the next ones on each axis) holds world point ``p``,
-    ``p``'s position in that cell, each coordinate in [0, 1))."""
+    ``p``'s position in that cell, each coordinate in [0, 1] (1 only by rounding))."""
     g = p * inv_voxel
     f0 = wp.vec3(wp.floor(g[0]), wp.floor(g[1]), wp.floor(g[2]))
     return wp.vec3i(int(f0[0]), int(f0[1]), int(f0[2])), g - f0
@@ -200,7 +200,8 @@ def trilinear_colour_of(colour: wp.array(dtype=wp.vec4), kk: vec8i, t: wp.vec3):
 def trilinear_colour(table: wp.array(dtype=wp.vec4i), mask: int, colour: wp.array(dtype=wp.vec4), p: wp.vec3,
                      inv_voxel: float):
     """Colour at world point ``p``: the trilinear weights of the 8 voxels around it, over those that
-    hold a colour (colour weight > 0), renormalised; black if none does."""
+    hold a colour (colour weight > 0), renormalised; black if none does (or, at a point exactly on
+    a voxel without colour, none of those with a weight above 0)."""
     i0, t = voxel_cell(p, inv_voxel)
     return trilinear_colour_of(colour, corner_voxels(table, mask, i0), t)
 
