@@ -4,9 +4,9 @@ against the model (what ``gvnn-warp track --fuse`` / ``--model`` run; no torch).
 - :func:`fuse_sequence`: every frame integrated at its estimated pose;
 - :class:`ModelTracker`: frame-to-model tracking (KinectFusion's loop): each new frame is aligned
   by the direct aligner to the model raycast at the previous frame's pose (its depth, and its
-  colour or the grey of it, as the reference frame), then integrated at the pose found. The model averages
-  every earlier frame, so the reference is less noisy than the previous frame and errors do not
-  chain from frame to frame as they do in frame-to-frame odometry;
+  colour or the grey of it, as the reference frame), then integrated at the pose found. The model
+  averages every earlier frame, so the reference is less noisy than the previous frame and errors
+  do not chain from frame to frame as they do in frame-to-frame odometry;
 - :func:`render_picture`: a PNG of the model raycast from a pose, its colour shaded by the normals.
 
 Both take each frame's depth from the sequence's depth files, or from ``depth``, a callable

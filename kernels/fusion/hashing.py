@@ -19,6 +19,7 @@ SHIFT = 3  # log2(BLOCK)
 MAX_PROBES = 1 << 20  # a lookup gives up after this many slots (a table is never more than half full)
 SENTINEL = wp.constant(-(2**31))  # a block coordinate no block has: an unused candidate slot, no block yet
 
+
 # MurmurHash3's finaliser constants 0x85EBCA6B and 0xC2B2AE35, written as the int32 of the same bits: Warp
 # declares an integer literal as int32, and one above 2**31 made clang warn of the conversion at every
 # compile of a module that hashes blocks

@@ -235,11 +235,11 @@ def raycast(offset: int, table: wp.array(dtype=wp.vec4i), mask: int,
     (:func:`depth_range`) - a block at a time where there is none, by the distance the TSDF promises
     inside blocks - to the first crossing from positive to negative (refined by a Newton step on the
     trilinear values, or else linearly between trilinear values that bracket it). Writes the
-    crossing's depth (0: none) and colour (three planes; trilinear, :func:`.hashing.trilinear_colour`).
-    The normals come from the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth at which
-    the pixel's surface is expected; where it is positive and finite the ray starts ``start_margin``
-    (in z) before it if that is beyond its tile's range, and goes back to the tile's range if it
-    reads a negative value with no positive one just before it."""
+    crossing's depth (0: none) and colour (three planes; trilinear, :func:`hit_colour`). The normals
+    come from the depth image (:func:`depth_normals`). ``start`` (one per pixel, or empty): a depth
+    at which the pixel's surface is expected; where it is positive and finite the ray starts
+    ``start_margin`` (in z) before it if that is beyond its tile's range, and goes back to the
+    tile's range if it reads a negative value with no positive one just before it."""
     # pixels in 8 x 8 tiles (element = tile * 64 + pixel of the tile): neighbouring rays, which
     # read the same voxels, run one after the other (the voxels are read from memory once)
     e = offset + wp.tid()
