@@ -6,12 +6,14 @@ against the model (what ``gvnn-warp track --fuse`` / ``--model`` run; no torch).
   by the direct aligner to the model raycast at the previous frame's pose (its depth, and its
   colour or the grey of it, as the reference frame), then integrated at the pose found. The model
   averages every earlier frame, so the reference is less noisy than the previous frame and errors
-  do not chain from frame to frame as they do in frame-to-frame odometry;
+  do not chain from frame to frame as they do in frame-to-frame odometry. :class:`FrameToModel`
+  is the same one frame at a time, for frames the caller holds;
 - :func:`render_picture`: a PNG of the model raycast from a pose, its colour shaded by the normals.
 
-Both take each frame's depth from the sequence's depth files, or from ``depth``, a callable
-``image (3, H, W) RGB -> depth (1, H, W)`` (``gvnn_warp.depth.predict.DepthPredictor``: monocular
-depth, whose units are then the map's: voxel size and truncation are in them too).
+:func:`fuse_sequence` and :class:`ModelTracker` take each frame's depth from the sequence's depth
+files, or from ``depth``, a callable ``image (3, H, W) RGB -> depth (1, H, W)``
+(``gvnn_warp.depth.predict.DepthPredictor``: monocular depth, whose units are then the map's:
+voxel size and truncation are in them too).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from ..odometry.tracking import INITS, TrackingStopped, TrackResult, info_conver
 from ..progress import progress_bar
 from .volume import IntegrateReport, MapFull, TSDFVolume
 
-__all__ = ["FuseReport", "ModelTracker", "camera_of", "fuse_sequence", "render_picture"]
+__all__ = ["FrameToModel", "FuseReport", "ModelTracker", "camera_of", "fuse_sequence", "render_picture"]
 
 
 def camera_of(seq: TUMSequence):
@@ -79,6 +81,79 @@ def fuse_sequence(volume: TSDFVolume, seq: TUMSequence, poses: np.ndarray, *, de
     return report
 
 
+class FrameToModel:
+    """Frame-to-model tracking one frame at a time (see the module docstring), for frames the caller
+    holds: :meth:`add` each frame in order (colour (3, H, W) in [0, 1], depth (1, H, W) metres), then
+    :meth:`result` (a :class:`TrackResult`). The first frame is integrated at ``start_pose``; each
+    later one is aligned to the model raycast at the previous frame's pose, starting from the depth
+    integrated there, then integrated at the pose found. ``aligner``, ``color``, ``init``: as
+    :class:`ModelTracker`'s; ``camera``: as :meth:`TSDFVolume.integrate` takes it; ``n_frames`` sizes
+    the result. ``seconds`` per frame count the raycast, the alignment and the integration;
+    ``fuse`` holds the integrations' statistics and time. A map that outgrows the volume's memory
+    raises ``MapFull`` from :meth:`add`, the frames before it kept. Stepping it alternately with a
+    frame-to-frame :class:`~gvnn_warp.odometry.tracking.Tracker` compares the two under the same
+    machine load (``benchmarks.model_tracking``)."""
+
+    def __init__(self, aligner, volume: TSDFVolume, camera, height: int, width: int, n_frames: int, *,
+                 start_pose: np.ndarray | None = None, color: bool = False, init: str = "identity"):
+        if init not in INITS:
+            raise ValueError(f"FrameToModel: argument 'init' must be one of {', '.join(map(repr, INITS))}, "
+                             f"got {init!r}")
+        if n_frames < 1:
+            raise ValueError(f"FrameToModel: argument 'n_frames' must be at least 1, got {n_frames}")
+        self.aligner, self.volume, self.camera, self.height, self.width = aligner, volume, camera, height, width
+        self.color, self.init = bool(color), init
+        self.n = 0
+        self.poses = np.full((n_frames, 4, 4), np.nan)
+        self.poses[0] = np.eye(4) if start_pose is None else np.asarray(start_pose, dtype=np.float64)
+        self.converged, self.finite = np.ones(n_frames, bool), np.ones(n_frames, bool)
+        self.valid, self.seconds = np.full(n_frames, np.nan), np.zeros(n_frames)
+        self.infos: list = [None]
+        self.fuse = FuseReport()
+        self._step = np.eye(4)  # the previous frame's motion, T_{i-1, i-2}
+        self._prev_depth = None  # the depth integrated last: where the raycast's rays start
+
+    def add(self, rgb: np.ndarray, depth: np.ndarray) -> None:
+        """Process the next frame (see the class docstring)."""
+        i = self.n
+        if i >= self.poses.shape[0]:
+            raise IndexError(f"FrameToModel: more than the {self.poses.shape[0]} frames announced")
+        s = time.perf_counter()
+        if i > 0:
+            # (at the pose frame i - 1 was just integrated at: its depth tells the rays where to start)
+            ref_depth, ref_colour, _ = self.volume.raycast(self.camera, self.poses[i - 1], self.height, self.width,
+                                                           start_depth=self._prev_depth, normals=False)
+            channels = (lambda c: c) if self.color else to_gray
+            # (the live depth too: the aligner's occlusion test and depth term use it)
+            guess = self._step if self.init == "velocity" else None
+            T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth, init=guess)
+            T = np.asarray(T, dtype=np.float64)
+            if not np.all(np.isfinite(T)):
+                self.finite[i], T = False, (np.eye(4) if guess is None else guess)
+            self._step = T
+            self.poses[i] = self.poses[i - 1] @ np.linalg.inv(T)
+            self.converged[i], self.valid[i] = info_converged(info), info_valid_fraction(info)
+            self.infos.append(info)
+        t = time.perf_counter()
+        report = self.volume.integrate(depth, rgb, self.camera, self.poses[i])  # (MapFull: frame i not added)
+        self.fuse.add(i, report, time.perf_counter() - t)
+        self._prev_depth = depth
+        self.seconds[i] = time.perf_counter() - s if i > 0 else 0.0
+        self.n += 1
+
+    @property
+    def ms_per_frame(self) -> float:
+        """Mean time per frame after the first (raycast, alignment, integration), ms."""
+        return 1e3 * float(self.seconds[1:self.n].sum()) / max(self.n - 1, 1)
+
+    def result(self, n: int | None = None) -> TrackResult:
+        """The result over the frames added so far (or the first ``n``: the start pose alone for 1)."""
+        n = self.n if n is None else n
+        return TrackResult(self.poses[:n].copy(), np.arange(-1, n - 1), self.converged[:n].copy(),
+                           self.finite[:n].copy(), self.valid[:n].copy(), self.seconds[:n].copy(),
+                           list(range(max(n - 1, 1))), list(self.infos[:n]))
+
+
 class ModelTracker:
     """Frame-to-model tracking (see the module docstring): ``tracker(n, start_pose, progress)`` ->
     :class:`TrackResult` over the first ``n`` frames of ``seq``, with ``volume`` holding the model
@@ -89,7 +164,7 @@ class ModelTracker:
     :func:`gvnn_warp.odometry.tracking.track`'s; ``seconds`` per frame count the raycast, the
     alignment and the integration. A frame that cannot be read, or a map that outgrows the volume's
     memory, raises ``TrackingStopped`` with the result of the frames before it. ``depth``: see the
-    module docstring."""
+    module docstring. A loop of :class:`FrameToModel` over the sequence's frames."""
 
     def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume, depth=None, *, color: bool = False,
                  init: str = "identity"):
@@ -101,57 +176,28 @@ class ModelTracker:
         self.fuse = FuseReport()
 
     def __call__(self, n: int, start_pose: np.ndarray, progress: bool = True) -> TrackResult:
-        seq, vol, camera = self.seq, self.volume, camera_of(self.seq)
-        H, W = seq.height, seq.width
-        channels = (lambda rgb: rgb) if self.color else to_gray
-        poses = np.full((n, 4, 4), np.nan)
-        poses[0] = start_pose
-        converged, finite = np.ones(n, bool), np.ones(n, bool)
-        valid, seconds = np.full(n, np.nan), np.zeros(n)
-        infos: list = [None]
-        step = np.eye(4)  # the previous frame's motion, T_{i-1, i-2}
-        def result(m: int) -> TrackResult:  # the first m frames
-            return TrackResult(poses[:m].copy(), np.arange(-1, m - 1), converged[:m].copy(), finite[:m].copy(),
-                               valid[:m].copy(), seconds[:m].copy(), list(range(max(m - 1, 1))), infos[:m])
-
-        rgb, depth = _frame(seq, 0, self.depth)
-        prev_depth = depth
-        s = time.perf_counter()
+        seq = self.seq
+        model = FrameToModel(self.aligner, self.volume, camera_of(seq), seq.height, seq.width, n,
+                             start_pose=start_pose, color=self.color, init=self.init)
+        self.fuse = model.fuse
+        rgb, depth = _frame(seq, 0, self.depth)  # (frame 0 unreadable: its error, nothing tracked)
         try:
-            self.fuse.add(0, vol.integrate(depth, rgb, camera, start_pose), time.perf_counter() - s)
+            model.add(rgb, depth)
         except MapFull as e:
-            raise TrackingStopped(1, result(1), InputError(str(e))) from e
+            raise TrackingStopped(1, model.result(1), InputError(str(e))) from e
         with progress_bar(total=n, initial=1, unit="frame", desc="track (model)", disable=not progress) as bar:
             for i in range(1, n):
                 try:  # (a frame that cannot be read, or a map beyond the memory given: the frames before it stand)
                     rgb, depth = _frame(seq, i, self.depth)
+                    model.add(rgb, depth)
                 except InputError as e:
-                    raise TrackingStopped(i, result(i), e) from e
-                s = time.perf_counter()
-                # (at the pose frame i - 1 was just integrated at: its depth tells the rays where to start)
-                ref_depth, ref_colour, _ = vol.raycast(camera, poses[i - 1], H, W, start_depth=prev_depth,
-                                                       normals=False)
-                # (the live depth too: the aligner's occlusion test and depth term use it)
-                guess = step if self.init == "velocity" else None
-                T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth, init=guess)
-                T = np.asarray(T, dtype=np.float64)
-                if not np.all(np.isfinite(T)):
-                    finite[i], T = False, (np.eye(4) if guess is None else guess)
-                step = T
-                poses[i] = poses[i - 1] @ np.linalg.inv(T)
-                converged[i], valid[i] = info_converged(info), info_valid_fraction(info)
-                t = time.perf_counter()
-                try:
-                    self.fuse.add(i, vol.integrate(depth, rgb, camera, poses[i]), time.perf_counter() - t)
+                    raise TrackingStopped(i, model.result(), e) from e
                 except MapFull as e:
-                    raise TrackingStopped(i, result(i), InputError(str(e))) from e
-                prev_depth = depth
-                seconds[i] = time.perf_counter() - s
-                infos.append(info)
+                    raise TrackingStopped(i, model.result(), InputError(str(e))) from e
                 bar.update(1)
                 if i % 10 == 0 or i == n - 1:
-                    bar.set_postfix_str(f"{1000 * seconds[1:i + 1].mean():.0f} ms/frame", refresh=False)
-        return result(n)
+                    bar.set_postfix_str(f"{model.ms_per_frame:.0f} ms/frame", refresh=False)
+        return model.result()
 
 
 def render_picture(volume: TSDFVolume, camera, T_world_cam: np.ndarray, height: int, width: int,

@@ -2,6 +2,8 @@
 pinhole and a lens, its mesh, its invariances (world translation across block boundaries, thread
 count), bad input and the PLY files."""
 
+import re
+
 import numpy as np
 import pytest
 from gvnn_warp.kernels.core.threads import get_num_threads, set_num_threads
@@ -664,6 +666,57 @@ def test_model_tracking_takes_colour_and_a_constant_velocity_start(tmp_path):
         assert err.max() < 0.02, err  # (the camera moves 1.5 cm a frame, 7.5 cm in all)
     with pytest.raises(ValueError, match="ModelTracker: argument 'init'"):
         ModelTracker(seq, DirectAligner(seq.K), TSDFVolume(0.02), init="constant")
+
+
+def test_frame_to_model_one_frame_at_a_time(tmp_path):
+    # FrameToModel, the loop's body for frames the caller holds: stepped by hand over a rendered
+    # sequence it follows the true poses, times every frame after the first, integrates every frame;
+    # more frames than announced, a bad init or no frames are refused
+    from gvnn_warp.cli import main
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.fusion.sequence import FrameToModel
+    from gvnn_warp.odometry import DirectAligner
+
+    assert main(["render", "--out", str(tmp_path / "seq"), "--frames", "5", "--size", "160x120", "--seed", "6",
+                 "--no-progress"]) == 0
+    seq = read_tum(tmp_path / "seq")
+    vol = TSDFVolume(0.01, max_depth=10.0)
+    model = FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, len(seq),
+                         start_pose=seq.gt_poses[0])
+    for i in range(len(seq)):
+        model.add(seq.image(i), seq.depth(i))
+        assert model.n == i + 1 and vol.n_blocks > 0
+    r = model.result()
+    err = np.linalg.norm(r.poses[:, :3, 3] - seq.gt_poses[: len(seq), :3, 3], axis=1)
+    assert np.abs(seq.gt_poses[len(seq) - 1, :3, 3] - seq.gt_poses[0, :3, 3]).max() > 0.03  # (it moved)
+    assert err.max() < 0.01, err
+    assert r.seconds[0] == 0 and (r.seconds[1:] > 0).all() and model.ms_per_frame > 0
+    assert model.fuse.integrated == len(seq) and r.converged.all() and r.finite.all()
+    np.testing.assert_array_equal(model.result(1).poses, seq.gt_poses[:1])
+    with pytest.raises(IndexError, match="more than the 5 frames"):
+        model.add(seq.image(0), seq.depth(0))
+    with pytest.raises(ValueError, match="FrameToModel: argument 'init'"):
+        FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 3, init="constant")
+    with pytest.raises(ValueError, match="FrameToModel: argument 'n_frames'"):
+        FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 0)
+
+
+def test_model_tracking_benchmark_runs(monkeypatch, capsys):
+    # benchmarks/model_tracking.py end to end on a tiny rendered sequence (as `python -m
+    # benchmarks.model_tracking` from the repository's root): both ways tracked, times and ATEs printed
+    from pathlib import Path
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from benchmarks import model_tracking
+
+    model_tracking.main(["--frames", "5", "--size", "96x64", "--seed", "4"])
+    out = capsys.readouterr().out
+    ratio = re.search(r"ms per frame \(mean\) +frame to frame \+ fusion +([0-9.]+) +model +([0-9.]+) +ratio ([0-9.]+)",
+                      out)
+    f2f, model, r = (float(g) for g in ratio.groups())
+    assert f2f > 0 and model > 0 and abs(r - model / f2f) < 0.01 + 0.01 * r
+    ate = re.search(r"ATE +frame to frame ([0-9.]+) cm +model ([0-9.]+) cm", out)
+    assert all(0 <= float(g) < 1.0 for g in ate.groups())  # (5 frames of 1.5 cm steps: well under 1 cm)
 
 
 def test_raycast_colour_is_interpolated_between_voxels(monkeypatch):
