@@ -26,6 +26,7 @@ import numpy as np
 from ..datasets.images import to_gray
 from ..datasets.tum import TUMSequence
 from ..errors import InputError
+from ..odometry.inputs import as_numpy, fail
 from ..odometry.tracking import INITS, TrackingStopped, TrackResult, info_converged, info_valid_fraction
 from ..progress import progress_bar
 from .volume import IntegrateReport, MapFull, TSDFVolume
@@ -99,8 +100,11 @@ class FrameToModel:
         if init not in INITS:
             raise ValueError(f"FrameToModel: argument 'init' must be one of {', '.join(map(repr, INITS))}, "
                              f"got {init!r}")
-        if n_frames < 1:
-            raise ValueError(f"FrameToModel: argument 'n_frames' must be at least 1, got {n_frames}")
+        if not (isinstance(n_frames, (int, np.integer)) and n_frames >= 1):
+            raise ValueError(f"FrameToModel: argument 'n_frames' must be an integer >= 1, got {n_frames!r}")
+        if not all(isinstance(v, (int, np.integer)) and v >= 2 for v in (height, width)):
+            raise ValueError(f"FrameToModel: arguments 'height' and 'width' must be integers >= 2 (the frames' "
+                             f"size), got {height!r}, {width!r}")
         self.aligner, self.volume, self.camera, self.height, self.width = aligner, volume, camera, height, width
         self.color, self.init = bool(color), init
         self.n = 0
@@ -114,10 +118,21 @@ class FrameToModel:
         self._prev_depth = None  # the depth integrated last: where the raycast's rays start
 
     def add(self, rgb: np.ndarray, depth: np.ndarray) -> None:
-        """Process the next frame (see the class docstring)."""
+        """Process the next frame (see the class docstring): ``rgb`` (3, H, W) in [0, 1], ``depth``
+        (1, H, W) or (H, W) metres (0, NaN, negative: none), numpy arrays or CPU tensors."""
+        fn, H, W = "gvnn_warp.fusion.sequence.FrameToModel.add", self.height, self.width
         i = self.n
         if i >= self.poses.shape[0]:
-            raise IndexError(f"FrameToModel: more than the {self.poses.shape[0]} frames announced")
+            raise IndexError(f"{fn}: more than the {self.poses.shape[0]} frames announced (n_frames)")
+        rgb = as_numpy(fn, "rgb", rgb, (3,))
+        if rgb.shape != (3, H, W):
+            hint = ", which looks channel-last (H, W, 3): transpose it" if rgb.shape == (H, W, 3) else ""
+            fail(fn, ValueError, f"argument 'rgb' must be (3, {H}, {W}) (the height and width given), got "
+                                 f"{rgb.shape}{hint}")
+        depth = as_numpy(fn, "depth", depth, (2, 3))
+        if depth.shape not in ((H, W), (1, H, W)):
+            fail(fn, ValueError, f"argument 'depth' must be (1, {H}, {W}) or ({H}, {W}), got {depth.shape}")
+        depth = depth.reshape(1, H, W)
         s = time.perf_counter()
         if i > 0:
             # (at the pose frame i - 1 was just integrated at: its depth tells the rays where to start)

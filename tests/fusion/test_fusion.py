@@ -695,10 +695,22 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
     np.testing.assert_array_equal(model.result(1).poses, seq.gt_poses[:1])
     with pytest.raises(IndexError, match="more than the 5 frames"):
         model.add(seq.image(0), seq.depth(0))
+    fresh = FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0), seq.K, seq.height, seq.width, 2,
+                         start_pose=seq.gt_poses[0])
+    with pytest.raises(ValueError, match=r"FrameToModel.add: argument 'rgb' must be \(3, 120, 160\).*channel-last"):
+        fresh.add(seq.image(0).transpose(1, 2, 0), seq.depth(0))
+    with pytest.raises(ValueError, match=r"FrameToModel.add: argument 'depth' must be \(1, 120, 160\)"):
+        fresh.add(seq.image(0), seq.depth(0)[:, :60])
+    assert fresh.n == 0  # (nothing integrated by a refused frame)
+    fresh.add(seq.image(0), seq.depth(0)[0])  # (H, W) depth, as TSDFVolume.integrate takes it
+    fresh.add(seq.image(1), seq.depth(1)[0])
+    np.testing.assert_allclose(fresh.result().poses[1], r.poses[1], atol=1e-6)
     with pytest.raises(ValueError, match="FrameToModel: argument 'init'"):
         FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 3, init="constant")
     with pytest.raises(ValueError, match="FrameToModel: argument 'n_frames'"):
         FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 0)
+    with pytest.raises(ValueError, match="FrameToModel: arguments 'height' and 'width'"):
+        FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.width, 120.0, 3)
 
 
 def test_model_tracking_benchmark_runs(monkeypatch, capsys):
