@@ -58,8 +58,9 @@ import sys
 from pathlib import Path
 
 from ..datasets.tum import DatasetError, read_tum
+from ..errors import InputError
 from ..odometry.sequence import LENS_MODES, RESULT_FILES, make_aligner, track_sequence
-from ..odometry.tracking import INITS, KeyframePolicy
+from ..odometry.tracking import INITS, KeyframePolicy, TrackingStopped
 from .args import UsageError, bounded_int, description, finite_float, output_dir, positive_float
 from .runner import INSTALL_HINTS, command_main, missing_packages
 
@@ -301,13 +302,22 @@ def run(args: argparse.Namespace) -> int:
             tracker = ModelTracker(seq, aligner, volume, depth=predictor, color=args.color, init=args.init)
     # an image that cannot be read while tracking is one line naming it (and, past frame 1, where the
     # results of the frames before it were written), status 1: gvnn_warp.cli.runner prints InputErrors
-    report = track_sequence(
-        seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
-        checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
-        levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
-        max_difference=args.max_difference, predictor=predictor,
-        interpolate_gt=getattr(args, "gt_interpolate", False), tracker=tracker, progress=not args.no_progress,
-    )
+    try:
+        report = track_sequence(
+            seq, n, aligner, args.out, method=getattr(args, "method", "direct"),
+            checkpoint=getattr(args, "checkpoint", None), color=args.color, keyframes=policy, init=args.init,
+            levels=args.levels, iterations=args.iterations, robust=args.robust, depth_weight=args.depth_weight,
+            max_difference=args.max_difference, predictor=predictor,
+            interpolate_gt=getattr(args, "gt_interpolate", False), tracker=tracker, progress=not args.no_progress,
+        )
+    except TrackingStopped as e:  # (--model: a map beyond --fuse-memory stops the tracking; name the options)
+        from ..fusion import MapFull
+
+        cause = e.__cause__
+        if not isinstance(cause, MapFull):
+            raise
+        raise TrackingStopped(e.frame, e.result, InputError(
+            str(e).replace(str(cause), f"{cause} (--voxel, --fuse-memory)", 1))) from cause
     if volume is not None:
         status = _fuse_and_mesh(args, seq, report, volume, tracker, predictor)
         if status:
@@ -351,9 +361,6 @@ def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
     metrics_path = args.out / "metrics.json"
     metrics = json.loads(metrics_path.read_text())
     metrics["fusion"] = fusion
-    if tracker is not None:
-        metrics["ms_per_pair_note"] = ("raycast of the model, alignment and integration; file reading"
-                                       + (" excluded" if predictor is None else " and depth prediction excluded"))
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     units = "m" if predictor is None else "(the predicted depth's units: the first frame's median depth is 1)"
     report.rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} {units} "

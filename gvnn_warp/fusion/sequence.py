@@ -19,6 +19,7 @@ voxel size and truncation are in them too).
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,8 @@ import numpy as np
 from ..datasets.images import to_gray
 from ..datasets.tum import TUMSequence
 from ..errors import InputError
-from ..odometry.inputs import as_numpy, fail
+from ..odometry.aligner import INTENSITY_LIMIT
+from ..odometry.inputs import as_numpy, fail, is_torch
 from ..odometry.tracking import INITS, TrackingStopped, TrackResult, info_converged, info_valid_fraction
 from ..progress import progress_bar
 from .volume import IntegrateReport, MapFull, TSDFVolume
@@ -85,37 +87,56 @@ def fuse_sequence(volume: TSDFVolume, seq: TUMSequence, poses: np.ndarray, *, de
 class FrameToModel:
     """Frame-to-model tracking one frame at a time (see the module docstring), for frames the caller
     holds: :meth:`add` each frame in order (colour (3, H, W) in [0, 1], depth (1, H, W) metres), then
-    :meth:`result` (a :class:`TrackResult`). The first frame is integrated at ``start_pose``; each
-    later one is aligned to the model raycast at the previous frame's pose, starting from the depth
-    integrated there, then integrated at the pose found. ``aligner``, ``color``, ``init``: as
-    :class:`ModelTracker`'s; ``camera``: as :meth:`TSDFVolume.integrate` takes it; ``n_frames`` sizes
-    the result. ``seconds`` per frame count the raycast, the alignment and the integration;
-    ``fuse`` holds the integrations' statistics and time. A map that outgrows the volume's memory
-    raises ``MapFull`` from :meth:`add`, the frames before it kept. Stepping it alternately with a
-    frame-to-frame :class:`~gvnn_warp.odometry.tracking.Tracker` compares the two under the same
-    machine load (``benchmarks.model_tracking``)."""
+    :meth:`result` (a :class:`TrackResult`). The first frame is integrated at ``start_pose`` (a rigid
+    (4, 4) ``T_world_cam``; identity if None); each later one is aligned to the model raycast at the
+    previous frame's pose, starting from the depth integrated there, then integrated at the pose
+    found. ``aligner``: a ``DirectAligner`` (or anything with its ``align``) for the same camera and
+    images, grey or, with ``color``, RGB; ``init`` as :class:`ModelTracker`'s; ``camera``: as
+    :meth:`TSDFVolume.integrate` takes it, for ``height`` x ``width`` frames (a pinhole K whose
+    principal point lies outside them is refused, as is a plain ``DirectAligner`` with another K);
+    ``volume``: the model, normally empty; ``n_frames`` sizes the result.
+
+    ``seconds`` per frame count the raycast, the alignment and the integration (frame 0: 0);
+    ``integrate_seconds`` the integration alone; ``fuse`` holds the integrations' statistics. A frame
+    with no depth in the volume's range changes nothing in the map (``fuse.skipped``; a warning
+    with ``warn``, once). A map that outgrows the volume's memory raises ``MapFull`` from
+    :meth:`add`, nothing of that frame kept. Stepping it alternately with a frame-to-frame
+    :class:`~gvnn_warp.odometry.tracking.Tracker` compares the two under the same machine load
+    (``benchmarks.model_tracking``)."""
 
     def __init__(self, aligner, volume: TSDFVolume, camera, height: int, width: int, n_frames: int, *,
-                 start_pose: np.ndarray | None = None, color: bool = False, init: str = "identity"):
+                 start_pose: np.ndarray | None = None, color: bool = False, init: str = "identity",
+                 warn: bool = True):
+        fn = "gvnn_warp.fusion.sequence.FrameToModel"
         if init not in INITS:
-            raise ValueError(f"FrameToModel: argument 'init' must be one of {', '.join(map(repr, INITS))}, "
-                             f"got {init!r}")
+            fail(fn, ValueError, f"argument 'init' must be one of {', '.join(map(repr, INITS))}, got {init!r}")
         if not (isinstance(n_frames, (int, np.integer)) and n_frames >= 1):
-            raise ValueError(f"FrameToModel: argument 'n_frames' must be an integer >= 1, got {n_frames!r}")
+            fail(fn, ValueError, f"argument 'n_frames' must be an integer >= 1, got {n_frames!r}")
         if not all(isinstance(v, (int, np.integer)) and v >= 2 for v in (height, width)):
-            raise ValueError(f"FrameToModel: arguments 'height' and 'width' must be integers >= 2 (the frames' "
-                             f"size), got {height!r}, {width!r}")
+            fail(fn, ValueError, f"arguments 'height' and 'width' must be integers >= 2 (the frames' size), got "
+                                 f"{height!r}, {width!r}")
+        pose = np.eye(4) if start_pose is None else as_numpy(fn, "start_pose", start_pose, (2,)).astype(np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            fail(fn, ValueError, f"argument 'start_pose' must be a finite (4, 4) T_world_cam, got {pose.shape} "
+                                 f"{'with non-finite values' if pose.shape == (4, 4) else ''}".rstrip())
+        R = pose[:3, :3]
+        if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(pose[3] - [0, 0, 0, 1]).max() > 1e-6:
+            fail(fn, ValueError, "argument 'start_pose' must be a rigid transform (orthonormal rotation, last row "
+                                 "0 0 0 1)")
+        _check_camera(fn, aligner, camera, height, width)
         self.aligner, self.volume, self.camera, self.height, self.width = aligner, volume, camera, height, width
-        self.color, self.init = bool(color), init
+        self.color, self.init, self.warn = bool(color), init, bool(warn)
         self.n = 0
         self.poses = np.full((n_frames, 4, 4), np.nan)
-        self.poses[0] = np.eye(4) if start_pose is None else np.asarray(start_pose, dtype=np.float64)
+        self.poses[0] = pose
         self.converged, self.finite = np.ones(n_frames, bool), np.ones(n_frames, bool)
         self.valid, self.seconds = np.full(n_frames, np.nan), np.zeros(n_frames)
+        self.integrate_seconds = np.zeros(n_frames)
         self.infos: list = [None]
         self.fuse = FuseReport()
         self._step = np.eye(4)  # the previous frame's motion, T_{i-1, i-2}
         self._prev_depth = None  # the depth integrated last: where the raycast's rays start
+        self._warned = False
 
     def add(self, rgb: np.ndarray, depth: np.ndarray) -> None:
         """Process the next frame (see the class docstring): ``rgb`` (3, H, W) in [0, 1], ``depth``
@@ -133,10 +154,19 @@ class FrameToModel:
         if depth.shape not in ((H, W), (1, H, W)):
             fail(fn, ValueError, f"argument 'depth' must be (1, {H}, {W}) or ({H}, {W}), got {depth.shape}")
         depth = depth.reshape(1, H, W)
+        if self.warn and not self._warned:
+            top = float(np.nanmax(rgb[:, ::7, ::7], initial=0.0))
+            if top > INTENSITY_LIMIT:
+                self._warned = True
+                warnings.warn(f"{fn}: argument 'rgb' has values up to {top:g}; colours are expected in [0, 1] "
+                              "(divide 8-bit images by 255), and accuracy suffers otherwise", UserWarning,
+                              stacklevel=2)
         s = time.perf_counter()
+        pose, step, info = self.poses[0], self._step, None
+        converged, finite, valid = True, True, np.nan
         if i > 0:
             # (at the pose frame i - 1 was just integrated at: its depth tells the rays where to start)
-            ref_depth, ref_colour, _ = self.volume.raycast(self.camera, self.poses[i - 1], self.height, self.width,
+            ref_depth, ref_colour, _ = self.volume.raycast(self.camera, self.poses[i - 1], H, W,
                                                            start_depth=self._prev_depth, normals=False)
             channels = (lambda c: c) if self.color else to_gray
             # (the live depth too: the aligner's occlusion test and depth term use it)
@@ -144,16 +174,23 @@ class FrameToModel:
             T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth, init=guess)
             T = np.asarray(T, dtype=np.float64)
             if not np.all(np.isfinite(T)):
-                self.finite[i], T = False, (np.eye(4) if guess is None else guess)
-            self._step = T
-            self.poses[i] = self.poses[i - 1] @ np.linalg.inv(T)
-            self.converged[i], self.valid[i] = info_converged(info), info_valid_fraction(info)
-            self.infos.append(info)
+                finite, T = False, (np.eye(4) if guess is None else guess)
+            step, pose = T, self.poses[i - 1] @ np.linalg.inv(T)
+            converged, valid = info_converged(info), info_valid_fraction(info)
         t = time.perf_counter()
-        report = self.volume.integrate(depth, rgb, self.camera, self.poses[i])  # (MapFull: frame i not added)
-        self.fuse.add(i, report, time.perf_counter() - t)
-        self._prev_depth = depth
-        self.seconds[i] = time.perf_counter() - s if i > 0 else 0.0
+        report = self.volume.integrate(depth, rgb, self.camera, pose)  # (MapFull: nothing of frame i kept)
+        done = time.perf_counter()
+        self.fuse.add(i, report, done - t)
+        if report.valid_pixels == 0 and self.warn and not self._warned:
+            self._warned = True
+            warnings.warn(f"{fn}: frame {i} has no depth within the volume's range [{self.volume.min_depth:g}, "
+                          f"{self.volume.max_depth:g}] m: nothing integrated (depths in millimetres, or negated?)",
+                          UserWarning, stacklevel=2)
+        self.poses[i], self._step, self._prev_depth = pose, step, depth
+        self.converged[i], self.finite[i], self.valid[i] = converged, finite, valid
+        if i > 0:
+            self.infos.append(info)
+            self.seconds[i], self.integrate_seconds[i] = done - s, done - t
         self.n += 1
 
     @property
@@ -162,11 +199,38 @@ class FrameToModel:
         return 1e3 * float(self.seconds[1:self.n].sum()) / max(self.n - 1, 1)
 
     def result(self, n: int | None = None) -> TrackResult:
-        """The result over the frames added so far (or the first ``n``: the start pose alone for 1)."""
-        n = self.n if n is None else n
+        """The result over the frames added so far (or the first ``n`` of them; 1 gives the start
+        pose alone, also before any frame)."""
+        if n is None:
+            n = self.n
+        elif not (isinstance(n, (int, np.integer)) and 1 <= n <= max(self.n, 1)):
+            raise ValueError(f"gvnn_warp.fusion.sequence.FrameToModel.result: argument 'n' must be in [1, "
+                             f"{max(self.n, 1)}] (the frames added), got {n!r}")
         return TrackResult(self.poses[:n].copy(), np.arange(-1, n - 1), self.converged[:n].copy(),
                            self.finite[:n].copy(), self.valid[:n].copy(), self.seconds[:n].copy(),
                            list(range(max(n - 1, 1))), list(self.infos[:n]))
+
+
+def _check_camera(fn: str, aligner, camera, height: int, width: int) -> None:
+    """Refuse a pinhole K (of ``camera``, plain or with distortion) whose principal point lies outside
+    ``height`` x ``width`` frames (a K for another image size), and a plain ``DirectAligner`` (no
+    lens model, no resampling) whose K differs from it: the model would be raycast with one camera
+    and aligned with another."""
+    K = camera[0] if isinstance(camera, tuple) and len(camera) == 2 else camera
+    if not (isinstance(K, np.ndarray) or is_torch(K)):
+        return  # (a camera object of gvnn_warp.cameras: the volume checks it)
+    K = np.asarray(K.detach().cpu() if is_torch(K) else K, dtype=np.float64)
+    if K.shape != (3, 3):
+        return  # (the volume's error names it)
+    if not (0 <= K[0, 2] <= width - 1 and 0 <= K[1, 2] <= height - 1):
+        fail(fn, ValueError, f"argument 'camera' has its principal point ({K[0, 2]:g}, {K[1, 2]:g}) outside the "
+                             f"{width}x{height} frames: intrinsics for another image size?")
+    A = getattr(aligner, "K", None)
+    plain = getattr(aligner, "model", None) in (None, "pinhole") and getattr(aligner, "resample", None) is None
+    if plain and isinstance(A, np.ndarray) and A.shape == (3, 3) and not isinstance(camera, tuple) \
+            and not np.allclose(A, K, rtol=1e-6, atol=1e-6):
+        fail(fn, ValueError, f"argument 'aligner' has K {A.tolist()}, argument 'camera' {K.tolist()}: the model "
+                             "is raycast with the camera and aligned with the aligner's, so they must be the same")
 
 
 class ModelTracker:
@@ -193,7 +257,7 @@ class ModelTracker:
     def __call__(self, n: int, start_pose: np.ndarray, progress: bool = True) -> TrackResult:
         seq = self.seq
         model = FrameToModel(self.aligner, self.volume, camera_of(seq), seq.height, seq.width, n,
-                             start_pose=start_pose, color=self.color, init=self.init)
+                             start_pose=start_pose, color=self.color, init=self.init, warn=False)
         self.fuse = model.fuse
         rgb, depth = _frame(seq, 0, self.depth)  # (frame 0 unreadable: its error, nothing tracked)
         try:

@@ -205,7 +205,10 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                      "depth": "sensor" if predictor is None else "predicted",
                      "depth_checkpoint": str(getattr(predictor, "checkpoint", "")) or None},
         "ms_per_pair": result.ms_per_pair,
-        "ms_per_pair_note": "alignment incl. the live frame's pyramid; file reading excluded",
+        "ms_per_pair_note": ("alignment incl. the live frame's pyramid; file reading excluded" if tracker is None else
+                             "the tracker's time per frame (frame to model: the raycast of the model, the "
+                             "alignment and the integration); file reading"
+                             + (" excluded" if predictor is None else " and depth prediction excluded")),
         "keyframes": len(result.keyframes) if keyframes else None,
         "unconverged_pairs": len(unconverged),
         "unconverged_frames": unconverged,

@@ -674,8 +674,10 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
     # more frames than announced, a bad init or no frames are refused
     from gvnn_warp.cli import main
     from gvnn_warp.datasets.tum import read_tum
-    from gvnn_warp.fusion.sequence import FrameToModel
+    from gvnn_warp.fusion import BYTES_PER_BLOCK, MapFull
+    from gvnn_warp.fusion.sequence import FrameToModel, ModelTracker
     from gvnn_warp.odometry import DirectAligner
+    from gvnn_warp.odometry.tracking import TrackingStopped
 
     assert main(["render", "--out", str(tmp_path / "seq"), "--frames", "5", "--size", "160x120", "--seed", "6",
                  "--no-progress"]) == 0
@@ -690,7 +692,15 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
     err = np.linalg.norm(r.poses[:, :3, 3] - seq.gt_poses[: len(seq), :3, 3], axis=1)
     assert np.abs(seq.gt_poses[len(seq) - 1, :3, 3] - seq.gt_poses[0, :3, 3]).max() > 0.03  # (it moved)
     assert err.max() < 0.01, err
-    assert r.seconds[0] == 0 and (r.seconds[1:] > 0).all() and model.ms_per_frame > 0
+    # ModelTracker is a loop over it: the same poses bit for bit, an info per frame
+    tracked = ModelTracker(seq, DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0))(len(seq), seq.gt_poses[0],
+                                                                                          progress=False)
+    assert np.array_equal(tracked.poses, r.poses) and len(r.infos) == len(r.poses) == len(tracked.infos)
+    assert r.infos[0] is None and all(info is not None for info in r.infos[1:])
+    # times: frame 0 none; later frames the raycast and the alignment beside the integration
+    assert r.seconds[0] == 0 == model.integrate_seconds[0]
+    assert (r.seconds[1:] > model.integrate_seconds[1:]).all() and (model.integrate_seconds[1:] > 0).all()
+    assert model.ms_per_frame == pytest.approx(1e3 * r.seconds[1:].mean())
     assert model.fuse.integrated == len(seq) and r.converged.all() and r.finite.all()
     np.testing.assert_array_equal(model.result(1).poses, seq.gt_poses[:1])
     with pytest.raises(IndexError, match="more than the 5 frames"):
@@ -702,24 +712,89 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
     with pytest.raises(ValueError, match=r"FrameToModel.add: argument 'depth' must be \(1, 120, 160\)"):
         fresh.add(seq.image(0), seq.depth(0)[:, :60])
     assert fresh.n == 0  # (nothing integrated by a refused frame)
+    with pytest.warns(UserWarning, match=r"FrameToModel.add: argument 'rgb' has values up to .*divide 8-bit"):
+        FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0), seq.K, seq.height, seq.width, 1).add(
+            255 * seq.image(0), seq.depth(0))
+    with pytest.warns(UserWarning, match=r"FrameToModel.add: frame 0 has no depth within .* millimetres"):
+        mm = FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0), seq.K, seq.height, seq.width, 1)
+        mm.add(seq.image(0), 1000 * seq.depth(0))
+    assert mm.fuse.skipped == [0]
     fresh.add(seq.image(0), seq.depth(0)[0])  # (H, W) depth, as TSDFVolume.integrate takes it
     fresh.add(seq.image(1), seq.depth(1)[0])
     np.testing.assert_allclose(fresh.result().poses[1], r.poses[1], atol=1e-6)
+    with pytest.raises(ValueError, match=r"result: argument 'n' must be in \[1, 5\]"):
+        model.result(6)
+    # a map that outgrows the memory at frame 3: nothing of frame 3 kept (frames 0-2 stand), in
+    # FrameToModel and through ModelTracker (TrackingStopped at frame 3, three poses and infos)
+    blocks = []
+    probe = TSDFVolume(0.01, max_depth=10.0)
+    for i in range(4):
+        blocks.append(probe.integrate(seq.depth(i), seq.image(i), seq.K, r.poses[i]).total_blocks)
+    assert blocks[3] > blocks[2]
+    tight = (blocks[2] + 0.5) * BYTES_PER_BLOCK / 2**20
+    small = FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0, max_memory_mb=tight), seq.K,
+                         seq.height, seq.width, 5, start_pose=seq.gt_poses[0])
+    for i in range(3):
+        small.add(seq.image(i), seq.depth(i))
+    step = small._step.copy()
+    with pytest.raises(MapFull):
+        small.add(seq.image(3), seq.depth(3))
+    assert small.n == 3 and len(small.infos) == 3 and np.isnan(small.poses[3]).all()
+    assert np.array_equal(small._step, step) and np.array_equal(small.result().poses, r.poses[:3])
+    with pytest.raises(TrackingStopped) as stopped:
+        ModelTracker(seq, DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0, max_memory_mb=tight))(
+            len(seq), seq.gt_poses[0], progress=False)
+    part = stopped.value.result
+    assert stopped.value.frame == 3 and len(part.poses) == len(part.infos) == len(part.seconds) == 3
+    assert np.array_equal(part.poses, r.poses[:3]) and "max_memory_mb" in str(stopped.value)
+    # refused arguments
     with pytest.raises(ValueError, match="FrameToModel: argument 'init'"):
         FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 3, init="constant")
+    with pytest.raises(ValueError, match="FrameToModel: argument 'start_pose' must be a finite"):
+        FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 3, start_pose=np.eye(4)[:3])
+    with pytest.raises(ValueError, match="FrameToModel: argument 'start_pose' must be a rigid"):
+        FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 3, start_pose=2 * np.eye(4))
+    big_K = np.array([[480.0, 0, 319.5], [0, 480.0, 239.5], [0, 0, 1]])  # (a K for 640x480 frames)
+    with pytest.raises(ValueError, match=r"argument 'camera' has its principal point \(319.5, 239.5\) outside the "
+                                         r"160x120 frames"):
+        FrameToModel(DirectAligner(big_K), vol, big_K, seq.height, seq.width, 3)
+    with pytest.raises(ValueError, match="argument 'aligner' has K .* argument 'camera'"):
+        FrameToModel(DirectAligner(seq.K * [[1.1], [1.1], [1]]), vol, seq.K, seq.height, seq.width, 3)
     with pytest.raises(ValueError, match="FrameToModel: argument 'n_frames'"):
         FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 0)
     with pytest.raises(ValueError, match="FrameToModel: arguments 'height' and 'width'"):
         FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.width, 120.0, 3)
 
 
-def test_model_tracking_benchmark_runs(monkeypatch, capsys):
-    # benchmarks/model_tracking.py end to end on a tiny rendered sequence (as `python -m
-    # benchmarks.model_tracking` from the repository's root): both ways tracked, times and ATEs printed
+def test_model_tracking_benchmark_runs(tmp_path, monkeypatch, capsys):
+    # benchmarks/model_tracking.py (as `python -m benchmarks.model_tracking` from the repository's
+    # root): its two sides do what track --fuse and track --model do (every frame integrated once at
+    # the frame-to-frame poses: the volume of fuse_sequence at them, bit for bit; the model side
+    # ModelTracker's poses), then end to end on a tiny rendered sequence, times and ATEs printed
     from pathlib import Path
+
+    from gvnn_warp.cli import main
+    from gvnn_warp.datasets.tum import read_tum
+    from gvnn_warp.fusion.sequence import ModelTracker, fuse_sequence
+    from gvnn_warp.odometry.sequence import make_aligner
 
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
     from benchmarks import model_tracking
+
+    assert main(["render", "--out", str(tmp_path / "seq"), "--frames", "6", "--size", "96x64", "--seed", "5",
+                 "--no-progress"]) == 0
+    seq = read_tum(tmp_path / "seq")
+    r, f2f, model, f2f_volume = model_tracking.run(seq, 6)
+    assert r["f2f_integrated"] == 6 and f2f.pending is None and model.n == 6
+    again = TSDFVolume(0.01, max_memory_mb=4096)
+    fuse_sequence(again, seq, f2f.result().poses, progress=False)
+    n_vox = again.n_blocks * 512
+    assert f2f_volume.n_blocks == again.n_blocks > 0
+    assert np.array_equal(f2f_volume.tw.numpy()[:n_vox], again.tw.numpy()[:n_vox])
+    start = model.result().poses[0]  # (the ground truth of nearest stamp, as track: 1 ulp from the interpolated)
+    tracked = ModelTracker(seq, make_aligner(seq.K), TSDFVolume(0.01, max_memory_mb=4096))(6, start, progress=False)
+    assert np.array_equal(model.result().poses, tracked.poses)
+    assert r["model_integrate_ms"] == pytest.approx(1e3 * model.integrate_seconds[1:].mean())
 
     model_tracking.main(["--frames", "5", "--size", "96x64", "--seed", "4"])
     out = capsys.readouterr().out

@@ -491,6 +491,7 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
                  "--fuse-memory", "0.1"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "the map needs more than" in err[0] and not out.exists(), err
+    assert "(--voxel, --fuse-memory)" in err[0], err  # (the options, not the Python argument's name alone)
     # an unreadable frame mid-run: the model tracking so far is written, marked partial
     images = sorted((data / "rgb").glob("*.png"))
     images[2].write_bytes(images[2].read_bytes()[: len(images[2].read_bytes()) // 2])
@@ -498,7 +499,8 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
     assert main(["track", str(data), "--out", str(out), "--no-progress", "--model", "--voxel", "0.02"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and images[2].name in err[0] and "stopped at frame 2" in err[0], err
-    assert json.loads((out / "metrics.json").read_text())["partial"]
+    partial = json.loads((out / "metrics.json").read_text())
+    assert partial["partial"] and "raycast of the model" in partial["ms_per_pair_note"]
     # colour and a constant-velocity start reach the model tracking (and its report)
     from gvnn_warp.fusion import sequence as fusion_sequence
 
