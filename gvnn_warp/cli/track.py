@@ -310,27 +310,34 @@ def run(args: argparse.Namespace) -> int:
             max_difference=args.max_difference, predictor=predictor,
             interpolate_gt=getattr(args, "gt_interpolate", False), tracker=tracker, progress=not args.no_progress,
         )
-    except TrackingStopped as e:  # (--model: a map beyond --fuse-memory stops the tracking; name the options)
+    except TrackingStopped as e:
+        # --model stopped mid-run (a frame that cannot be read, a map beyond --fuse-memory): the results
+        # of the frames before it are written (from frame 2 on); so is the mesh of the model they made
         from ..fusion import MapFull
 
-        cause = e.__cause__
-        if not isinstance(cause, MapFull):
+        cause, message = e.__cause__, str(e)
+        if isinstance(cause, MapFull):
+            message = message.replace(str(cause), f"{cause} (--voxel, --fuse-memory)", 1)
+        if tracker is not None and e.frame >= 2:
+            _fuse_and_mesh(args, seq, [], e.result.poses, volume, tracker, predictor)
+            message += ", and the mesh of the model they made (mesh.ply, mesh.png)"
+        if message == str(e):
             raise
-        raise TrackingStopped(e.frame, e.result, InputError(
-            str(e).replace(str(cause), f"{cause} (--voxel, --fuse-memory)", 1))) from cause
+        raise TrackingStopped(e.frame, e.result, InputError(message)) from cause
     if volume is not None:
-        status = _fuse_and_mesh(args, seq, report, volume, tracker, predictor)
+        status = _fuse_and_mesh(args, seq, report.rows, report.result.poses, volume, tracker, predictor)
         if status:
             return status
     print(f"track {seq.root}:\n{_summary(report.rows)}\nwrote {args.out}")
     return 0
 
 
-def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
-    """--fuse / --model after tracking: integrate (--fuse), then OUT/mesh.ply and OUT/mesh.png, and
-    the fusion's numbers added to metrics.json and the summary. With --fuse, a map that outgrows
-    --fuse-memory is one line, status 1 (the trajectory and metrics are written already); with
-    --model it stops the tracking, whose results so far are written (TrackingStopped)."""
+def _fuse_and_mesh(args, seq, rows: list, poses, volume, tracker, predictor=None) -> int:
+    """--fuse / --model after tracking: integrate (--fuse) at ``poses``, then OUT/mesh.ply and
+    OUT/mesh.png (from ``poses[0]``), and the fusion's numbers added to metrics.json and to the
+    summary's ``rows``. With --fuse, a map that outgrows --fuse-memory is one line, status 1 (the
+    trajectory and metrics are written already); with --model it stops the tracking, whose results so
+    far are written (TrackingStopped), and this writes the mesh of the frames before it."""
     import json
     import time
 
@@ -339,8 +346,8 @@ def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
     from ..odometry.sequence import frames_text
 
     try:
-        fused = tracker.fuse if tracker is not None else fuse_sequence(volume, seq, report.result.poses,
-                                                                       depth=predictor, progress=not args.no_progress)
+        fused = tracker.fuse if tracker is not None else fuse_sequence(volume, seq, poses, depth=predictor,
+                                                                       progress=not args.no_progress)
     except MapFull as e:
         print(f"gvnn-warp track: error: {e} (--voxel, --fuse-memory); {args.out} holds the trajectory and metrics, "
               "not the mesh", file=sys.stderr)
@@ -349,8 +356,7 @@ def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
     vertices, faces, colours = volume.extract_mesh()
     mesh_seconds = time.perf_counter() - s
     write_ply(args.out / "mesh.ply", vertices, faces, colours, comment=f"gvnn-warp track {seq.root}")
-    seen = render_picture(volume, camera_of(seq), report.result.poses[0], seq.height, seq.width,
-                          args.out / "mesh.png")
+    seen = render_picture(volume, camera_of(seq), poses[0], seq.height, seq.width, args.out / "mesh.png")
     fusion = {"voxel_m": volume.voxel_size, "truncation_m": volume.truncation, "blocks": volume.n_blocks,
               "memory_mib": volume.memory_bytes / 2**20, "frames_integrated": fused.integrated,
               "frames_skipped": fused.skipped, "ms_per_frame_integrate": fused.ms_per_frame,
@@ -363,17 +369,17 @@ def _fuse_and_mesh(args, seq, report, volume, tracker, predictor=None) -> int:
     metrics["fusion"] = fusion
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     units = "m" if predictor is None else "(the predicted depth's units: the first frame's median depth is 1)"
-    report.rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} {units} "
+    rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} {units} "
                                   f"({volume.memory_bytes / 2**20:.0f} MiB), {fused.ms_per_frame:.1f} ms per frame to "
                                   "integrate"))
     if fused.skipped:
-        report.rows.append(("skipped", f"{len(fused.skipped)} frames with no valid depth or pose (frames "
+        rows.append(("skipped", f"{len(fused.skipped)} frames with no valid depth or pose (frames "
                                        f"{frames_text(fused.skipped)})"))
     if len(faces):
-        report.rows.append(("mesh", f"{len(vertices)} vertices, {len(faces)} faces in {mesh_seconds:.1f} s: "
+        rows.append(("mesh", f"{len(vertices)} vertices, {len(faces)} faces in {mesh_seconds:.1f} s: "
                                     "mesh.ply, mesh.png (from the first pose)"))
     else:
-        report.rows.append(("warning", "the mesh is empty: no surface was seen twice within the depth range "
+        rows.append(("warning", "the mesh is empty: no surface was seen twice within the depth range "
                                        + ("(check --depth-scale and the depth images)" if predictor is None else
                                           "(check the depth network's predictions)")))
     return 0

@@ -501,6 +501,11 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
     assert len(err) == 1 and images[2].name in err[0] and "stopped at frame 2" in err[0], err
     partial = json.loads((out / "metrics.json").read_text())
     assert partial["partial"] and "raycast of the model" in partial["ms_per_pair_note"]
+    # and the model those frames made: its mesh and picture, its numbers in metrics.json
+    assert "mesh of the model they made (mesh.ply, mesh.png)" in err[0], err
+    assert (out / "mesh.ply").exists() and (out / "mesh.png").exists()
+    fusion = json.loads((out / "metrics.json").read_text())["fusion"]
+    assert fusion["frames_integrated"] == 2 and fusion["mesh_faces"] > 0
     # colour and a constant-velocity start reach the model tracking (and its report)
     from gvnn_warp.fusion import sequence as fusion_sequence
 
