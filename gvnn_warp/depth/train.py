@@ -1,11 +1,11 @@
 """Training the depth network on video through the fused self-supervised objective.
 
 Per step, a batch of triplets (t - g, t, t + g) (g = ``gap``, or with ``vary_gap`` each triplet's
-own in 1..gap): the depth network's four disparities of frame t, each upsampled to full resolution
-and made depth (``disp_to_depth``; divided by its mean per frame with ``normalize``), and the
-motion of t into each neighbour (``pose``: "direct", the direct aligner through the predicted depth;
-"network", a pose network trained with it) give
-:func:`gvnn_warp.reprojection_loss` at every scale, plus ``smoothness`` x
+own in 1..gap, at most the frames to its folder's nearer end): the depth network's four
+disparities of frame t, each upsampled to full resolution and made depth (``disp_to_depth``;
+divided by its mean per frame with ``normalize``), and the motion of t into each neighbour
+(``pose``: "direct", the direct aligner through the predicted depth; "network", a pose network
+trained with it) give :func:`gvnn_warp.reprojection_loss` at every scale, plus ``smoothness`` x
 :func:`gvnn_warp.edge_aware_smoothness` of that scale's disparity / 2^scale, the mean over the
 scales (Monodepth2's objective). Adam; the run ends after ``minutes`` (or ``steps``). The depth
 network kept (the checkpoint's ``depth_net``, which ``depth eval`` and ``track --depth predicted``
@@ -65,7 +65,8 @@ class DepthConfig:
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
     gap: int = 4  # a triplet is frames (t - g, t, t + g), g = gap
     # or g drawn for each triplet from 1..gap: baselines of every length (measured on unseen rooms,
-    # RESULTS.md: better than one gap of 2 or 3)
+    # RESULTS.md: better than one gap of 2 or 3), every frame with a neighbour on each side a target
+    # (near a folder's end g is at most the frames to it)
     vary_gap: bool = True
     pose: str = "direct"  # "direct": DirectAligner on the predicted depth; "network": PoseNet (Monodepth2)
     # the warp uses each item's depth over its mean (Wang et al. 2018, who pair a depth network with
@@ -292,7 +293,7 @@ def train(cfg: DepthConfig) -> dict:
               f"depth train: no checkpoint in {out} to resume: a new run", file=sys.stderr)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, max_frames=cfg.max_frames,
+    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, vary_gap=cfg.vary_gap, max_frames=cfg.max_frames,
                        progress=cfg.progress and rank == 0, with_depth=cfg.supervised)
     camera = video.camera()
     # a mirrored frame is a frame of the same camera only if its principal point is centred
@@ -354,8 +355,10 @@ def train(cfg: DepthConfig) -> dict:
             # the same global batch on every rank (the same seed), each rank its share
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
             idx = idx[rank * local:(rank + 1) * local]
-            gaps = torch.randint(1, cfg.gap + 1, (cfg.batch_size,))[rank * local:(rank + 1) * local] \
-                if cfg.vary_gap else None
+            gaps = None
+            if cfg.vary_gap:  # (drawn for the global batch, as idx: the same on every rank)
+                drawn = torch.randint(1, cfg.gap + 1, (cfg.batch_size,))[rank * local:(rank + 1) * local]
+                gaps = video.draw_gaps(idx, drawn)
             target, sources = video.triplets(idx, gaps)
             if flip:  # half the triplets mirrored left-right (Monodepth2's augmentation)
                 mirror = (torch.rand(cfg.batch_size) < 0.5).view(-1, 1, 1, 1)[rank * local:(rank + 1) * local]
@@ -446,6 +449,6 @@ def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, p
     with torch.no_grad():
         target, sources = video.triplets(torch.zeros(1, dtype=torch.long))
         _, depth, maps = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, return_maps=True)
-    frame = int(video.targets[0])  # the first triplet's target: frame `gap` of the first folder
+    frame = int(video.targets[0])  # the first triplet's target: frame `gap` (1 with vary_gap) of the first folder
     depth_panel(target[0], depth[0, 0], _true_depth(video, frame, cfg.size), maps["automask"][0, 0], path,
                 title=f"depth after training ({video.roots[0].name}, frame {frame})")

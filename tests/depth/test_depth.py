@@ -101,6 +101,18 @@ def test_wider_triplets_and_cli_defaults(folders):
         v.triplets(torch.tensor([0, 1]), torch.tensor([1, 3]))  # (3 would read the other folder's frames)
     with pytest.raises(ValueError, match="at least 7"):
         read_video(folders, (64, 64), gap=3)
+    # with vary_gap every frame with a neighbour on each side is a target, its gaps at most its
+    # distance to the folder's nearer end (a 5-frame folder: 1, 2, 1)
+    v = read_video(folders, (64, 64), gap=2, vary_gap=True)
+    assert v.targets.tolist() == [1, 2, 3, 6, 7, 8] and v.reach.tolist() == [1, 2, 1, 1, 2, 1]
+    target, sources = v.triplets(torch.tensor([0, 1, 5]))  # (no gaps: the largest each target has)
+    torch.testing.assert_close(sources, torch.stack([v.images[[0, 2]], v.images[[0, 4]], v.images[[7, 9]]]))
+    idx = torch.tensor([0, 1, 2, 4])
+    assert v.draw_gaps(idx, torch.tensor([2, 2, 1, 2])).tolist() == [1, 2, 1, 2]
+    with pytest.raises(ValueError, match=r"integers in \[1, 2\] and at most \[1, 2, 1, 2\]"):
+        v.triplets(idx, torch.tensor([2, 2, 1, 2]))  # (frame -1 / the other folder's frame)
+    v3 = read_video(folders, (64, 64), gap=3, vary_gap=True)  # (a gap larger than the folders allow)
+    assert v3.reach.max() == 2 and len(v3.targets) == 6
     assert cli_depth._DEFAULT_GAP == DepthConfig.gap
     assert cli_depth._POSES == POSES and POSES[0] == DepthConfig.pose
     parsed = cli_depth.add_parser(__import__("argparse").ArgumentParser().add_subparsers()).parse_args(
