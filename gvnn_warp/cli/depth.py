@@ -4,8 +4,8 @@ evaluate the depth.
 Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
-                          [--norm batch|none] [--pose direct|network] [--supervised] [--ema DECAY] [--steps N]
-                          [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
+                          [--inner-targets] [--norm batch|none] [--pose direct|network] [--supervised] [--ema DECAY]
+                          [--steps N] [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR [DIR ...] --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
@@ -78,6 +78,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="a triplet is frames (t - g, t, t + g), g drawn for each triplet from 1..G: baselines "
                         f"of every length up to G (default: {_DEFAULT_GAP})")
     t.add_argument("--fixed-gap", action="store_true", help="g = G for every triplet")
+    t.add_argument("--inner-targets", action="store_true",
+                   help="targets only the frames G or more from both ends of a folder (the default before "
+                        "2026-11-29, to --resume such runs; by default every frame with a neighbour on each side "
+                        "is a target, g at most its distance to the nearer end)")
     t.add_argument("--norm", choices=("batch", "none"), default="batch",
                    help="normalisation after each convolution (default: batch; none: the networks of checkpoints "
                         "written before the option, to resume them)")
@@ -122,7 +126,8 @@ def run_train(args: argparse.Namespace) -> int:
     refuse_earlier_run(args.out, args.resume, args.overwrite)
     cfg = DepthConfig(
         data=tuple(str(d) for d in args.data), out=str(args.out), size=args.size, minutes=args.minutes,
-        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, norm=args.norm, pose=args.pose, ema=args.ema,
+        gap=args.gap or _DEFAULT_GAP, vary_gap=not args.fixed_gap, all_targets=not args.inner_targets,
+        norm=args.norm, pose=args.pose, ema=args.ema,
         steps=args.steps, batch_size=args.batch_size, lr=args.lr,
         seed=args.seed, resume=args.resume, progress=not args.no_progress, supervised=args.supervised,
     )

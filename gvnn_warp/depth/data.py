@@ -85,6 +85,8 @@ def read_video(roots, size: tuple[int, int], *, gap: int = 1, vary_gap: bool = F
     that distance: measured, the depth of unseen rooms generalised better than with only the
     frames ``gap`` from both ends). The folders must share one camera once resized; DatasetError
     otherwise, or for a folder of fewer than 2 gap + 1 frames (3 with ``vary_gap``)."""
+    if not (isinstance(gap, (int, np.integer)) and gap >= 1):
+        raise ValueError(f"read_video: argument 'gap' must be an integer >= 1, got {gap!r}")
     images, depths, targets, folder, reach = [], [], [], [], []
     K = dist = None
     n = 0
@@ -95,8 +97,8 @@ def read_video(roots, size: tuple[int, int], *, gap: int = 1, vary_gap: bool = F
         count = len(seq) if max_frames is None else min(len(seq), max_frames)
         least = 1 if vary_gap else gap  # (the smallest gap of a triplet)
         if count < 2 * least + 1:
-            raise DatasetError(f"{seq.root / 'rgb.txt'}: {count} frames; triplets {least} frames apart need at least "
-                               f"{2 * least + 1}")
+            raise DatasetError(f"{seq.root / 'rgb.txt'}: {count} frames; triplets {least} frame"
+                               f"{'s' if least > 1 else ''} apart need at least {2 * least + 1}")
         K_seq = scale_intrinsics(seq.K, (seq.width, seq.height), size)
         d_seq = None if seq.dist is None else np.asarray(seq.dist, dtype=np.float64)
         if K is None:

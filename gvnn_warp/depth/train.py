@@ -65,9 +65,12 @@ class DepthConfig:
     minutes: float = 8.0  # training time (the figure and checkpoint come after)
     gap: int = 4  # a triplet is frames (t - g, t, t + g), g = gap
     # or g drawn for each triplet from 1..gap: baselines of every length (measured on unseen rooms,
-    # RESULTS.md: better than one gap of 2 or 3), every frame with a neighbour on each side a target
-    # (near a folder's end g is at most the frames to it)
+    # RESULTS.md: better than one gap of 2 or 3)
     vary_gap: bool = True
+    # with vary_gap, every frame with a neighbour on each side a target (near a folder's end g is at
+    # most the frames to it; measured: 4 seeds of 5 met issue 31's target 3, 3 before); False: only the
+    # frames gap from both ends, as runs before 2026-11-29 (to resume them)
+    all_targets: bool = True
     pose: str = "direct"  # "direct": DirectAligner on the predicted depth; "network": PoseNet (Monodepth2)
     # the warp uses each item's depth over its mean (Wang et al. 2018, who pair a depth network with
     # direct alignment): monocular depth has no scale, and without this the depth drifts to the far
@@ -104,14 +107,13 @@ class DepthConfig:
 
 # settings a resumed run must share with its checkpoint
 _SAME_ON_RESUME = ("data", "size", "widths", "norm", "min_depth", "max_depth", "max_frames", "gap", "vary_gap",
-                   "pose", "normalize",
-                   "supervised")
+                   "all_targets", "pose", "normalize", "supervised")
 
 # what checkpoints written before a setting existed did
-_BEFORE = {"norm": "none", "vary_gap": False}
+_BEFORE = {"norm": "none", "vary_gap": False, "all_targets": False}
 # the command-line options of settings a resumed run must repeat (for the error message)
 _OPTIONS = {"norm": "--norm", "vary_gap": "--fixed-gap when False", "gap": "--gap", "size": "--size", "pose": "--pose",
-            "supervised": "--supervised"}
+            "supervised": "--supervised", "all_targets": "--inner-targets when False"}
 
 POSES = ("direct", "network")
 
@@ -244,12 +246,18 @@ def _resume(cfg: DepthConfig, path: Path) -> dict | None:
         return None
     ck = load_checkpoint(path)
     want = _config_dict(cfg)
+    def setting(config: dict, key: str):
+        value = config.get(key, _BEFORE.get(key))
+        if key == "all_targets":  # (it changes the targets only with vary_gap)
+            value = bool(value and config.get("vary_gap", _BEFORE["vary_gap"]))
+        return value
+
     for key in _SAME_ON_RESUME:
-        had = ck["config"].get(key, _BEFORE.get(key))
-        if had != want[key]:
+        had, mine = setting(ck["config"], key), setting(want, key)
+        if had != mine:
             option = _OPTIONS.get(key)
             hint = f" (command line: {option})" if option else ""
-            raise CheckpointError(f"{path}: the run has {key}={had!r}{hint}, this one {want[key]!r}; "
+            raise CheckpointError(f"{path}: the run has {key}={had!r}{hint}, this one {mine!r}; "
                                   "resume with the same settings or start a new run in another directory")
     return ck
 
@@ -293,7 +301,8 @@ def train(cfg: DepthConfig) -> dict:
               f"depth train: no checkpoint in {out} to resume: a new run", file=sys.stderr)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, vary_gap=cfg.vary_gap, max_frames=cfg.max_frames,
+    video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, vary_gap=cfg.vary_gap and cfg.all_targets,
+                       max_frames=cfg.max_frames,
                        progress=cfg.progress and rank == 0, with_depth=cfg.supervised)
     camera = video.camera()
     # a mirrored frame is a frame of the same camera only if its principal point is centred
@@ -447,8 +456,10 @@ def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, p
 
     depth_net.eval()
     with torch.no_grad():
-        target, sources = video.triplets(torch.zeros(1, dtype=torch.long))
+        # (the first target with the widest baseline: frame `gap` of the first folder if it is that long)
+        first = torch.tensor([0 if video.reach is None else int(video.reach.argmax())])
+        target, sources = video.triplets(first)
         _, depth, maps = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, return_maps=True)
-    frame = int(video.targets[0])  # the first triplet's target: frame `gap` (1 with vary_gap) of the first folder
+    frame = int(video.targets[first[0]])
     depth_panel(target[0], depth[0, 0], _true_depth(video, frame, cfg.size), maps["automask"][0, 0], path,
                 title=f"depth after training ({video.roots[0].name}, frame {frame})")

@@ -113,12 +113,16 @@ def test_wider_triplets_and_cli_defaults(folders):
         v.triplets(idx, torch.tensor([2, 2, 1, 2]))  # (frame -1 / the other folder's frame)
     v3 = read_video(folders, (64, 64), gap=3, vary_gap=True)  # (a gap larger than the folders allow)
     assert v3.reach.max() == 2 and len(v3.targets) == 6
+    assert v.draw_gaps(idx, torch.tensor([1, 1, 2, 1])).tolist() == [1, 1, 1, 1]  # (draws below the reach stay)
+    assert read_video(folders, (64, 64)).reach.tolist() == [1] * 6  # (one gap: each target's is the gap)
+    with pytest.raises(ValueError, match="read_video: argument 'gap' must be an integer >= 1, got 0"):
+        read_video(folders, (64, 64), gap=0, vary_gap=True)
     assert cli_depth._DEFAULT_GAP == DepthConfig.gap
     assert cli_depth._POSES == POSES and POSES[0] == DepthConfig.pose
     parsed = cli_depth.add_parser(__import__("argparse").ArgumentParser().add_subparsers()).parse_args(
         ["train", "--data", "x", "--out", "y"])
     assert parsed.lr == DepthConfig.lr and parsed.minutes == DepthConfig.minutes and parsed.size == DepthConfig.size
-    assert parsed.fixed_gap is not DepthConfig.vary_gap
+    assert parsed.fixed_gap is not DepthConfig.vary_gap and parsed.inner_targets is not DepthConfig.all_targets
 
 
 def test_batch_normalisation_and_checkpoints_without_it(folders, tmp_path):
@@ -144,6 +148,19 @@ def test_batch_normalisation_and_checkpoints_without_it(folders, tmp_path):
     with pytest.raises(ValueError, match=r"the run has norm='none' \(command line: --norm\), this one 'batch'"):
         train(DepthConfig(**{**_cfg(folders, out).__dict__, "steps": 3, "resume": True, "vary_gap": False}))
     assert train(DepthConfig(**{**old.__dict__, "steps": 3, "resume": True}))["steps"] == 3
+    # a run of varied gaps from before every frame was a target resumes only with all_targets False
+    # (--inner-targets), on the targets it had
+    out = tmp_path / "inner"
+    inner = DepthConfig(**{**_cfg(folders, out).__dict__, "gap": 2, "all_targets": False})
+    assert train(inner)["triplets"] == 2  # (the middle frame of each 5-frame folder)
+    ck = torch.load(out / "checkpoint.pt", weights_only=True)
+    del ck["config"]["all_targets"]
+    torch.save(ck, out / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"the run has all_targets=False \(command line: --inner-targets when "
+                                         r"False\), this one True"):
+        train(DepthConfig(**{**inner.__dict__, "all_targets": True, "steps": 3, "resume": True}))
+    resumed = train(DepthConfig(**{**inner.__dict__, "steps": 3, "resume": True}))
+    assert resumed["steps"] == 3 and resumed["triplets"] == 2
     # the deepest stage of one 32x32 item has one value per channel: refused, not a torch error
     with pytest.raises(ValueError, match="batch normalisation needs at least 2 items"):
         train(DepthConfig(**{**_cfg(folders, tmp_path / "bn").__dict__, "size": (32, 32), "batch_size": 1}))
@@ -161,8 +178,9 @@ def test_training_draws_each_triplets_gap(folders, tmp_path, monkeypatch, vary):
         return triplets(self, idx, gaps)
 
     monkeypatch.setattr(Video, "triplets", spy)
-    train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "gap": 2, "steps": 3, "batch_size": 8,
-                         "vary_gap": vary}))
+    m = train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "gap": 2, "steps": 3, "batch_size": 8,
+                             "vary_gap": vary}))
+    assert m["triplets"] == (6 if vary else 2)  # (every frame with a neighbour on each side, or gap from both ends)
     drawn = seen[:3]  # (the steps' calls; the figure's comes after)
     if vary:
         assert all(g is not None and g.shape == (8,) and 1 <= g.min() and g.max() <= 2 for g in drawn)
