@@ -370,18 +370,18 @@ def _fuse_and_mesh(args, seq, rows: list, poses, volume, tracker, predictor=None
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     units = "m" if predictor is None else "(the predicted depth's units: the first frame's median depth is 1)"
     rows.append(("fusion", f"{volume.n_blocks} blocks of 8^3 voxels at {volume.voxel_size:g} {units} "
-                                  f"({volume.memory_bytes / 2**20:.0f} MiB), {fused.ms_per_frame:.1f} ms per frame to "
-                                  "integrate"))
+                           f"({volume.memory_bytes / 2**20:.0f} MiB), {fused.ms_per_frame:.1f} ms per frame to "
+                           "integrate"))
     if fused.skipped:
         rows.append(("skipped", f"{len(fused.skipped)} frames with no valid depth or pose (frames "
-                                       f"{frames_text(fused.skipped)})"))
+                                f"{frames_text(fused.skipped)})"))
     if len(faces):
         rows.append(("mesh", f"{len(vertices)} vertices, {len(faces)} faces in {mesh_seconds:.1f} s: "
-                                    "mesh.ply, mesh.png (from the first pose)"))
+                             "mesh.ply, mesh.png (from the first pose)"))
     else:
         rows.append(("warning", "the mesh is empty: no surface was seen twice within the depth range "
-                                       + ("(check --depth-scale and the depth images)" if predictor is None else
-                                          "(check the depth network's predictions)")))
+                                + ("(check --depth-scale and the depth images)" if predictor is None else
+                                   "(check the depth network's predictions)")))
     return 0
 
 

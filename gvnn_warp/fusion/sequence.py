@@ -29,9 +29,9 @@ from ..datasets.tum import TUMSequence
 from ..errors import InputError
 from ..odometry.aligner import INTENSITY_LIMIT
 from ..odometry.inputs import as_numpy, fail, is_torch
-from ..odometry.tracking import INITS, TrackingStopped, TrackResult, info_converged, info_valid_fraction
+from ..odometry.tracking import TrackingStopped, TrackResult, check_init, info_converged, info_valid_fraction
 from ..progress import progress_bar
-from .volume import IntegrateReport, MapFull, TSDFVolume
+from .volume import IntegrateReport, MapFull, TSDFVolume, rigid_pose
 
 __all__ = ["FrameToModel", "FuseReport", "ModelTracker", "camera_of", "fuse_sequence", "render_picture"]
 
@@ -108,21 +108,13 @@ class FrameToModel:
                  start_pose: np.ndarray | None = None, color: bool = False, init: str = "identity",
                  warn: bool = True):
         fn = "gvnn_warp.fusion.sequence.FrameToModel"
-        if init not in INITS:
-            fail(fn, ValueError, f"argument 'init' must be one of {', '.join(map(repr, INITS))}, got {init!r}")
+        check_init(fn, init)
         if not (isinstance(n_frames, (int, np.integer)) and n_frames >= 1):
             fail(fn, ValueError, f"argument 'n_frames' must be an integer >= 1, got {n_frames!r}")
         if not all(isinstance(v, (int, np.integer)) and v >= 2 for v in (height, width)):
             fail(fn, ValueError, f"arguments 'height' and 'width' must be integers >= 2 (the frames' size), got "
                                  f"{height!r}, {width!r}")
-        pose = np.eye(4) if start_pose is None else as_numpy(fn, "start_pose", start_pose, (2,)).astype(np.float64)
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            fail(fn, ValueError, f"argument 'start_pose' must be a finite (4, 4) T_world_cam, got {pose.shape} "
-                                 f"{'with non-finite values' if pose.shape == (4, 4) else ''}".rstrip())
-        R = pose[:3, :3]
-        if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(pose[3] - [0, 0, 0, 1]).max() > 1e-6:
-            fail(fn, ValueError, "argument 'start_pose' must be a rigid transform (orthonormal rotation, last row "
-                                 "0 0 0 1)")
+        pose = np.eye(4) if start_pose is None else rigid_pose(fn, "start_pose", start_pose)
         _check_camera(fn, aligner, camera, height, width)
         self.aligner, self.volume, self.camera, self.height, self.width = aligner, volume, camera, height, width
         self.color, self.init, self.warn = bool(color), init, bool(warn)
@@ -247,9 +239,7 @@ class ModelTracker:
 
     def __init__(self, seq: TUMSequence, aligner, volume: TSDFVolume, depth=None, *, color: bool = False,
                  init: str = "identity"):
-        if init not in INITS:
-            raise ValueError(f"ModelTracker: argument 'init' must be one of {', '.join(map(repr, INITS))}, "
-                             f"got {init!r}")
+        check_init("gvnn_warp.fusion.sequence.ModelTracker", init)
         self.seq, self.aligner, self.volume, self.depth = seq, aligner, volume, depth
         self.color, self.init = bool(color), init
         self.fuse = FuseReport()

@@ -66,6 +66,18 @@ def _name(method: str) -> str:
     return f"gvnn_warp.fusion.TSDFVolume.{method}"
 
 
+def rigid_pose(fn: str, name: str, T) -> np.ndarray:
+    """Argument ``name`` of function ``fn`` (its full name) as a float64 (4, 4) rigid transform
+    (``T_world_cam``): finite, an orthonormal rotation, last row 0 0 0 1; ValueError otherwise."""
+    T = as_numpy(fn, name, T, (2,)).astype(np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        fail(fn, ValueError, f"argument '{name}' must be a finite (4, 4) pose, got shape {T.shape}")
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-6:
+        fail(fn, ValueError, f"argument '{name}' must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+    return T
+
+
 class TSDFVolume:
     """A truncated signed distance function in voxel blocks allocated where depth is seen.
 
@@ -191,14 +203,7 @@ class TSDFVolume:
 
     @staticmethod
     def _pose(fn: str, T) -> np.ndarray:
-        T = as_numpy(_name(fn), "T_world_cam", T, (2,)).astype(np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            fail(_name(fn), ValueError, f"argument 'T_world_cam' must be a finite (4, 4) pose, got shape {T.shape}")
-        R = T[:3, :3]
-        if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-6:
-            fail(_name(fn), ValueError, "argument 'T_world_cam' must be a rigid transform (orthonormal rotation, "
-                                        "last row 0 0 0 1)")
-        return T
+        return rigid_pose(_name(fn), "T_world_cam", T)
 
     # ------------------------------------------------------------------------------ integration
 

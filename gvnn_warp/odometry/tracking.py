@@ -34,6 +34,7 @@ from ..progress import progress_bar
 
 __all__ = [
     "INITS",
+    "check_init",
     "KeyframePolicy",
     "TrackingStopped",
     "TrackResult",
@@ -182,6 +183,12 @@ _PREPARE_POOL_LOCK = threading.Lock()
 INITS = ("identity", "velocity")  # an alignment's initial guess: see track's ``init``
 
 
+def check_init(fn: str, init) -> None:
+    """ValueError naming ``fn`` unless ``init`` is one of :data:`INITS`."""
+    if init not in INITS:
+        raise ValueError(f"{fn}: argument 'init' must be one of {', '.join(map(repr, INITS))}, got {init!r}")
+
+
 def _prepare_pool() -> ThreadPoolExecutor:
     """The one helper thread that pipelined trackers prepare frames on (made on first use)."""
     global _PREPARE_POOL
@@ -202,8 +209,7 @@ class Tracker:
     def __init__(self, aligner, n_frames: int, *, start_pose: np.ndarray | None = None,
                  keyframes: KeyframePolicy | None = None, init: str = "identity", warmup: bool = True,
                  pipeline: bool | None = None):
-        if init not in INITS:
-            raise ValueError(f"track: init must be one of {', '.join(map(repr, INITS))}, got {init!r}")
+        check_init("track", init)
         if n_frames < 1:
             raise ValueError(f"track: need at least one frame, got {n_frames}")
         self.fa = frame_aligner(aligner)
