@@ -128,7 +128,7 @@ class FrameToModel:
         self.fuse = FuseReport()
         self._step = np.eye(4)  # the previous frame's motion, T_{i-1, i-2}
         self._prev_depth = None  # the depth integrated last: where the raycast's rays start
-        self._warned = False
+        self._warned: set[str] = set()  # the warnings given (each once)
 
     def add(self, rgb: np.ndarray, depth: np.ndarray) -> None:
         """Process the next frame (see the class docstring): ``rgb`` (3, H, W) in [0, 1], ``depth``
@@ -146,10 +146,10 @@ class FrameToModel:
         if depth.shape not in ((H, W), (1, H, W)):
             fail(fn, ValueError, f"argument 'depth' must be (1, {H}, {W}) or ({H}, {W}), got {depth.shape}")
         depth = depth.reshape(1, H, W)
-        if self.warn and not self._warned:
+        if self.warn and "8-bit" not in self._warned:
             top = float(np.nanmax(rgb[:, ::7, ::7], initial=0.0))
             if top > INTENSITY_LIMIT:
-                self._warned = True
+                self._warned.add("8-bit")
                 warnings.warn(f"{fn}: argument 'rgb' has values up to {top:g}; colours are expected in [0, 1] "
                               "(divide 8-bit images by 255), and accuracy suffers otherwise", UserWarning,
                               stacklevel=2)
@@ -173,8 +173,8 @@ class FrameToModel:
         report = self.volume.integrate(depth, rgb, self.camera, pose)  # (MapFull: nothing of frame i kept)
         done = time.perf_counter()
         self.fuse.add(i, report, done - t)
-        if report.valid_pixels == 0 and self.warn and not self._warned:
-            self._warned = True
+        if report.valid_pixels == 0 and self.warn and "no depth" not in self._warned:
+            self._warned.add("no depth")
             warnings.warn(f"{fn}: frame {i} has no depth within the volume's range [{self.volume.min_depth:g}, "
                           f"{self.volume.max_depth:g}] m: nothing integrated (depths in millimetres, or negated?)",
                           UserWarning, stacklevel=2)
