@@ -7,6 +7,7 @@ Godard et al. 2019, with gvnn_warp's fused objective :func:`gvnn_warp.reprojecti
   camera (lens distortion included); depth files are read only for evaluation and figures;
 - :mod:`.train`: training (time-boxed, checkpointed, resumable), the poses of each triplet from the
   direct aligner through the predicted depth (the default) or from the pose network;
+- :mod:`.checkpoint`: reading the checkpoints training writes (the depth network kept);
 - :mod:`.evaluate`: the standard depth metrics (Eigen et al.) with per-image median scaling;
 - :mod:`.predict`: a trained network's depth frame by frame, one scale per sequence, for tracking
   from colour alone (``gvnn-warp track --depth predicted``).

@@ -23,8 +23,8 @@ from torch import Tensor
 from ..datasets.tum import read_tum
 from ..progress import progress_bar
 from ..vo.checkpoint import atomic_write_text
+from .checkpoint import load_checkpoint, load_depth_net
 from .data import read_video
-from .train import load_checkpoint, load_depth_net
 
 __all__ = ["METRICS", "depth_metrics", "evaluate", "repeated_folder"]
 

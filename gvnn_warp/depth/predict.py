@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from ..vo.frontend import resize_frame
-from .train import load_checkpoint, load_depth_net
+from .checkpoint import load_checkpoint, load_depth_net
 
 __all__ = ["DepthPredictor"]
 

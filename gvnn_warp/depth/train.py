@@ -16,7 +16,8 @@ to resume from). Launched by
 gloo): every rank draws the same global batch and takes its share (``batch_size`` must be divisible
 by the ranks), the ranks agree on when to stop, and only rank 0 writes files and progress.
 ``OUT/checkpoint.pt`` is written atomically every ``checkpoint_seconds``, on Ctrl-C / SIGTERM and at
-the end (loadable with ``torch.load(..., weights_only=True)``); ``resume`` continues from it.
+the end (loadable with ``torch.load(..., weights_only=True)``; read by :mod:`.checkpoint`);
+``resume`` continues from it.
 """
 
 from __future__ import annotations
@@ -46,14 +47,11 @@ from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng
 from ..vo.distributed import all_max, average_gradients, finish, setup
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
+from .checkpoint import BEFORE, CHECKPOINT_FORMAT, load_checkpoint
 from .data import Video, read_video
 from .model import NORMS, DepthNet, PoseNet, disp_to_depth
 
-__all__ = ["CHECKPOINT_FORMAT", "POSES", "DepthConfig", "colour_jitter", "direct_poses", "load_checkpoint",
-           "load_depth_net", "network_poses", "self_supervised_loss", "train"]
-
-CHECKPOINT_FORMAT = "gvnn_warp.depth/1"
-
+__all__ = ["POSES", "DepthConfig", "colour_jitter", "direct_poses", "network_poses", "self_supervised_loss", "train"]
 
 @dataclass
 class DepthConfig:
@@ -109,8 +107,6 @@ class DepthConfig:
 _SAME_ON_RESUME = ("data", "size", "widths", "norm", "min_depth", "max_depth", "max_frames", "gap", "vary_gap",
                    "all_targets", "pose", "normalize", "supervised")
 
-# what checkpoints written before a setting existed did
-_BEFORE = {"norm": "none", "vary_gap": False, "all_targets": False}
 # the command-line options of settings a resumed run must repeat (for the error message)
 _OPTIONS = {"norm": "--norm", "vary_gap": "--fixed-gap when False", "gap": "--gap", "size": "--size", "pose": "--pose",
             "supervised": "--supervised", "all_targets": "--inner-targets when False"}
@@ -215,41 +211,15 @@ def _networks(cfg: DepthConfig) -> tuple[DepthNet, PoseNet]:
     return DepthNet(cfg.widths, cfg.min_depth, cfg.max_depth, cfg.norm), PoseNet(cfg.widths, cfg.norm)
 
 
-def load_checkpoint(path: str | Path) -> dict:
-    """A checkpoint of :func:`train` (``torch.load`` with ``weights_only=True``); CheckpointError,
-    one line naming the file, for anything else."""
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path}: no such file" if not path.exists() else f"{path}: not a file")
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # unpickling errors, or not a torch file at all
-        raise CheckpointError(f"checkpoint {path}: not a checkpoint this version can load safely "
-                              f"({type(e).__name__})") from None
-    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
-        found = ck.get("format") if isinstance(ck, dict) else None
-        raise CheckpointError(f"checkpoint {path}: format {found!r}, not a depth checkpoint ({CHECKPOINT_FORMAT!r}, "
-                              "written by gvnn-warp depth train)")
-    return ck
-
-
-def load_depth_net(ck: dict) -> DepthNet:
-    """The trained depth network of a checkpoint (:func:`load_checkpoint`), in eval mode."""
-    c = ck["config"]
-    net = DepthNet(tuple(c["widths"]), c["min_depth"], c["max_depth"], c.get("norm", _BEFORE["norm"]))
-    net.load_state_dict(ck["depth_net"])
-    return net.eval()
-
-
 def _resume(cfg: DepthConfig, path: Path) -> dict | None:
     if not (cfg.resume and path.exists()):
         return None
     ck = load_checkpoint(path)
     want = _config_dict(cfg)
     def setting(config: dict, key: str):
-        value = config.get(key, _BEFORE.get(key))
+        value = config.get(key, BEFORE.get(key))
         if key == "all_targets":  # (it changes the targets only with vary_gap)
-            value = bool(value and config.get("vary_gap", _BEFORE["vary_gap"]))
+            value = bool(value and config.get("vary_gap", BEFORE["vary_gap"]))
         return value
 
     for key in _SAME_ON_RESUME:

@@ -13,11 +13,12 @@ from PIL import Image
 
 from gvnn_warp.cli import main
 from gvnn_warp.datasets.tum import read_tum
+from gvnn_warp.depth.checkpoint import load_checkpoint, load_depth_net
 from gvnn_warp.depth.data import read_video
 from gvnn_warp.depth.evaluate import depth_metrics, evaluate, summarise
 from gvnn_warp.depth.model import DepthNet, PoseNet, disp_to_depth
 from gvnn_warp.depth.predict import DepthPredictor
-from gvnn_warp.depth.train import POSES, DepthConfig, load_checkpoint, load_depth_net, train
+from gvnn_warp.depth.train import POSES, DepthConfig, train
 from gvnn_warp.vo.frontend import resize_frame
 
 

@@ -13,7 +13,7 @@ import pytest
 from processes import FAST_EXIT
 
 from gvnn_warp.cli import main
-from gvnn_warp.depth.train import load_checkpoint
+from gvnn_warp.depth.checkpoint import load_checkpoint
 
 TORCHRUN = shutil.which("torchrun", path=str(Path(sys.executable).parent))
 
