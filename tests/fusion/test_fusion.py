@@ -3,6 +3,8 @@ pinhole and a lens, its mesh, its invariances (world translation across block bo
 count), bad input and the PLY files."""
 
 import re
+import subprocess
+import sys
 import warnings
 
 import numpy as np
@@ -844,3 +846,22 @@ def test_raycast_colour_is_interpolated_between_voxels(monkeypatch):
         assert np.median(err) < 0.1 * 0.02 and np.percentile(err, 95) < 0.3 * 0.02, (lanes, np.median(err))
         np.testing.assert_allclose(colour[1][hit], 1.0 - colour[0][hit], atol=1e-5)
         np.testing.assert_allclose(colour[2][hit], 0.5, atol=1e-5)
+
+
+def test_the_sequence_names_load_on_first_use():
+    # gvnn_warp.fusion serves FrameToModel, ModelTracker and fuse_sequence without loading their
+    # module (and the aligner's) on import, and never loads torch
+    code = (
+        "import sys\n"
+        "import gvnn_warp.fusion as F\n"
+        "assert 'gvnn_warp.fusion.sequence' not in sys.modules, 'sequence loaded on import'\n"
+        "from gvnn_warp.fusion import FrameToModel, ModelTracker, fuse_sequence\n"
+        "from gvnn_warp.fusion import sequence\n"
+        "assert (FrameToModel, ModelTracker, fuse_sequence) == (sequence.FrameToModel, sequence.ModelTracker,"
+        " sequence.fuse_sequence)\n"
+        "assert set(sequence.__all__) <= set(F.__all__) and 'TSDFVolume' in F.__all__\n"
+        "assert 'FrameToModel' in dir(F)\n"
+        "assert 'torch' not in sys.modules, 'torch imported'\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
