@@ -1,5 +1,5 @@
 """Reading the checkpoints of ``gvnn-warp depth train`` (:func:`.train.train` writes them): what
-``depth eval`` and ``track --depth predicted`` load, without the training's own modules.
+``depth eval`` and ``track --depth predicted`` load, without the depth training's module (:mod:`.train`).
 
 A checkpoint is a dict saved with ``torch.save`` and read with ``weights_only=True``: its
 ``format`` (:data:`CHECKPOINT_FORMAT`), the run's ``config`` (:class:`.train.DepthConfig` as a

@@ -47,11 +47,14 @@ from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng
 from ..vo.distributed import all_max, average_gradients, finish, setup
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
-from .checkpoint import BEFORE, CHECKPOINT_FORMAT, load_checkpoint
+from .checkpoint import BEFORE, CHECKPOINT_FORMAT, load_checkpoint, load_depth_net
 from .data import Video, read_video
 from .model import NORMS, DepthNet, PoseNet, disp_to_depth
 
-__all__ = ["POSES", "DepthConfig", "colour_jitter", "direct_poses", "network_poses", "self_supervised_loss", "train"]
+# (CHECKPOINT_FORMAT, load_checkpoint and load_depth_net live in .checkpoint; still exported here)
+__all__ = ["CHECKPOINT_FORMAT", "POSES", "DepthConfig", "colour_jitter", "direct_poses", "load_checkpoint",
+           "load_depth_net", "network_poses", "self_supervised_loss", "train"]
+
 
 @dataclass
 class DepthConfig:

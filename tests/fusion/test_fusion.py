@@ -723,12 +723,13 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
         mm.add(seq.image(0), 1000 * seq.depth(0))
     assert mm.fuse.skipped == [0]
     # each warning once, and one does not silence the other (8-bit colours first, then millimetres)
-    both = FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0), seq.K, seq.height, seq.width, 3)
+    both = FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0), seq.K, seq.height, seq.width, 4)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         both.add(255 * seq.image(0), seq.depth(0))
         both.add(255 * seq.image(1), seq.depth(1))
         both.add(seq.image(2), 1000 * seq.depth(2))
+        both.add(seq.image(3), 1000 * seq.depth(3))
     ours = [str(w.message) for w in caught if "FrameToModel.add" in str(w.message)]  # (the aligner warns too)
     assert [("8-bit" in m, "millimetres" in m) for m in ours] == [(True, False), (False, True)]
     fresh.add(seq.image(0), seq.depth(0)[0])  # (H, W) depth, as TSDFVolume.integrate takes it
