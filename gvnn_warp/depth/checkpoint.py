@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from ..vo.checkpoint import CheckpointError
+from ..vo.checkpoint import CheckpointError, checkpoint_file
 from .model import DepthNet
 
 __all__ = ["BEFORE", "CHECKPOINT_FORMAT", "load_checkpoint", "load_depth_net"]
@@ -28,16 +28,17 @@ BEFORE = {"norm": "none", "vary_gap": False, "all_targets": False}
 def load_checkpoint(path: str | Path) -> dict:
     """A checkpoint of :func:`.train.train` (``torch.load`` with ``weights_only=True``);
     ``CheckpointError``, one line naming the file, for anything else."""
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path}: no such file" if not path.exists() else f"{path}: not a file")
+    path = checkpoint_file(path, "checkpoint", "gvnn-warp depth train")
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # unpickling errors, or not a torch file at all
-        raise CheckpointError(f"checkpoint {path}: not a checkpoint this version can load safely "
-                              f"({type(e).__name__})") from None
+        raise CheckpointError(f"checkpoint {path}: not a checkpoint of gvnn-warp depth train ({type(e).__name__}: not "
+                              "a torch file, or one that holds more than tensors and plain values)") from None
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         found = ck.get("format") if isinstance(ck, dict) else None
+        if isinstance(found, int) and "network" in ck:  # (gvnn_warp.vo.checkpoint's formats are numbers)
+            raise CheckpointError(f"checkpoint {path}: a learned-VO checkpoint (gvnn-warp vo), not a depth network's "
+                                  "(gvnn-warp depth train); track takes it with --method vo --checkpoint")
         raise CheckpointError(f"checkpoint {path}: format {found!r}, not a depth checkpoint ({CHECKPOINT_FORMAT!r}, "
                               "written by gvnn-warp depth train)")
     return ck

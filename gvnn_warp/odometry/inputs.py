@@ -36,6 +36,17 @@ def is_torch(x) -> bool:
     return type(x).__module__.split(".")[0] == "torch"
 
 
+def _integer_hint(name: str, integer: bool) -> str:
+    """What to do with integer pixels (an image or depth as read from a PNG), for an error message."""
+    if not integer:
+        return ""
+    if "depth" in name:
+        return " (depth in metres: divide a depth PNG's values by its depth scale, 5000 in TUM RGB-D)"
+    if any(word in name for word in ("image", "rgb", "colour", "color", "gray", "grey")):
+        return " (images in [0, 1]: divide 8-bit ones by 255)"
+    return ""
+
+
 def as_numpy(fn: str, name: str, x, ndims: tuple[int, ...]) -> np.ndarray:
     """numpy float32/float64 view of a numpy array or CPU torch tensor with one of ``ndims``."""
     if is_torch(x):
@@ -46,12 +57,14 @@ def as_numpy(fn: str, name: str, x, ndims: tuple[int, ...]) -> np.ndarray:
         if x.device.type != "cpu":
             fail(fn, ValueError, f"argument '{name}' must be on the CPU, got device {x.device}")
         if x.dtype not in (torch.float32, torch.float64):
-            fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
+            hint = _integer_hint(name, not (x.dtype.is_floating_point or x.dtype.is_complex or x.dtype == torch.bool))
+            fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}{hint}")
         x = x.detach().numpy()
     elif not isinstance(x, np.ndarray):
         fail(fn, TypeError, f"argument '{name}' must be a numpy array or torch tensor, got {type(x).__name__}")
     elif x.dtype not in (np.float32, np.float64):
-        fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}")
+        hint = _integer_hint(name, np.issubdtype(x.dtype, np.integer))
+        fail(fn, TypeError, f"argument '{name}' must be float32 or float64, got {x.dtype}{hint}")
     if x.ndim not in ndims:
         want = " or ".join(f"{d}-D" for d in ndims)
         fail(fn, ValueError, f"argument '{name}' must be {want}, got shape {tuple(x.shape)}")

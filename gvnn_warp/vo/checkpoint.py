@@ -31,6 +31,7 @@ __all__ = [
     "atomic_save",
     "atomic_write_text",
     "build_network",
+    "checkpoint_file",
     "load_network",
     "network_spec",
     "read_checkpoint",
@@ -70,11 +71,22 @@ def build_network(spec: dict) -> CascadeVO:
                      widths=tuple(kw.pop("widths")), **kw)
 
 
-def read_checkpoint(path: str | Path, what: str = "checkpoint") -> dict:
-    """Load a checkpoint with ``weights_only=True`` and check its format; :class:`CheckpointError` otherwise."""
+def checkpoint_file(path: str | Path, what: str, writer: str) -> Path:
+    """``path`` as a Path if it is a file; :class:`CheckpointError` naming it otherwise (a run's folder:
+    the file in it, if there is one; ``writer``: the command that writes OUT/checkpoint.pt)."""
     path = Path(path)
+    if path.is_dir():
+        inside = path / "checkpoint.pt"
+        hint = f": give the file in it, {inside}" if inside.is_file() else f" ({writer} writes OUT/checkpoint.pt)"
+        raise CheckpointError(f"{what} {path}: a folder, not a file{hint}")
     if not path.is_file():
         raise CheckpointError(f"{what} {path}: no such file" if not path.exists() else f"{what} {path}: not a file")
+    return path
+
+
+def read_checkpoint(path: str | Path, what: str = "checkpoint") -> dict:
+    """Load a checkpoint with ``weights_only=True`` and check its format; :class:`CheckpointError` otherwise."""
+    path = checkpoint_file(path, what, "gvnn-warp vo")
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # pickle.UnpicklingError for pickled objects other than tensors and containers,

@@ -396,3 +396,18 @@ def test_load_checkpoint_refuses_other_files(tmp_path):
         load_checkpoint(p)
     with pytest.raises(ValueError, match="no such file"):
         load_checkpoint(Path(tmp_path / "none.pt"))
+    with pytest.raises(ValueError, match=r"x.pt: not a checkpoint of gvnn-warp depth train \(.*not a torch file"):
+        load_checkpoint(p)
+    # a run's folder instead of its file: the file named when it is there
+    run = tmp_path / "run"
+    run.mkdir()
+    with pytest.raises(ValueError, match=r"run: a folder, not a file \(gvnn-warp depth train writes"):
+        load_checkpoint(run)
+    torch.save({"format": "gvnn_warp.depth/1"}, run / "checkpoint.pt")
+    with pytest.raises(ValueError, match=r"run: a folder, not a file: give the file in it, .*run.checkpoint\.pt"):
+        load_checkpoint(run)
+    # a learned-VO checkpoint (gvnn_warp.vo.checkpoint's numbered formats) is named as one
+    vo = tmp_path / "vo.pt"
+    torch.save({"format": 4, "config": {}, "model": {}, "network": {}, "step": 1}, vo)
+    with pytest.raises(ValueError, match=r"a learned-VO checkpoint \(gvnn-warp vo\).*--method vo --checkpoint"):
+        load_checkpoint(vo)

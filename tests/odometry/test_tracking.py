@@ -1000,7 +1000,7 @@ def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
         (["--method", "vo", "--checkpoint", str(depth_ck)], "depth.pt: a depth network's checkpoint (gvnn-warp depth "
                                                             "train), not a learned-VO one"),
         (["--checkpoint", str(old)], "--checkpoint is used by --method vo and vo+direct only"),
-        (["--method", "vo", "--checkpoint", str(tmp_path)], "not a file"),
+        (["--method", "vo", "--checkpoint", str(tmp_path)], "a folder, not a file (gvnn-warp vo writes OUT/"),
     ]
     usage_mistakes = {"--method vo needs --checkpoint CKPT", "--checkpoint is used by --method vo and vo+direct only"}
     for extra, message in cases:
