@@ -524,6 +524,14 @@ def test_memory_limit_and_growth():
      r"argument 'colour' must be \(3, 120, 160\) like the depth, got \(120, 160, 3\), which looks channel-last"),
     (lambda v: v.integrate(np.ones((H, W), np.int32), None, K, np.eye(4)), TypeError,
      r"TSDFVolume.integrate: argument 'depth' must be float32 or float64"),
+    # integer pixels as read from PNGs: what to do with them
+    (lambda v: v.integrate(np.ones((H, W), np.uint16), None, K, np.eye(4)), TypeError,
+     r"'depth' must be float32 or float64, got uint16 \(depth in metres: divide a depth PNG's values by its "
+     r"depth scale"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), np.ones((3, H, W), np.uint8), K, np.eye(4)), TypeError,
+     r"'colour' must be float32 or float64, got uint8 \(images in \[0, 1\]: divide 8-bit ones by 255\)"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, K.astype(np.int64), np.eye(4)), TypeError,
+     r"'K' must be float32 or float64, got int64$"),  # (no hint for what is not a picture)
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, K, np.ones((4, 4))), ValueError,
      r"argument 'T_world_cam' must be a rigid transform"),
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, np.eye(2), np.eye(4)), ValueError,
