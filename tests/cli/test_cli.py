@@ -192,8 +192,8 @@ DATA_ERRORS = [  # a file or folder that cannot be used: one line naming it, sta
     ("track", [NOWHERE], "nowhere: no such directory"),
     ("track", [SHORT], "need at least 2 frames to track, found 1"),
     ("track", ["--method", "vo+direct", "--checkpoint", BAD], "not a gvnn-warp vo checkpoint"),
-    ("track", ["--depth", "predicted", "--checkpoint", BAD], "not a checkpoint this version can load"),
-    ("depth", ["eval", "--checkpoint", BAD, "--data", SEQ], "not a checkpoint this version can load"),
+    ("track", ["--depth", "predicted", "--checkpoint", BAD], "not a checkpoint of gvnn-warp depth train"),
+    ("depth", ["eval", "--checkpoint", BAD, "--data", SEQ], "not a checkpoint of gvnn-warp depth train"),
     ("depth", ["train", "--data", NOWHERE, "--steps", "1"], "nowhere: no such directory"),
 ]
 
