@@ -340,6 +340,7 @@ def _fuse_and_mesh(args, seq, rows: list, poses, volume, tracker, predictor=None
     far are written (TrackingStopped), and this writes the mesh of the frames before it."""
     import json
     import time
+    import warnings
 
     from ..fusion import MapFull, write_ply
     from ..fusion.sequence import camera_of, fuse_sequence, render_picture
@@ -353,7 +354,9 @@ def _fuse_and_mesh(args, seq, rows: list, poses, volume, tracker, predictor=None
               "not the mesh", file=sys.stderr)
         return 1
     s = time.perf_counter()
-    vertices, faces, colours = volume.extract_mesh()
+    with warnings.catch_warnings():  # (an empty mesh: the summary's warning says it, naming the options)
+        warnings.simplefilter("ignore", UserWarning)
+        vertices, faces, colours = volume.extract_mesh()
     mesh_seconds = time.perf_counter() - s
     write_ply(args.out / "mesh.ply", vertices, faces, colours, comment=f"gvnn-warp track {seq.root}")
     seen = render_picture(volume, camera_of(seq), poses[0], seq.height, seq.width, args.out / "mesh.png")

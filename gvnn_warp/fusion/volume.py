@@ -20,6 +20,7 @@ Example::
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -390,7 +391,12 @@ class TSDFVolume:
         (M, 3) int32 vertex indices, counter-clockwise seen from the free space, colours (N, 3) in
         [0, 1]). A vertex lies on an edge between two observed voxels of opposite sign whose values
         are not truncated, and is shared by the faces around it; a face needs its cell's eight
-        voxels observed. Every vertex is in a face."""
+        voxels observed. Every vertex is in a face. A volume that no frame put depth in gives empty
+        arrays and a warning (each :meth:`integrate` says so in its report: ``valid_pixels`` 0)."""
+        if self.n_blocks == 0:
+            warnings.warn(f"{_name('extract_mesh')}: the volume is empty (no frame integrated has depth within "
+                          f"[{self.min_depth:g}, {self.max_depth:g}] m: depths in millimetres?): the mesh is empty",
+                          UserWarning, stacklevel=2)
         points, faces, colours = self._surface()
         used = np.zeros(points.shape[0], bool)
         used[faces.reshape(-1)] = True

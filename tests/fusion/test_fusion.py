@@ -552,8 +552,13 @@ def test_bad_input_is_named(call, error, message):
 
 def test_empty_volume_has_empty_results():
     vol = TSDFVolume(VOXEL)
-    v, f, c = vol.extract_mesh()
+    with pytest.warns(UserWarning, match=r"TSDFVolume.extract_mesh: the volume is empty .*millimetres"):
+        v, f, c = vol.extract_mesh()
     assert v.shape == (0, 3) and f.shape == (0, 3) and c.shape == (0, 3)
+    # (a depth in millimetres integrates nothing: the same)
+    assert vol.integrate(np.full((H, W), 1500.0, np.float32), None, K, np.eye(4)).valid_pixels == 0
+    with pytest.warns(UserWarning, match="the volume is empty"):
+        assert vol.extract_mesh()[1].shape == (0, 3)
     d, col, n = vol.raycast(K, np.eye(4), H, W)
     assert not d.any() and not col.any() and not n.any()
 
