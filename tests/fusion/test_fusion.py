@@ -530,8 +530,6 @@ def test_memory_limit_and_growth():
      r"depth scale"),
     (lambda v: v.integrate(np.ones((H, W), np.float32), np.ones((3, H, W), np.uint8), K, np.eye(4)), TypeError,
      r"'colour' must be float32 or float64, got uint8 \(images in \[0, 1\]: divide 8-bit ones by 255\)"),
-    (lambda v: v.integrate(np.ones((H, W), np.float32), None, K.astype(np.int64), np.eye(4)), TypeError,
-     r"'K' must be float32 or float64, got int64$"),  # (no hint for what is not a picture)
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, K, np.ones((4, 4))), ValueError,
      r"argument 'T_world_cam' must be a rigid transform"),
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, np.eye(2), np.eye(4)), ValueError,
@@ -548,6 +546,14 @@ def test_memory_limit_and_growth():
 def test_bad_input_is_named(call, error, message):
     with pytest.raises(error, match=message):
         call(TSDFVolume(VOXEL))
+
+
+def test_integer_intrinsics_are_taken_as_floats():
+    Ki = np.array([[100, 0, 80], [0, 100, 60], [0, 0, 1]])  # (whole pixels, written as integers)
+    depth = np.full((H, W), 1.0, np.float32)
+    a, b = TSDFVolume(VOXEL), TSDFVolume(VOXEL)
+    assert a.integrate(depth, None, Ki, np.eye(4)) == b.integrate(depth, None, Ki.astype(np.float64), np.eye(4))
+    np.testing.assert_array_equal(a.raycast(Ki, np.eye(4), H, W)[0], b.raycast(Ki.astype(float), np.eye(4), H, W)[0])
 
 
 def test_empty_volume_has_empty_results():
