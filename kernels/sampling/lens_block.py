@@ -11,12 +11,13 @@ of ``lens.rays.project_ray``'s), for float64 it is exact to rounding.
 
 import warp as wp
 
+from ..core import lanes
 from ..core.cache import float_overloads, specialise
 from ..core.compat import func_grad
 from ..core.kinds import vec8d, vec8f
 from ..geometry.lens import dispatch
 from ..geometry.lens import lanes as lens_lanes
-from . import sampler
+from . import lanes_grad, sampler
 
 
 @specialise("sampling.lens_warp_block")
@@ -41,6 +42,17 @@ def _warp_block(T):
     vec8 = vec8f if T == wp.float32 else vec8d
     block_values = lens_lanes.functions(False).block_lanes  # the forward's: no Jacobian
     block_lanes = lens_lanes.functions(True).block_lanes
+    channel_grads = lanes_grad.channel_grads_lanes(None, True)  # (C read at run time)
+
+    @wp.func
+    def lanes_grad8(image: wp.array(dtype=T), g_image: wp.array(dtype=T), g_out_flat: wp.array(dtype=T), src: int,
+                    dst8: int, C: int, hw8: int, H: int, W: int, xs: vec8, ys: vec8, active: vec8):
+        """d loss / d (u, v) of 8 lanes sampled into the vec8 groups ``dst8 + c hw8`` of ``out``, and
+        their image gradient (unless ``g_image`` is empty): :func:`.lanes_grad.channel_grads_lanes`."""
+        g_out = wp.array(ptr=g_out_flat.ptr, shape=(g_out_flat.shape[0] // 8,), dtype=vec8)
+        gx, gy = channel_grads(image, g_out, g_image, src, dst8, C, hw8, H, W, xs, ys, active)
+        zeros = lanes.splat8(T(0.0))
+        return lanes.select8(active, gx, zeros), lanes.select8(active, gy, zeros)
 
     @wp.func
     def warp_block(
@@ -63,8 +75,9 @@ def _warp_block(T):
         All n projections come first, then the samples (see BLOCK): as 8 lanes when the block is 8
         pixels whose outputs start a group of 8 (``dst0`` and H W multiples of 8), else pixel by
         pixel, the same values. Hand-written adjoint in two
-        phases: the projections with their Jacobians (lanes, ``block_lanes``), then per pixel the
-        sampler's gradient (:func:`.sampler.sample_channels_grad`) and through the Jacobian the
+        phases: the projections with their Jacobians (lanes, ``block_lanes``), then the sampler's
+        gradient (for such a block as lanes, :func:`.lanes_grad.channel_grads_lanes`; else pixel by
+        pixel, :func:`.sampler.sample_channels_grad`: the same values) and per pixel through the Jacobian the
         gradients to R, t, depth, the ray, and to ``K[b]`` and ``dist[b]`` only when their adjoint
         arrays exist (a wanted gradient); the backward pass does not replay it (nothing the kernel
         computes after it reads its results)."""
@@ -111,15 +124,29 @@ def _warp_block(T):
         # the block's pose gradients summed in registers, added to the kernel's once
         g_t = vec3()
         g_R = mat33()
+        hw = H * W
+        whole = n == wp.static(BLOCK) and dst0 % 8 == 0 and hw % 8 == 0
+        gu8 = lanes.splat8(zero)
+        gv8 = lanes.splat8(zero)
+        reach8 = lanes.splat8(zero)
+        if whole:  # the sampler's gradient of the 8 pixels as lanes (the forward sampled them so)
+            xs8, ys8, reach8 = sampler.sample_position_lanes(u8, v8, H, W, padding)
+            gu8, gv8 = lanes_grad8(image, wp.adjoint[image], wp.adjoint[out], src, dst0 // 8, C, hw // 8, H, W, xs8,
+                                   ys8, wp.cw_mul(reach8, ok8))
         for k in range(n):
             if ok8[k] > zero:  # active: a valid depth (read raw below), a ray, in front, in the domain
                 u = u8[k]
                 v = v8[k]
-                xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+                reachable = reach8[k] != zero
+                gu = gu8[k]
+                gv = gv8[k]
+                if not whole:
+                    xs, ys, reachable = sampler.sample_position(u, v, H, W, padding)
+                    if reachable:
+                        gu, gv = sampler.sample_channels_grad(
+                            image, wp.adjoint[image], wp.adjoint[out], src, dst0 + k, C, hw, hw, H, W, xs, ys
+                        )
                 if reachable:
-                    gu, gv = sampler.sample_channels_grad(
-                        image, wp.adjoint[image], wp.adjoint[out], src, dst0 + k, C, H * W, H * W, H, W, xs, ys
-                    )
                     # the border padding's clamp passes no gradient where it clamps (grid_sample's rule)
                     if padding == sampler.PADDING_BORDER:
                         gu = wp.where(u <= zero or u >= T(W - 1), zero, gu)
