@@ -76,8 +76,8 @@ def checkpoint_file(path: str | Path, what: str, writer: str) -> Path:
     the file in it, if there is one; ``writer``: the command that writes OUT/checkpoint.pt)."""
     path = Path(path)
     if path.is_dir():
-        inside = path / "checkpoint.pt"
-        hint = f": give the file in it, {inside}" if inside.is_file() else f" ({writer} writes OUT/checkpoint.pt)"
+        inside = path / CHECKPOINT
+        hint = f": give the file in it, {inside}" if inside.is_file() else f" ({writer} writes OUT/{CHECKPOINT})"
         raise CheckpointError(f"{what} {path}: a folder, not a file{hint}")
     if not path.is_file():
         raise CheckpointError(f"{what} {path}: no such file" if not path.exists() else f"{what} {path}: not a file")
