@@ -34,6 +34,13 @@ def warp_block() -> wp.Function:
 BLOCK = wp.constant(8)
 
 
+@wp.func
+def whole_block(n: int, dst0: int, hw: int):
+    """Whether a block of ``n`` pixels whose outputs start at ``dst0`` (in planes of ``hw``) is 8
+    whole pixels starting a group of 8 of every plane: sampled, and its gradient taken, as lanes."""
+    return n == BLOCK and dst0 % 8 == 0 and hw % 8 == 0
+
+
 def _warp_block(T):
     """warp_block's float type ``T`` overload (Warp custom adjoints need concrete types)."""
     f64 = wp.float64
@@ -87,7 +94,7 @@ def _warp_block(T):
         umax = T(W - 1) + tol
         vmax = T(H - 1) + tol
         hw = H * W
-        whole = n == wp.static(BLOCK) and dst0 % 8 == 0 and hw % 8 == 0
+        whole = whole_block(n, dst0, hw)
         for k in range(n):
             u = u8[k]
             v = v8[k]
@@ -125,7 +132,7 @@ def _warp_block(T):
         g_t = vec3()
         g_R = mat33()
         hw = H * W
-        whole = n == wp.static(BLOCK) and dst0 % 8 == 0 and hw % 8 == 0
+        whole = whole_block(n, dst0, hw)
         gu8 = lanes.splat8(zero)
         gv8 = lanes.splat8(zero)
         reach8 = lanes.splat8(zero)
