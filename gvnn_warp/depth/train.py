@@ -43,7 +43,7 @@ from ..functional.lie import se3_to_matrix
 from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
 from ..odometry.aligner import DirectAligner
 from ..progress import progress_bar
-from ..vo.checkpoint import CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
+from ..vo.checkpoint import CHECKPOINT, CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
 from ..vo.distributed import all_max, average_gradients, finish, setup
 from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
@@ -267,7 +267,7 @@ def train(cfg: DepthConfig) -> dict:
                          f"{deepest}x{deepest}, got {cfg.batch_size // world} item(s) of {cfg.size[0]}x{cfg.size[1]}")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    ck_path = out / "checkpoint.pt"
+    ck_path = out / CHECKPOINT
     ck = _resume(cfg, ck_path)
     if cfg.resume and rank == 0:
         print(f"depth train: resuming {ck_path} at step {ck['step']}" if ck is not None else
