@@ -10,7 +10,8 @@ any image values, NaN and inf included, and any positions). A kernel built on th
 adjoint on the lanes from :func:`position_grad_lanes` and :func:`scatter_lanes` (the sampler's,
 :mod:`.bilinear_block`; the spatial transformer's, :mod:`.pinhole_block`), or borrows a scalar
 kernel's (the values being the same). Addresses are carried as floats: exact while an image
-plane has at most 2^24 pixels (:data:`MAX_LANES_PLANE`; larger planes take the scalar kernel).
+plane has at most 2^24 pixels (:data:`MAX_LANES_PLANE`; larger planes take the scalar kernels,
+or, in the lens kernel, the pixel-by-pixel path).
 Exported by :mod:`.sampler` too.
 """
 
@@ -265,8 +266,8 @@ def sample_lanes(
     0, and so do whole lanes where ``inside`` is 0 (see :func:`sample_position_lanes`).
     ``index32``: see :func:`blend_lanes` (measured on an Intel Xeon guest: the spatial
     transformer's forward 3-17% faster with 1, the sampler's alone 5-8% slower).
-    Forward only (no custom adjoint: a kernel using it writes its own, as :mod:`.bilinear_block` and
-    :mod:`.pinhole_block` do, or borrows a scalar kernel's)."""
+    Forward only (no custom adjoint: a kernel using it writes its own, as :mod:`.bilinear_block`,
+    :mod:`.pinhole_block` and :mod:`.lens_block` do, or borrows a scalar kernel's)."""
     one = type(x[0])(1.0)
     zero = type(one)(0.0)
     ones = type(x)(one)

@@ -32,13 +32,16 @@ def warp_block() -> wp.Function:
 # projection's division and lens polynomial (a one-pixel-at-a-time loop is latency-bound: ~1.4x
 # the time per pixel, see benchmarks/RESULTS.md, issue 19)
 BLOCK = wp.constant(8)
+_MAX_LANES_PLANE = wp.constant(sampler.MAX_LANES_PLANE)
 
 
 @wp.func
 def whole_block(n: int, dst0: int, hw: int):
     """Whether a block of ``n`` pixels whose outputs start at ``dst0`` (in planes of ``hw``) is 8
-    whole pixels starting a group of 8 of every plane: sampled, and its gradient taken, as lanes."""
-    return n == BLOCK and dst0 % 8 == 0 and hw % 8 == 0
+    whole pixels starting a group of 8 of every plane, in a plane whose tap addresses the lanes hold
+    exactly (:data:`.sampler.MAX_LANES_PLANE`, for either float type): sampled, and its gradient
+    taken, as lanes."""
+    return n == BLOCK and dst0 % 8 == 0 and hw % 8 == 0 and hw <= _MAX_LANES_PLANE
 
 
 def _warp_block(T):

@@ -101,7 +101,7 @@ def warp_ref(image, depth, pose, K, model, c, min_depth=1e-3):
 
 
 @pytest.mark.parametrize("model", ["radtan", "fisheye"])
-@pytest.mark.parametrize("W", [32, 30])  # (rows of whole 8-pixel blocks, sampled as lanes; and not)
+@pytest.mark.parametrize("W", [32, 30])  # (every block sampled as lanes; only the blocks starting a group of 8)
 def test_distorted_warp_matches_torch_reference(model, W):
     H = 24
     image, depth, pose, K = scene(B=2, C=3, H=H, W=W)
@@ -498,3 +498,46 @@ def test_aligner_refuses_bad_camera_arguments():
         DirectAligner(K, model="pinhole", dist=[0.1])
     with pytest.raises(ValueError, match="unbatched camera"):
         DirectAligner(RadTanCamera(torch.from_numpy(K).expand(2, 3, 3), torch.zeros(2, 5, dtype=f64)))
+
+
+@pytest.mark.parametrize("model", ["radtan", "fisheye"])
+@pytest.mark.parametrize("dtype", [torch.float32, f64])
+def test_blocks_sampled_as_lanes_are_bitwise_the_pixel_by_pixel_path(model, dtype):
+    # W = 32, H = 7: every block 8 whole pixels of a plane of whole groups of 8, taken as lanes; the
+    # same image with a 33rd column of zeros (H W = 231: no block is) goes pixel by pixel. With zeros
+    # padding a tap on that column reads 0 as a tap outside the 32 columns does: the same samples
+    image, depth, pose, K = scene(B=2, C=3, H=7, W=32, seed=5, dtype=dtype)
+    pose = G.se3_to_matrix(torch.tensor([[0.01, -0.02, 0.03, 0.05, -0.04, 0.02]] * 2, dtype=dtype))
+    depth[0, 0, 2, 3] = float("nan")
+    depth[1, 0, 4, 9] = -1.0
+    wide_image = torch.cat([image, torch.zeros(2, 3, 7, 1, dtype=dtype)], -1)
+    wide_depth = torch.cat([depth, depth[..., -1:]], -1)
+    g = torch.randn(2, 3, 7, 33, generator=torch.Generator().manual_seed(1), dtype=dtype)
+    g[..., 32] = 0.0  # (the extra column passes no gradient: the pose's sums are over the same pixels)
+    results = []
+    for img, dep, upstream in ((image, depth, g[..., :32]), (wide_image, wide_depth, g)):
+        img, dep, pz = img.clone().requires_grad_(), dep.clone().requires_grad_(), pose.clone().requires_grad_()
+        out, _ = G.warp_frame_depth(img, dep, pz, camera(model, K.to(dtype)))
+        (out * upstream).sum().backward()
+        results.append((out[..., :32], img.grad[..., :32], dep.grad[..., :32], pz.grad))
+    (a, ga, da, pa), (b, gb, db, pb) = results
+    assert torch.isfinite(a).all() and (a != 0).float().mean() > 0.5
+    assert torch.equal(a, b) and torch.equal(ga, gb) and torch.equal(da, db)
+    assert torch.allclose(pa, pb, rtol=1e-5 if dtype == torch.float32 else 1e-12, atol=0)
+
+
+def test_a_plane_beyond_the_lanes_exact_addresses_is_sampled_pixel_by_pixel():
+    # float32 lanes hold tap addresses exactly up to 2^24 pixels a plane: a plane of 2049 x 8192
+    # (rows 2048 on beyond it) must take the pixel-by-pixel path. Identity pose: every pixel samples
+    # itself, so the warp of a lens camera with no distortion is the image, and so is the gradient
+    H, W = 2049, 8192
+    image = torch.rand(1, 1, H, W, generator=torch.Generator().manual_seed(0)).requires_grad_()
+    depth = torch.full((1, 1, H, W), 2.0)
+    cam = RadTanCamera(tum_like_K(W, H, torch.float32), torch.zeros(5))
+    out, valid = G.warp_frame_depth(image, depth, torch.eye(4)[None], cam)
+    out[:, :, -3:].sum().backward()
+    last = slice(H - 3, H)
+    assert valid[:, :, last].all()
+    assert torch.allclose(out[:, :, last], image.detach()[:, :, last], atol=2e-3, rtol=0)
+    assert torch.allclose(image.grad[:, :, last], torch.ones(1, 1, 3, W), atol=2e-3, rtol=0)
+    assert image.grad[:, :, : H - 4].abs().max() < 2e-3
