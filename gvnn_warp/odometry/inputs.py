@@ -92,8 +92,11 @@ def lens_camera(fn: str, K, model, dist):
             fail(fn, ValueError, "argument 'K' must be an unbatched camera (K (3, 3), dist (n,))")
         model = {v: k for k, v in _lens.MODEL_IDS.items()}[int(cam.model)]
         K, dist = cam.K, cam.dist
-    if isinstance(K, np.ndarray) and np.issubdtype(K.dtype, np.integer):
-        K = K.astype(np.float64)  # (whole-pixel intrinsics written as integers: exact as floats)
+    # (whole-pixel intrinsics written as integers: exact as floats)
+    if is_torch(K) and str(K.dtype).startswith(("torch.int", "torch.uint")):
+        K = K.double()
+    elif isinstance(K, np.ndarray) and np.issubdtype(K.dtype, np.integer):
+        K = K.astype(np.float64)
     K = as_numpy(fn, "K", K, (2,)).astype(np.float64)
     if model is None:
         model = "pinhole" if dist is None else "radtan"

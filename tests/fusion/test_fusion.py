@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 import pytest
+import torch
 from gvnn_warp.kernels.core.threads import get_num_threads, set_num_threads
 
 from gvnn_warp.fusion import TSDFVolume, write_ply
@@ -554,6 +555,7 @@ def test_integer_intrinsics_are_taken_as_floats():
     a, b = TSDFVolume(VOXEL), TSDFVolume(VOXEL)
     assert a.integrate(depth, None, Ki, np.eye(4)) == b.integrate(depth, None, Ki.astype(np.float64), np.eye(4))
     np.testing.assert_array_equal(a.raycast(Ki, np.eye(4), H, W)[0], b.raycast(Ki.astype(float), np.eye(4), H, W)[0])
+    np.testing.assert_array_equal(a.raycast(torch.tensor(Ki), np.eye(4), H, W)[0], b.raycast(Ki, np.eye(4), H, W)[0])
 
 
 def test_empty_volume_has_empty_results():

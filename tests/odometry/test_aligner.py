@@ -578,6 +578,18 @@ def test_numbers_of_any_kind_are_accepted_as_settings():
     assert np.all(np.isfinite(T))
 
 
+def test_integer_intrinsics_are_taken_as_floats():
+    # K in whole pixels, written as integers (numpy or torch): the float K's result, bit for bit
+    ri, rd, li, ld, _, _ = rendered_pair(motion((1.0, 0.0, 0.0), (0.02, 0.0, 0.0)), width=W, height=H)
+    Kf = np.array([[120.0, 0, 80.0], [0, 120.0, 60.0], [0, 0, 1]])
+    want, _ = DirectAligner(Kf).align(ri, rd, li)
+    for Ki in (Kf.astype(np.int64), torch.tensor(Kf, dtype=torch.int32)):
+        T, _ = DirectAligner(Ki).align(ri, rd, li)
+        np.testing.assert_array_equal(T, want)
+    with pytest.raises(TypeError, match="argument 'K' must be float32 or float64, got bool"):
+        DirectAligner(np.eye(3, dtype=bool))
+
+
 def test_readme_example_runs_and_module_needs_no_torch():
     from pathlib import Path
 
