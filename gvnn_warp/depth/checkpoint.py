@@ -12,9 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import torch
-
-from ..vo.checkpoint import CheckpointError, checkpoint_file
+from ..vo.checkpoint import CheckpointError, checkpoint_file, load_file
 from .model import DepthNet
 
 __all__ = ["BEFORE", "CHECKPOINT_FORMAT", "load_checkpoint", "load_depth_net"]
@@ -29,11 +27,8 @@ def load_checkpoint(path: str | Path) -> dict:
     """A checkpoint of :func:`.train.train` (``torch.load`` with ``weights_only=True``);
     ``CheckpointError``, one line naming the file, for anything else."""
     path = checkpoint_file(path, "checkpoint", "gvnn-warp depth train")
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # unpickling errors, or not a torch file at all
-        raise CheckpointError(f"checkpoint {path}: not a checkpoint of gvnn-warp depth train ({type(e).__name__}: not "
-                              "a torch file, or one that holds more than tensors and plain values)") from None
+    ck = load_file(path, "checkpoint", "not a checkpoint of gvnn-warp depth train ({}: not a torch file, or one "
+                                       "that holds more than tensors and plain values)")
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         found = ck.get("format") if isinstance(ck, dict) else None
         if isinstance(found, int) and "network" in ck:  # (gvnn_warp.vo.checkpoint's formats are numbers)

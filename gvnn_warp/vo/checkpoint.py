@@ -32,6 +32,7 @@ __all__ = [
     "atomic_write_text",
     "build_network",
     "checkpoint_file",
+    "load_file",
     "load_network",
     "network_spec",
     "read_checkpoint",
@@ -84,15 +85,24 @@ def checkpoint_file(path: str | Path, what: str, writer: str) -> Path:
     return path
 
 
+def load_file(path: Path, what: str, not_loadable: str):
+    """``torch.load(path, weights_only=True)``; :class:`CheckpointError` naming the file if it cannot be
+    read, or, with ``not_loadable`` (its ``{}``: the error's type), if it is no torch file of tensors
+    and plain values."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except OSError as e:  # (unreadable: not a question of its contents)
+        raise CheckpointError(f"{what} {path}: cannot be read ({e.strerror or type(e).__name__})") from None
+    except Exception as e:  # pickle.UnpicklingError for pickled objects other than tensors and containers,
+        # RuntimeError / EOFError for a file that is not a torch save at all
+        raise CheckpointError(f"{what} {path}: " + not_loadable.format(type(e).__name__)) from None
+
+
 def read_checkpoint(path: str | Path, what: str = "checkpoint") -> dict:
     """Load a checkpoint with ``weights_only=True`` and check its format; :class:`CheckpointError` otherwise."""
     path = checkpoint_file(path, what, "gvnn-warp vo")
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # pickle.UnpicklingError for pickled objects other than tensors and containers,
-        # RuntimeError / EOFError for a file that is not a torch save at all
-        raise CheckpointError(f"{what} {path}: not a gvnn-warp vo checkpoint this version can load safely "
-                              f"({type(e).__name__}; written by an older version, or not a checkpoint)") from None
+    ck = load_file(path, what, "not a gvnn-warp vo checkpoint this version can load safely ({}; written by an older "
+                               "version, or not a checkpoint)")
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         found = ck.get("format", 1) if isinstance(ck, dict) else "?"
         if isinstance(found, str) and found.startswith("gvnn_warp.depth/"):  # (depth.train's formats)

@@ -389,15 +389,21 @@ def test_cli_rejects_sizes_the_network_cannot_take(capsys):
     assert e.value.code == 2 and "e.g. 128x96" in capsys.readouterr().err  # (a size it takes)
 
 
-def test_load_checkpoint_refuses_other_files(tmp_path):
+def test_load_checkpoint_refuses_other_files(tmp_path, monkeypatch):
     p = tmp_path / "x.pt"
     p.write_text("not a checkpoint")
-    with pytest.raises(ValueError, match="x.pt"):
-        load_checkpoint(p)
     with pytest.raises(ValueError, match="no such file"):
         load_checkpoint(Path(tmp_path / "none.pt"))
     with pytest.raises(ValueError, match=r"x.pt: not a checkpoint of gvnn-warp depth train \(.*not a torch file"):
         load_checkpoint(p)
+    # a file that cannot be read is not blamed on its contents
+    def unreadable(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(torch, "load", unreadable)
+    with pytest.raises(ValueError, match=r"x.pt: cannot be read \(Permission denied\)$"):
+        load_checkpoint(p)
+    monkeypatch.undo()
     # a run's folder instead of its file: the file named when it is there
     run = tmp_path / "run"
     run.mkdir()
