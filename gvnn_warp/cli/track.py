@@ -344,6 +344,7 @@ def _fuse_and_mesh(args, seq, rows: list, poses, volume, tracker, predictor=None
 
     from ..fusion import MapFull, write_ply
     from ..fusion.sequence import camera_of, fuse_sequence, render_picture
+    from ..fusion.volume import EMPTY_VOLUME
     from ..odometry.sequence import frames_text
 
     try:
@@ -355,7 +356,7 @@ def _fuse_and_mesh(args, seq, rows: list, poses, volume, tracker, predictor=None
         return 1
     s = time.perf_counter()
     with warnings.catch_warnings():  # (an empty mesh: the summary's warning says it, naming the options)
-        warnings.simplefilter("ignore", UserWarning)
+        warnings.filterwarnings("ignore", message=f".*extract_mesh: {EMPTY_VOLUME}", category=UserWarning)
         vertices, faces, colours = volume.extract_mesh()
     mesh_seconds = time.perf_counter() - s
     write_ply(args.out / "mesh.ply", vertices, faces, colours, comment=f"gvnn-warp track {seq.root}")

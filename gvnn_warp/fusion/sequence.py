@@ -163,8 +163,12 @@ class FrameToModel:
             channels = (lambda c: c) if self.color else to_gray
             # (the live depth too: the aligner's occlusion test and depth term use it)
             guess = self._step if self.init == "velocity" else None
-            with warnings.catch_warnings():  # (8-bit colours: add's own warning names the user's argument)
-                warnings.filterwarnings("ignore", message=r"DirectAligner\.\w+: argument '\w+' has intensities up to")
+            if "8-bit" in self._warned:  # (add's own warning named the user's argument: not the aligner's too)
+                with warnings.catch_warnings():
+                    warnings.filterwarnings("ignore", message=r"DirectAligner\.\w+: argument '\w+' has intensities")
+                    T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth,
+                                                 init=guess)
+            else:
                 T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth, init=guess)
             T = np.asarray(T, dtype=np.float64)
             if not np.all(np.isfinite(T)):

@@ -38,11 +38,12 @@ from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
 from ..odometry.inputs import as_numpy, dist_array, fail, lens_camera, real_number
 
-__all__ = ["BYTES_PER_BLOCK", "IntegrateReport", "MAX_BLOCKS", "MapFull", "TSDFVolume"]
+__all__ = ["BYTES_PER_BLOCK", "EMPTY_VOLUME", "IntegrateReport", "MAX_BLOCKS", "MapFull", "TSDFVolume"]
 
 BYTES_PER_BLOCK = BLOCK_VOXELS * (8 + 16)  # per voxel: TSDF and weight, colour and its weight (float32)
 MAX_BLOCKS = (2**31 - 1) // BLOCK_VOXELS  # the kernels index voxels (block * BLOCK_VOXELS + voxel) in int32
 _FIRST_BLOCKS = 1024  # blocks allocated at first (10 MiB); doubled as needed
+EMPTY_VOLUME = "the volume is empty"  # (how extract_mesh's warning begins: callers that report it otherwise filter it)
 _TILE = 8  # pixels per side of the tiles of the raycast's depth range
 _BLOCKS_PER_PART = 1024  # the raycast's depth range: the blocks are shared out between threads from 2 x this
 _NORMAL_JUMP = 0.05  # a raycast normal needs its neighbours' depths within 5% (else it is a depth edge)
@@ -124,6 +125,7 @@ class TSDFVolume:
         self.pixel_stride = pixel_stride
         self.max_blocks = min(int(mem * 2**20 // BYTES_PER_BLOCK), MAX_BLOCKS)
         self._calls = 0
+        self._frames = 0  # (frames given to integrate: an empty volume's warning says which case it is)
         self._lanes = True  # (False: the voxel-by-voxel and ray-by-ray kernels; the tests compare them)
         self._rays: dict = {}  # (camera, size) -> (rays, the longest ray's length)
         self._mc_tables = (wp.array(np.asarray(marching.MC_RANGE, np.int32), dtype=wp.int32, device="cpu"),
@@ -237,6 +239,7 @@ class TSDFVolume:
         fx, fy, cx, cy, model, dist, rays, scale = self._camera(fn, camera, H, W)
         dn = np.ascontiguousarray(d, np.float32)
         valid = int(np.count_nonzero((dn > self.min_depth) & (dn < self.max_depth)))
+        self._frames += 1
         if valid == 0:
             return IntegrateReport(0, 0, 0, self.n_blocks)
         depth_w = wp.array(dn.reshape(-1), dtype=wp.float32, device="cpu")
@@ -394,9 +397,11 @@ class TSDFVolume:
         voxels observed. Every vertex is in a face. A volume that no frame put depth in gives empty
         arrays and a warning (each :meth:`integrate` says so in its report: ``valid_pixels`` 0)."""
         if self.n_blocks == 0:
-            warnings.warn(f"{_name('extract_mesh')}: the volume is empty (no frame integrated has depth within "
-                          f"[{self.min_depth:g}, {self.max_depth:g}] m: depths in millimetres?): the mesh is empty",
-                          UserWarning, stacklevel=2)
+            why = ("no frame has been integrated" if self._frames == 0 else
+                   f"none of the {self._frames} frames integrated has depth within [{self.min_depth:g}, "
+                   f"{self.max_depth:g}] (the volume's units, metres for a sensor: depths in millimetres?)")
+            warnings.warn(f"{_name('extract_mesh')}: {EMPTY_VOLUME} ({why}): the mesh is empty", UserWarning,
+                          stacklevel=2)
         points, faces, colours = self._surface()
         used = np.zeros(points.shape[0], bool)
         used[faces.reshape(-1)] = True

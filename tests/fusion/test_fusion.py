@@ -560,12 +560,14 @@ def test_integer_intrinsics_are_taken_as_floats():
 
 def test_empty_volume_has_empty_results():
     vol = TSDFVolume(VOXEL)
-    with pytest.warns(UserWarning, match=r"TSDFVolume.extract_mesh: the volume is empty .*millimetres"):
+    with pytest.warns(UserWarning, match=r"TSDFVolume.extract_mesh: the volume is empty \(no frame has been "
+                                         r"integrated\): the mesh is empty"):
         v, f, c = vol.extract_mesh()
     assert v.shape == (0, 3) and f.shape == (0, 3) and c.shape == (0, 3)
-    # (a depth in millimetres integrates nothing: the same)
+    # (a depth in millimetres integrates nothing: the same, the depth named)
     assert vol.integrate(np.full((H, W), 1500.0, np.float32), None, K, np.eye(4)).valid_pixels == 0
-    with pytest.warns(UserWarning, match="the volume is empty"):
+    with pytest.warns(UserWarning, match=r"the volume is empty \(none of the 1 frames integrated has depth within "
+                                         r"\[0.1, 8\] .*millimetres"):
         assert vol.extract_mesh()[1].shape == (0, 3)
     d, col, n = vol.raycast(K, np.eye(4), H, W)
     assert not d.any() and not col.any() and not n.any()

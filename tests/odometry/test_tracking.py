@@ -4,6 +4,7 @@ chaining, keyframes, failures reported) and `gvnn-warp track` end to end."""
 import json
 import re
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -492,6 +493,14 @@ def test_track_cli_fusion_options_and_limits(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "the map needs more than" in err[0] and not out.exists(), err
     assert "(--voxel, --fuse-memory)" in err[0], err  # (the options, not the Python argument's name alone)
+    # depths in the wrong units: nothing integrated, said once, in the summary (no Python warning)
+    out = tmp_path / "empty"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["track", str(data), "--out", str(out), "--no-progress", "--fuse", "--depth-scale", "5"]) == 0
+    summary = capsys.readouterr().out
+    assert "warning            the mesh is empty: no surface was seen twice" in summary
+    assert json.loads((out / "metrics.json").read_text())["fusion"]["frames_skipped"] == [0, 1, 2]
     # an unreadable frame mid-run: the model tracking so far is written, marked partial
     images = sorted((data / "rgb").glob("*.png"))
     images[2].write_bytes(images[2].read_bytes()[: len(images[2].read_bytes()) // 2])
