@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 __all__ = [
+    "CHECKPOINT",
     "MAX_SEED",
     "MAX_SIDE",
     "HelpFormatter",
@@ -163,11 +164,16 @@ def output_dir(text: str) -> Path:
     return path
 
 
+# a training run's checkpoint in its --out folder: gvnn_warp.vo.checkpoint.CHECKPOINT, spelled out here
+# because importing that module loads torch before the arguments are checked (a test keeps them equal)
+CHECKPOINT = "checkpoint.pt"
+
+
 def refuse_earlier_run(out: Path, resume: bool, overwrite: bool) -> None:
     """A training command's ``--out``: refuse a folder that holds an earlier run's checkpoint unless
     ``--resume`` continues it or ``--overwrite`` starts again (one line, before any work)."""
-    if (out / "checkpoint.pt").exists() and not (resume or overwrite):
-        raise UsageError(f"--out {out} already holds a training run ({out / 'checkpoint.pt'}); pass --resume to "
+    if (out / CHECKPOINT).exists() and not (resume or overwrite):
+        raise UsageError(f"--out {out} already holds a training run ({out / CHECKPOINT}); pass --resume to "
                          "continue it, --overwrite to start again, or choose another folder")
 
 

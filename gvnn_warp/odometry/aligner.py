@@ -278,7 +278,7 @@ class DirectAligner:
         """Build the pyramid of one frame (or a batch): ``image`` (C, H, W) / (B, C, H, W), ``depth``
         (1, H, W) / (B, 1, H, W) or None (then the frame can only be the live frame of a pair).
         The inputs are copied (later changes to them do not affect the frame)."""
-        return self._prepare("prepare", "image", "depth", image, depth)
+        return self._prepare("DirectAligner.prepare", "image", "depth", image, depth)
 
     def _prepare(self, fn: str, image_name: str, depth_name: str, image, depth, use_depth: bool = True) -> Frame:
         torch_in = is_torch(image)
@@ -316,7 +316,7 @@ class DirectAligner:
             top = float(np.nanmax(sample)) if np.isfinite(sample).any() else 0.0
             if top > INTENSITY_LIMIT:
                 self._range_warned = True
-                warnings.warn(f"DirectAligner.{fn}: argument '{image_name}' has intensities up to {top:g}; they are "
+                warnings.warn(f"{fn}: argument '{image_name}' has intensities up to {top:g}; they are "
                               f"expected in [0, 1] (divide 8-bit images by 255), and accuracy suffers otherwise",
                               UserWarning, stacklevel=3)
         key = (B, C, H, W, depth is not None)
@@ -349,7 +349,7 @@ class DirectAligner:
             ``(T, info)``: T of the kind of ``ref_image`` (numpy or torch), see the module docstring
             for ``info``.
         """
-        fn = "align"
+        fn = "DirectAligner.align"
         if ref_depth is None:
             fail(fn, ValueError, "argument 'ref_depth' must be given (the reference frame needs depth)")
         if live_depth is None and self.depth_weight > 0:
@@ -366,7 +366,7 @@ class DirectAligner:
     def align_frames(self, ref: Frame, live: Frame, init=None):
         """:meth:`align` on two prepared frames (``ref`` needs depth; ``live`` needs depth when
         ``depth_weight > 0``); same results."""
-        fn = "align_frames"
+        fn = "DirectAligner.align_frames"
         for name, f in (("ref", ref), ("live", live)):
             if not isinstance(f, Frame):
                 fail(fn, TypeError, f"argument '{name}' must be a Frame from DirectAligner.prepare, got "

@@ -362,10 +362,14 @@ def test_cli_data_errors_are_one_line(folders, tmp_path, capsys):
 def test_training_commands_keep_an_earlier_run(tmp_path, capsys):
     # depth train and vo refuse an --out holding a checkpoint unless --resume or --overwrite (one
     # line, status 2, before any work); --resume with nothing to resume says it starts a new run
+    from gvnn_warp.cli.args import CHECKPOINT
+    from gvnn_warp.vo.checkpoint import CHECKPOINT as WRITTEN
+
+    assert CHECKPOINT == WRITTEN  # (the name the check looks for is the one the runs write)
     for command in (["depth", "train", "--data", str(tmp_path / "missing")], ["vo", "--motion", "so3"]):
         out = tmp_path / command[0]
         out.mkdir()
-        (out / "checkpoint.pt").write_bytes(b"an earlier run")
+        (out / WRITTEN).write_bytes(b"an earlier run")
         with pytest.raises(SystemExit) as e:
             main([*command, "--out", str(out), "--steps", "1", "--no-progress"])
         err = capsys.readouterr().err

@@ -522,7 +522,7 @@ def test_bad_inputs_raise():
         (lambda: DirectAligner(K, robust="l3"), ValueError, "argument 'robust'"),
         (lambda: DirectAligner(K, scale=-1.0), ValueError, "argument 'scale'"),
         (lambda: DirectAligner(K, iterations="many"), TypeError, "argument 'iterations'"),
-        (lambda: al.align(img.astype(np.int32), dep, img), TypeError, "align: argument 'ref_image'"),
+        (lambda: al.align(img.astype(np.int32), dep, img), TypeError, "DirectAligner.align: argument 'ref_image'"),
         (lambda: al.align(img[0], dep, img), ValueError, "align: argument 'ref_image'"),
         (lambda: al.align(img, dep[:, :50], img), ValueError, "align: argument 'ref_depth'"),
         (lambda: al.align(img, None, img), ValueError, "align: argument 'ref_depth'"),
