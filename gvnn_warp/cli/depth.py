@@ -17,6 +17,9 @@ Ctrl-C / SIGTERM and at the end; ``--resume`` continues from it), ``OUT/metrics.
 step) and ``OUT/training.png`` (a frame, its depth, the true depth if the folder has it, the
 auto-mask).
 
+A folder of colour images alone (``rgb.txt``, no ``depth.txt``) is a video: every colour image
+listed is a frame (also for ``eval``, which then predicts without metrics).
+
 ``eval`` predicts every frame's depth and, where the folders have depth files, writes
 ``OUT/metrics.json`` with abs_rel, sq_rel, rmse, rmse_log, a1, a2, a3 (each image median-scaled: a
 monocular network has no scale; means over every image of every folder given, as a test set of
@@ -103,7 +106,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--overwrite", action="store_true", help="start again in an OUT that holds an earlier run")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
-    e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files")
+    e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files (if it has them)")
     e.add_argument("--checkpoint", type=Path, required=True, metavar="CKPT", help="OUT/checkpoint.pt of train")
     e.add_argument("--data", type=Path, nargs="+", required=True, metavar="DIR",
                    help="TUM-format folders (one test set: the metrics are means over all their frames)")
@@ -149,6 +152,8 @@ def run_eval(args: argparse.Namespace) -> int:
     twice = repeated_folder(args.data)
     if twice is not None:
         raise UsageError(f"--data names the folder {twice[0]} twice")
+    if (args.out / "rgb.txt").exists():  # (its files would be written among a sequence's)
+        raise UsageError(f"--out {args.out} holds a sequence (rgb.txt); choose another folder")
     m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
     folders = " ".join(str(d) for d in args.data)
     if m.get("abs_rel") is None:

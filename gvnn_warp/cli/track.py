@@ -19,9 +19,10 @@ or, with ``--method vo``, by the network of a ``gvnn-warp vo``
 checkpoint (``--checkpoint``; frames are resized to the network's size and the intrinsics scaled),
 or with ``--method vo+direct`` by the direct aligner starting from the network's estimate (instead
 of the identity or ``--init``) - and writes the results below. With ``--depth predicted`` the
-depth files are not read: each frame's depth is predicted from its colour by the network of a
-``gvnn-warp depth train`` checkpoint (``--checkpoint``; ``gvnn_warp.depth.predict``, one scale for
-the sequence, the first frame's median depth 1 m), monocular direct odometry with learned depth; the
+depth files are not read (nor need they exist: every colour image listed is a frame): each
+frame's depth is predicted from its colour by the network of a ``gvnn-warp depth train`` checkpoint
+(``--checkpoint``; ``gvnn_warp.depth.predict``, one scale for the sequence, the first frame's
+median depth 1 m), monocular direct odometry with learned depth; the
 ATE and RPE are then those of the estimate after a similarity alignment (``evo_ape -as``). With
 ``--fuse`` the frames are then integrated at the estimated poses into a TSDF of ``--voxel``-metre
 voxels (``gvnn_warp.fusion``) whose marching-cubes mesh is written to ``OUT/mesh.ply`` with a
@@ -57,7 +58,7 @@ import math
 import sys
 from pathlib import Path
 
-from ..datasets.tum import DatasetError, read_tum
+from ..datasets.tum import DEFAULT_DEPTH_SCALE, DatasetError, read_tum
 from ..errors import InputError
 from ..odometry.sequence import LENS_MODES, RESULT_FILES, make_aligner, track_sequence
 from ..odometry.tracking import INITS, KeyframePolicy, TrackingStopped
@@ -116,8 +117,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fr1, fr2, fr3, icl (published 640x480 values; fr1, fr2 with their radial-tangential "
                         "distortion) or fx,fy,cx,cy[,k1,k2,p1,p2,k3] (default: DIR/intrinsics.txt, "
                         "else the Freiburg preset named by the folder)")
-    p.add_argument("--depth-scale", type=positive_float, default=5000.0, metavar="S",
-                   help="raw depth units per metre (5000 in TUM RGB-D and ICL-NUIM)")
+    p.add_argument("--depth-scale", type=positive_float, default=None, metavar="S",
+                   help="raw depth units per metre of the depth images (default: 5000, as in TUM RGB-D and ICL-NUIM)")
     p.add_argument("--max-frames", type=bounded_int(2), default=None, metavar="N",
                    help="track only the first N frames (default: all)")
     p.add_argument("--max-difference", type=finite_float(0, 1, "s", above_minimum=True), default=0.02, metavar="SEC",
@@ -209,8 +210,12 @@ def check(args: argparse.Namespace):
         raise UsageError(f"--out {args.out} already holds results ({existing[0]}); pass --overwrite or choose "
                          "another folder")
     # (a file that cannot be used is a DatasetError: one line without the usage text, status 1)
-    seq = read_tum(args.data, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
-                   max_difference=args.max_difference)
+    predicted = getattr(args, "depth", "sensor") == "predicted"
+    if predicted and args.depth_scale is not None:
+        raise UsageError("--depth-scale applies to the depth images; --depth predicted reads none")
+    # (--depth predicted: a colour video, every colour image a frame, depth images neither needed nor read)
+    seq = read_tum(args.data, intrinsics=args.intrinsics, depth_scale=args.depth_scale or DEFAULT_DEPTH_SCALE,
+                   max_difference=args.max_difference, colour_only=predicted)
     n = len(seq) if args.max_frames is None else min(args.max_frames, len(seq))
     if n < 2:
         raise DatasetError(f"{args.data}: need at least 2 frames to track, found {n}")
@@ -253,7 +258,9 @@ def check_method(args: argparse.Namespace):
         return None
     if method == "direct":
         if ckpt is not None:
-            raise UsageError("--checkpoint is used by --method vo and vo+direct only (this run is --method direct)")
+            raise UsageError("--checkpoint is used by --method vo and vo+direct (a gvnn-warp vo checkpoint) and by "
+                             "--depth predicted (a gvnn-warp depth train one); this run is --method direct with the "
+                             "sensor's depth")
         return None
     if ckpt is None:
         raise UsageError(f"--method {method} needs --checkpoint CKPT (the checkpoint.pt written by gvnn-warp vo)")

@@ -19,6 +19,8 @@ How frames are formed (the rules of TUM's ``associate.py`` and of ``evo``):
   (0.02 s) is a candidate, candidates are taken greedily by smallest time difference (ties by the
   earlier stamps), and each stamp is used at most once. The frames are the associated pairs in
   colour-time order; a frame's timestamp is its colour image's.
+- Read ``colour_only`` (monocular video: depth learnt from colour, or tracked with predicted
+  depth), every colour image listed is a frame, and ``depth.txt`` need not exist.
 - A frame's ground-truth pose is *interpolated* at its timestamp: a ground-truth stamp must lie
   closer than ``max_difference`` (otherwise the frame has no ground truth: NaN pose,
   ``gt_valid`` False), and the pose is interpolated between the two ground-truth samples that
@@ -123,8 +125,9 @@ class TUMSequence:
             None (a pinhole: undistorted images); from the same source as K.
         width, height: image size (from the first colour image).
         timestamps: (N,) float64 colour timestamps of the frames.
-        depth_timestamps: (N,) float64 timestamps of their depth images.
-        rgb_files, depth_files: the N image paths.
+        depth_timestamps: (N,) float64 timestamps of their depth images (empty when read
+            ``colour_only``).
+        rgb_files, depth_files: the N image paths (no depth files when read ``colour_only``).
         depth_scale: raw depth units per metre.
         gt_poses: (N, 4, 4) float64 ``T_world_cam`` interpolated at the frames' timestamps (NaN
             where ``gt_valid`` is False), or None without ``groundtruth.txt``.
@@ -132,6 +135,8 @@ class TUMSequence:
         gt_timestamps, gt_raw_poses: the ground-truth file as read (for evaluation tools).
         listed: the numbers of colour and depth images ``rgb.txt`` and ``depth.txt`` list (those
             the association left without a partner are not frames); ``max_difference``: its seconds.
+        colour_only: read without depth (:func:`read_tum`'s ``colour_only``): every colour image
+            listed is a frame, and :meth:`depth` refuses.
     """
 
     root: Path
@@ -152,6 +157,7 @@ class TUMSequence:
     intrinsics_override: str | None = None
     listed: tuple[int, int] = (0, 0)
     max_difference: float = DEFAULT_MAX_DIFFERENCE
+    colour_only: bool = False
 
     def __len__(self) -> int:
         return len(self.rgb_files)
@@ -173,7 +179,10 @@ class TUMSequence:
 
     def depth(self, i: int) -> np.ndarray:
         """Frame ``i``'s depth, float32 (1, H, W) metres (0 = no depth)."""
-        path = self.depth_files[self._check(i)]
+        i = self._check(i)
+        if self.colour_only:
+            raise DatasetError(f"{self.root}: read without its depth (colour_only): frame {i} has no depth image")
+        path = self.depth_files[i]
         d = read_depth(path, self.depth_scale)
         if d.shape[1:] != (self.height, self.width):
             raise DatasetError(f"{path}: depth image is {d.shape[2]}x{d.shape[1]}, "
@@ -186,8 +195,10 @@ class TUMSequence:
         Raises DatasetError naming the first bad file, so that a long run does not stop at it
         (Pillow reads only the headers: ~0.1 ms per file)."""
         for k in range(len(self) if n is None else min(n, len(self))):
-            for path, what, check in ((self.rgb_files[k], "colour", check_rgb_mode),
-                                      (self.depth_files[k], "depth", check_depth_mode)):
+            files = [(self.rgb_files[k], "colour", check_rgb_mode)]
+            if not self.colour_only:
+                files.append((self.depth_files[k], "depth", check_depth_mode))
+            for path, what, check in files:
                 with open_image(path, what, load=False) as im:
                     mode, size = im.mode, im.size
                 check(path, mode)
@@ -216,11 +227,12 @@ def read_tum(
     intrinsics: str | np.ndarray | tuple | list | None = None,
     depth_scale: float = DEFAULT_DEPTH_SCALE,
     max_difference: float = DEFAULT_MAX_DIFFERENCE,
+    colour_only: bool = False,
 ) -> TUMSequence:
     """Open a TUM RGB-D / ICL-NUIM style folder (see the module docstring for the rules).
 
     Args:
-        root: the folder with ``rgb.txt`` and ``depth.txt``.
+        root: the folder with ``rgb.txt`` and ``depth.txt`` (``rgb.txt`` alone with ``colour_only``).
         intrinsics: a preset name (``fr1``, ``fr2``, ``fr3``, ``icl``; fr1 and fr2 with their
             published distortion, :data:`DISTORTION_PRESETS`), ``(fx, fy, cx, cy)``, ``(fx, fy,
             cx, cy, k1, k2, p1, p2, k3)`` (with radial-tangential distortion) or a (3, 3) ``K``;
@@ -229,6 +241,9 @@ def read_tum(
             error. The result's ``K`` and ``dist`` (None for a pinhole) come from it.
         depth_scale: raw depth units per metre (5000 for TUM and ICL-NUIM).
         max_difference: seconds; colour/depth association and ground-truth matching.
+        colour_only: a video without depth (monocular depth and tracking): every colour image
+            ``rgb.txt`` lists is a frame, ``depth.txt`` is not read (nor need it exist), and the
+            sequence has no depth (:meth:`TUMSequence.depth` refuses).
 
     Only the first colour image is opened here (for the size); the others when read.
     """
@@ -250,13 +265,17 @@ def read_tum(
         raise DatasetError(f"{root / 'rgb.txt'}: missing colour list file (a TUM RGB-D folder lists its images in "
                            f"rgb.txt and depth.txt{hint})")
     rgb_times, rgb_rows, _ = read_table(root / "rgb.txt", 2, "colour list")
-    depth_times, depth_rows, _ = read_table(root / "depth.txt", 2, "depth list")
-    pairs = associate(rgb_times, depth_times, max_difference)
-    if pairs.shape[0] == 0:
-        raise DatasetError(f"{root / 'depth.txt'}: no depth timestamp within {max_difference} s "
-                           f"of any colour timestamp in {root / 'rgb.txt'}")
-    rgb_files = [root / rgb_rows[i][0] for i in pairs[:, 0]]
-    depth_files = [root / depth_rows[j][0] for j in pairs[:, 1]]
+    if colour_only:  # (every colour image a frame, in colour-time order as associated frames are)
+        depth_rows, frames, depth_stamps, depth_files = [], np.argsort(rgb_times, kind="stable"), np.zeros(0), []
+    else:
+        depth_times, depth_rows, _ = read_table(root / "depth.txt", 2, "depth list")
+        pairs = associate(rgb_times, depth_times, max_difference)
+        if pairs.shape[0] == 0:
+            raise DatasetError(f"{root / 'depth.txt'}: no depth timestamp within {max_difference} s "
+                               f"of any colour timestamp in {root / 'rgb.txt'}")
+        frames, depth_stamps = pairs[:, 0], depth_times[pairs[:, 1]]
+        depth_files = [root / depth_rows[j][0] for j in pairs[:, 1]]
+    rgb_files = [root / rgb_rows[i][0] for i in frames]
     first = read_rgb(rgb_files[0])
     height, width = first.shape[1:]
 
@@ -264,9 +283,9 @@ def read_tum(
     seq = TUMSequence(
         root=root, K=K, intrinsics_source=source, intrinsics_override=override, width=width, height=height,
         dist=dist,
-        timestamps=rgb_times[pairs[:, 0]], depth_timestamps=depth_times[pairs[:, 1]],
+        timestamps=rgb_times[frames], depth_timestamps=depth_stamps,
         rgb_files=rgb_files, depth_files=depth_files, depth_scale=float(depth_scale),
-        listed=(len(rgb_rows), len(depth_rows)), max_difference=float(max_difference),
+        listed=(len(rgb_rows), len(depth_rows)), max_difference=float(max_difference), colour_only=bool(colour_only),
     )
     gt_path = root / "groundtruth.txt"
     if gt_path.exists():

@@ -90,7 +90,7 @@ def read_video(roots, size: tuple[int, int], *, gap: int = 1, vary_gap: bool = F
     images, depths, targets, folder, reach = [], [], [], [], []
     K = dist = None
     n = 0
-    seqs = [read_tum(r) for r in roots]
+    seqs = [read_tum(r, colour_only=not with_depth) for r in roots]  # (no depth needed: colour video)
     bar = progress_bar(total=sum(len(s) if max_frames is None else min(len(s), max_frames) for s in seqs),
                desc="reading frames", unit="frame", disable=not progress, mininterval=0.5)
     for k, seq in enumerate(seqs):

@@ -83,23 +83,25 @@ def evaluate(checkpoint: str | Path, data, out: str | Path, *, progress: bool = 
     twice = repeated_folder(folders)
     if twice is not None:
         raise ValueError(f"evaluate: data names the folder {twice[0]} twice (also as {twice[1]})")
+    has_depth = {folder: (folder / "depth.txt").exists() for folder in folders}  # (else a colour video: no metrics)
     for folder in folders:  # (each folder's lists read before any frame: a bad one fails first)
-        read_tum(folder)
+        read_tum(folder, colour_only=not has_depth[folder])
     every, per_folder, shown = [], {}, None
     for folder in folders:
-        video = read_video([folder], size, with_depth=True, progress=progress)
+        video = read_video([folder], size, with_depth=has_depth[folder], progress=progress)
         preds = []
         with torch.no_grad():
             for i in progress_bar(range(0, video.images.shape[0], batch_size), desc=f"depth eval {folder.name}",
                                   unit="batch", disable=not progress, mininterval=0.5):
                 preds.append(net.depth(video.images[i:i + batch_size]))
         pred = torch.cat(preds)
-        mine = [depth_metrics(pred[i], video.depths[i], c["min_depth"], c["max_depth"]) for i in range(pred.shape[0])]
+        true = video.depths if has_depth[folder] else torch.zeros_like(pred)  # (zeros: no valid true depth)
+        mine = [depth_metrics(pred[i], true[i], c["min_depth"], c["max_depth"]) for i in range(pred.shape[0])]
         every += mine
         per_folder[str(folder)] = _summary(mine, pred.shape[0])
         if shown is None:  # the figure's frame: the first folder's middle one
             i = pred.shape[0] // 2
-            shown = (folder, i, video.images[i], pred[i, 0], video.depths[i, 0], mine[i])
+            shown = (folder, i, video.images[i], pred[i, 0], true[i, 0], mine[i])
     metrics = _summary(every, len(every))
     metrics.update(checkpoint=str(checkpoint), data=[str(f) for f in folders], size=list(size),
                    train_steps=ck["step"])

@@ -266,7 +266,6 @@ def train(cfg: DepthConfig) -> dict:
         raise ValueError(f"depth train: batch normalisation needs at least 2 items per rank or a size above "
                          f"{deepest}x{deepest}, got {cfg.batch_size // world} item(s) of {cfg.size[0]}x{cfg.size[1]}")
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
     ck_path = out / CHECKPOINT
     ck = _resume(cfg, ck_path)
     if cfg.resume and rank == 0:
@@ -277,6 +276,7 @@ def train(cfg: DepthConfig) -> dict:
     video = read_video(list(cfg.data), cfg.size, gap=cfg.gap, vary_gap=cfg.vary_gap and cfg.all_targets,
                        max_frames=cfg.max_frames,
                        progress=cfg.progress and rank == 0, with_depth=cfg.supervised)
+    out.mkdir(parents=True, exist_ok=True)  # (once the data could be read: a refused run leaves no folder)
     camera = video.camera()
     # a mirrored frame is a frame of the same camera only if its principal point is centred
     flip = cfg.flip and video.dist is None and abs(float(video.K[0, 2]) - (cfg.size[0] - 1) / 2) < 1e-3
@@ -415,11 +415,16 @@ def _module(net):
 
 
 def _true_depth(video: Video, frame: int, size: tuple[int, int]) -> Tensor | None:
-    """The true depth (1, 1, H, W) of frame ``frame`` of the first folder, if it has depth files."""
-    seq = read_tum(video.roots[0])
+    """The true depth (1, 1, H, W) of frame ``frame`` of the first folder (read colour only), if the
+    folder has a depth image for that colour image."""
     try:
-        _, dep = resize_frame(seq.image(frame), seq.depth(frame), size)
-    except (OSError, ValueError):
+        colour = read_tum(video.roots[0], colour_only=True)
+        seq = read_tum(video.roots[0])  # (its frames: the colour images with a depth image)
+        with_depth = np.flatnonzero(seq.timestamps == colour.timestamps[frame])
+        if with_depth.size == 0:
+            return None
+        _, dep = resize_frame(colour.image(frame), seq.depth(int(with_depth[0])), size)
+    except (OSError, ValueError):  # (no depth list, or a depth image that cannot be read: no true depth shown)
         return None
     return dep if (dep > 0).any() else None
 

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 
 from gvnn_warp.cli import main
 from gvnn_warp.datasets.tum import read_tum
@@ -201,6 +200,41 @@ def test_every_pose_source_and_the_supervised_bound_train(folders, tmp_path, opt
     assert m["steps"] == 1 and math.isfinite(m["train_loss"][0])
 
 
+def colour_only_copy(folder, dest):
+    """The sequence folder as a colour video: rgb.txt, rgb/, intrinsics.txt, groundtruth.txt; no depth."""
+    shutil.copytree(folder, dest, ignore=shutil.ignore_patterns("depth", "depth.txt"))
+    assert not (dest / "depth.txt").exists() and (dest / "rgb.txt").exists()
+    return dest
+
+
+def test_colour_video_trains_evaluates_without_metrics_and_has_no_depth(folders, tmp_path):
+    # folders holding colour images only (no depth.txt, no depth images): trained on as the same folders
+    # with depth are (the same frames and steps: the same weights), evaluated without metrics
+    videos = [colour_only_copy(f, tmp_path / f.name) for f in folders]
+    seq, video = read_tum(folders[0]), read_tum(videos[0], colour_only=True)
+    assert len(video) == len(seq) and video.colour_only and video.listed == (5, 0)
+    np.testing.assert_array_equal(video.timestamps, seq.timestamps)
+    with pytest.raises(ValueError, match=r"read without its depth \(colour_only\): frame 2 has no depth image"):
+        video.depth(2)
+    with pytest.raises(ValueError, match="depth.txt: missing depth list file"):
+        read_tum(videos[0])
+    a, b = train(_cfg(folders, tmp_path / "a")), train(_cfg(videos, tmp_path / "b"))
+    assert a["train_loss"] == b["train_loss"]
+    ev = tmp_path / "ev"
+    assert main(["depth", "eval", "--checkpoint", str(tmp_path / "b" / "checkpoint.pt"), "--data", str(videos[1]),
+                 "--out", str(ev), "--no-progress"]) == 0
+    metrics = json.loads((ev / "metrics.json").read_text())
+    assert metrics["abs_rel"] is None and metrics["frames"] == 5 and (ev / "depth.png").stat().st_size > 0
+    # a colour image listed without a depth image is a frame of the video (not of the RGB-D sequence)
+    extra = tmp_path / "extra"
+    shutil.copytree(folders[0], extra)
+    rows = (extra / "rgb.txt").read_text().splitlines()
+    stamp, name = rows[-1].split()
+    shutil.copy(extra / name, extra / "rgb" / "late.png")
+    (extra / "rgb.txt").write_text("\n".join([*rows, f"{float(stamp) + 1:.6f} rgb/late.png"]) + "\n")
+    assert len(read_tum(extra)) == 5 and len(read_tum(extra, colour_only=True)) == 6
+
+
 def test_train_resume_and_eval(folders, tmp_path):
     out = tmp_path / "run"
     m = train(_cfg(folders, out))
@@ -324,11 +358,8 @@ def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, 
     assert math.isfinite(metrics["ate_rmse_m"]) and metrics["alignment_scale"] > 0
     assert "Sim(3)-aligned" in capsys.readouterr().out
     # fused in its units, against the model of the predicted depth (--model) or after tracking (--fuse): on
-    # a copy of the folder whose depth files hold no valid depth, so every frame integrated is predicted
-    blank = tmp_path / "blank"
-    shutil.copytree(folders[0], blank)
-    for png in (blank / "depth").glob("*.png"):
-        Image.fromarray(np.zeros((64, 96), np.uint16)).save(png)
+    # a colour video (the folder without depth.txt and depth images), so every frame integrated is predicted
+    blank = colour_only_copy(folders[0], tmp_path / "blank")
     for mode in ("--model", "--fuse"):
         res = tmp_path / mode.strip("-")
         assert main(["track", str(blank), "--out", str(res), "--depth", "predicted", "--checkpoint",
@@ -339,7 +370,8 @@ def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, 
         assert "predicted depth's units" in capsys.readouterr().out and (res / "mesh.ply").exists()
     assert metrics["settings"]["mode"] == "frame-to-frame"  # (--fuse: tracked first, then fused)
     for argv, message in ((["--method", "vo"], "--method direct only"), ([], "needs --checkpoint"),
-                          (["--depth-weight", "1"], "--depth-weight")):
+                          (["--depth-weight", "1"], "--depth-weight"),
+                          (["--depth-scale", "1000"], "--depth-scale applies to the depth images")):
         ck = [] if message == "needs --checkpoint" else ["--checkpoint", str(out / "checkpoint.pt")]
         with pytest.raises(SystemExit) as e:
             main(["track", str(folders[0]), "--out", str(tmp_path / "t2"), "--depth", "predicted", *ck, *argv])
@@ -357,6 +389,11 @@ def test_cli_data_errors_are_one_line(folders, tmp_path, capsys):
                  "--steps", "1", "--no-progress"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing" in err[0]
+    assert not (tmp_path / "t").exists()  # (a refused run leaves no empty folder behind)
+    # the results of eval are not written among a sequence's files
+    with pytest.raises(SystemExit) as e:
+        main(["depth", "eval", "--checkpoint", str(bad), "--data", str(folders[0]), "--out", str(folders[0])])
+    assert e.value.code == 2 and "holds a sequence (rgb.txt)" in capsys.readouterr().err
 
 
 def test_training_commands_keep_an_earlier_run(tmp_path, capsys):

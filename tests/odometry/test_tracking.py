@@ -989,6 +989,9 @@ def test_network_aligner_gives_the_network_pose_to_the_direct_aligner_as_init(tm
         al.prepare(np.zeros((3, 48, 64), np.float32), np.ones((1, 48, 64), np.float32))
 
 
+STRAY_CHECKPOINT = "--checkpoint is used by --method vo and vo+direct (a gvnn-warp vo checkpoint) and by --depth"
+
+
 def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
     import torch
 
@@ -1008,10 +1011,10 @@ def test_track_cli_method_errors_are_one_line(tmp_path, capsys):
         (["--method", "vo", "--checkpoint", str(text)], "notes.txt: not a gvnn-warp vo checkpoint"),
         (["--method", "vo", "--checkpoint", str(depth_ck)], "depth.pt: a depth network's checkpoint (gvnn-warp depth "
                                                             "train), not a learned-VO one"),
-        (["--checkpoint", str(old)], "--checkpoint is used by --method vo and vo+direct only"),
+        (["--checkpoint", str(old)], STRAY_CHECKPOINT),
         (["--method", "vo", "--checkpoint", str(tmp_path)], "a folder, not a file (gvnn-warp vo writes OUT/"),
     ]
-    usage_mistakes = {"--method vo needs --checkpoint CKPT", "--checkpoint is used by --method vo and vo+direct only"}
+    usage_mistakes = {"--method vo needs --checkpoint CKPT", STRAY_CHECKPOINT}
     for extra, message in cases:
         if message in usage_mistakes:  # the arguments' mistakes: after the usage text, status 2
             with pytest.raises(SystemExit) as e:
