@@ -10,12 +10,15 @@ with it is compared with the truth after a similarity (scale) alignment (``evo_a
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..odometry.aligner import INTENSITY_LIMIT
+from ..odometry.inputs import as_numpy, fail
 from ..vo.frontend import resize_frame
 from .checkpoint import load_checkpoint, load_depth_net
 
@@ -23,10 +26,11 @@ __all__ = ["DepthPredictor"]
 
 
 class DepthPredictor:
-    """``predictor(image)``: image (3, H, W) numpy or torch in [0, 1] -> depth (1, H, W) float32 numpy
-    (see the module docstring). ``checkpoint``: the ``checkpoint.pt`` of ``gvnn-warp depth train``
-    (``CheckpointError`` for anything else); ``first_median``: metres, the median depth of the first
-    frame predicted (> 0)."""
+    """``predictor(image)``: image (3, H, W) float32/float64 numpy or torch in [0, 1] -> depth (1, H, W)
+    float32 numpy (see the module docstring). Values beyond [0, 1] (8-bit intensities) are warned
+    about once; NaN and infinite pixels are taken as 0 (black), also warned about once.
+    ``checkpoint``: the ``checkpoint.pt`` of ``gvnn-warp depth train`` (``CheckpointError`` for
+    anything else); ``first_median``: metres, the median depth of the first frame predicted (> 0)."""
 
     def __init__(self, checkpoint: str | Path, first_median: float = 1.0):
         if not first_median > 0:
@@ -37,11 +41,27 @@ class DepthPredictor:
         self.size = tuple(ck["config"]["size"])  # (W, H) the network was trained at
         self.first_median = float(first_median)
         self.scale: float | None = None  # fixed by the first frame
+        self._warned: set[str] = set()  # (each warning once)
 
     def __call__(self, image) -> np.ndarray:
-        image = torch.as_tensor(np.asarray(image, dtype=np.float32))
-        if image.dim() != 3 or image.shape[0] != 3:
-            raise ValueError(f"DepthPredictor: image must be (3, H, W) RGB, got {tuple(image.shape)}")
+        fn = "gvnn_warp.depth.DepthPredictor"
+        img = as_numpy(fn, "image", image, (3,))  # (integer images refused, with what to do)
+        if img.shape[0] != 3:
+            hint = ", which looks channel-last (H, W, 3): transpose it" if img.shape[-1] == 3 else ""
+            fail(fn, ValueError, f"argument 'image' must be (3, H, W) RGB, got {img.shape}{hint}")
+        top = float(np.nanmax(img[:, ::7, ::7], initial=0.0))
+        if top > INTENSITY_LIMIT and "8-bit" not in self._warned:
+            self._warned.add("8-bit")
+            warnings.warn(f"{fn}: argument 'image' has values up to {top:g}; colours are expected in [0, 1] (divide "
+                          "8-bit images by 255), and the depth differs otherwise", UserWarning, stacklevel=2)
+        finite = np.isfinite(img)
+        if not finite.all():  # (a defined depth: such pixels read as black)
+            img = np.where(finite, img, 0.0).astype(np.float32)
+            if "non-finite" not in self._warned:
+                self._warned.add("non-finite")
+                warnings.warn(f"{fn}: argument 'image' has NaN or infinite values; they are taken as 0",
+                              UserWarning, stacklevel=2)
+        image = torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32))
         H, W = image.shape[-2:]
         small, _ = resize_frame(image, torch.zeros(1, H, W), self.size)
         with torch.no_grad():

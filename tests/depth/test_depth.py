@@ -4,6 +4,7 @@ video triplets, and short runs of training, resuming and evaluation (the command
 import json
 import math
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -349,6 +350,30 @@ def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, 
     np.testing.assert_allclose(predict(seq.image(3)), raw * predict.scale, rtol=1e-6)
     with pytest.raises(ValueError, match="first_median"):
         DepthPredictor(out / "checkpoint.pt", first_median=0.0)
+    # bad images: integer refused with what to do; channel-last named; 8-bit values and NaN warned about once
+    # (NaN pixels read as black: a finite depth)
+    fresh = DepthPredictor(out / "checkpoint.pt")
+    with pytest.raises(TypeError, match=r"DepthPredictor: argument 'image' must be float32 or float64, got uint8 "
+                                        r"\(images in \[0, 1\]: divide 8-bit ones by 255\)"):
+        fresh((255 * seq.image(0)).astype(np.uint8))
+    with pytest.raises(ValueError, match=r"argument 'image' must be \(3, H, W\) RGB, got \(64, 96, 3\), which looks "
+                                         "channel-last"):
+        fresh(seq.image(0).transpose(1, 2, 0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fresh(255 * seq.image(0))
+        fresh(255 * seq.image(1))
+        holes = seq.image(2).copy()
+        holes[:, 10:20, 30:40] = np.nan
+        holes[0, 0, 0] = np.inf
+        d = fresh(holes)
+        fresh(holes)
+    assert [str(w.message).split(": ", 1)[1][:30] for w in caught] == [
+        "argument 'image' has values up", "argument 'image' has NaN or in"]
+    assert np.isfinite(d).all()
+    plain = seq.image(2).copy()
+    plain[:, 10:20, 30:40], plain[0, 0, 0] = 0.0, 0.0
+    np.testing.assert_array_equal(d, fresh(plain))
 
     track = tmp_path / "track"
     assert main(["track", str(folders[0]), "--out", str(track), "--depth", "predicted", "--checkpoint",
