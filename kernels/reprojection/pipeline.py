@@ -28,9 +28,8 @@ from . import kernels as rk
 __all__ = ["reprojection_loss"]
 
 
-def _expect(name: str, cond: bool, what: str, got) -> None:
-    if not cond:
-        raise ValueError(f"gvnn_warp.kernels.reprojection_loss: argument '{name}' must be {what}, got {got}")
+def _expect(name: str, cond: bool, what: str, got, exc: type[Exception] = ValueError) -> None:
+    sampling_pipeline._expect("reprojection_loss", name, cond, what, got, exc)
 
 
 def _repeat(kernel, src: wp.array, n: int, S: int) -> wp.array:
@@ -46,6 +45,8 @@ def reprojection_loss(target: wp.array, sources: wp.array, depth: wp.array, pose
     """Monodepth2's reprojection loss (B,) (with ``return_maps``, also the per-pixel error (B, 1, H,
     W) and ``choice`` (B, 1, H, W) int32: s for source s's reprojection, S + s for its identity,
     -1 where excluded). Gradients reach target, sources, depth, poses, K (and dist) on a tape."""
+    fn = "reprojection_loss"
+    sampling_pipeline._expect_arrays(fn, target=target, sources=sources, depth=depth, poses=poses, K=K)
     _expect("target", target.ndim == 4, "a 4-D (B, C, H, W) array", target.shape)
     B, C, H, W = target.shape
     _expect("poses", poses.ndim == 2 and poses.shape[0] == B, f"a ({B}, S) array of 3x4 matrices", poses.shape)
@@ -58,7 +59,13 @@ def reprojection_loss(target: wp.array, sources: wp.array, depth: wp.array, pose
     _expect("K", tuple(K.shape) == (B,), f"a ({B},) array of 3x3 matrices", K.shape)
     _expect("alpha", 0.0 <= alpha <= 1.0, "in [0, 1]", alpha)
     _expect("target", H >= 2 and W >= 2, "at least 2x2", (H, W))
+    sampling_pipeline._expect_float(fn, "target", target)
     ft, dev = target.dtype, target.device
+    for name, a in (("sources", sources), ("depth", depth)):  # (one float type: the target's)
+        _expect(name, a.dtype == ft, f"of dtype {ft.__name__} like 'target'",
+                sampling_pipeline._type_name(a.dtype), TypeError)
+    sampling_pipeline._expect_matrices(fn, "poses", poses, (3, 4), ft)
+    sampling_pipeline._expect_matrices(fn, "K", K, (3, 3), ft)
     hw = H * W
     depth_s = _repeat(rk.repeat_scalar, depth.flatten(), hw, S).reshape((B * S, 1, H, W))
     K_s = _repeat(rk.repeat_mat33, K, 1, S)

@@ -35,6 +35,20 @@ def _expect(fn: str, name: str, cond: bool, what: str, got, exc: type[Exception]
         raise exc(f"gvnn_warp.kernels.{fn}: argument '{name}' must be {what}, got {got}")
 
 
+def _expect_arrays(fn: str, **arrays) -> None:
+    """Each of ``arrays`` (argument name -> value) a ``wp.array`` (a numpy array or torch tensor is
+    named as such: these functions take Warp arrays, e.g. ``wp.from_numpy``, ``wp.from_torch``)."""
+    for name, a in arrays.items():
+        _expect(fn, name, isinstance(a, wp.array), "a wp.array (wp.from_numpy / wp.from_torch make one)",
+                f"{type(a).__module__.split('.')[0]}.{type(a).__name__}", TypeError)
+
+
+def _channel_last_hint(shape) -> str:
+    """For a 4-D image refused by a shape test: a hint when it looks (B, H, W, C)."""
+    return ", which looks channel-last (B, H, W, C): images are (B, C, H, W)" if (
+        len(shape) == 4 and shape[3] in (1, 3, 4) and shape[1] > 4) else ""
+
+
 def _type_name(t) -> str:
     shape, scalar = _compat.matrix_shape(t), _compat.scalar_type(t)
     if shape is not None:  # vector / matrix types: "3x4 float64"
@@ -114,9 +128,11 @@ def warp_frame_depth(
     the rays of the depth's pixels are computed first (:func:`pixel_rays`, one more launch).
     """
     fn = "warp_frame_depth"
+    _expect_arrays(fn, image=image, depth=depth, pose=pose, K=K)
     _expect(fn, "image", image.ndim == 4, "a 4-D (B, C, H, W) array", image.shape)
     B, C, H, W = image.shape
-    _expect(fn, "depth", tuple(depth.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}", depth.shape)
+    _expect(fn, "depth", tuple(depth.shape) == (B, 1, H, W), f"of shape {(B, 1, H, W)}",
+            f"{depth.shape}{_channel_last_hint(image.shape)}")
     _expect(fn, "pose", pose.ndim == 1 and pose.shape[0] == B, f"a ({B},) array of 3x4 matrices", pose.shape)
     _expect(fn, "K", K.ndim == 1 and K.shape[0] == B, f"a ({B},) array of 3x3 matrices", K.shape)
     _expect(fn, "padding_mode", padding_mode in _PADDING, f"one of {list(_PADDING)}", repr(padding_mode))
@@ -178,6 +194,7 @@ def masked_squared_error(a: wp.array, b: wp.array, valid: wp.array) -> wp.array:
     a, b: (B, C, H, W) of one float type; valid: (B, 1, H, W) of ``wp.bool``.
     """
     fn = "masked_squared_error"
+    _expect_arrays(fn, a=a, b=b, valid=valid)
     _expect(fn, "a", a.ndim == 4, "a 4-D (B, C, H, W) array", a.shape)
     _expect_float(fn, "a", a)
     _expect(fn, "b", b.dtype == a.dtype, f"of dtype {_type_name(a.dtype)}", _type_name(b.dtype), TypeError)

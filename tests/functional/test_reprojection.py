@@ -3,6 +3,8 @@ reference written from Monodepth2's formulas (benchmarks/reprojection.py: grid_s
 avg_pool2d SSIM, identity reprojection, min), float64 gradcheck, hard regimes (invalid depth,
 points behind the source camera, ties, samples outside the image), determinism, bad input."""
 
+import re
+
 import pytest
 import torch
 from gvnn_warp.kernels.core import launch
@@ -313,3 +315,13 @@ def test_pure_warp_pipeline_names_bad_arguments():
     with pytest.raises(ValueError, match="argument 'poses'"):
         K = wp.zeros(1, dtype=wp.mat33f)
         warp_loss(t, t, wp.zeros((1, 1, 4, 5), dtype=wp.float32), K, K)
+    # one float type (the target's), Warp arrays only: named, not a launch error
+    d = wp.zeros((1, 1, 4, 5), dtype=wp.float32)
+    P = wp.zeros((1, 1), dtype=wp.types.matrix((3, 4), wp.float32))
+    t64 = wp.zeros((1, 3, 4, 5), dtype=wp.float64)
+    for args, message in (((t64, t, d, P, K), "argument 'sources' must be of dtype float64 like 'target', got float32"),
+                          ((t, t, d, P, wp.zeros(1, dtype=wp.mat33d)), "argument 'K' must be an array of 3x3 float32"),
+                          ((t, t.numpy(), d, P, K), "argument 'sources' must be a wp.array"),
+                          ((t, t, d, P.numpy(), K), "argument 'poses' must be a wp.array")):
+        with pytest.raises(TypeError, match=r"gvnn_warp\.kernels\.reprojection_loss: " + re.escape(message)):
+            warp_loss(*args)

@@ -110,6 +110,21 @@ def test_pipeline_checks_its_arguments():
             pipeline.warp_frame_depth(*args, **kw)
     with pytest.raises(TypeError, match=r"masked_squared_error: argument 'valid' must be of dtype bool"):
         pipeline.masked_squared_error(warped, warped, warped)
+    # not Warp arrays (numpy, as a user of the pure-Warp API may pass): named, not an AttributeError
+    image, depth, pose, K = arrays()
+    for args, name, got in (((image.numpy(), depth, pose, K), "image", "numpy.ndarray"),
+                            ((image, depth.numpy(), pose, K), "depth", "numpy.ndarray"),
+                            ((image, depth, np.eye(3, 4)[None], K), "pose", "numpy.ndarray")):
+        with pytest.raises(TypeError, match=rf"warp_frame_depth: argument '{name}' must be a wp.array \(wp.from_numpy "
+                                            rf"/ wp.from_torch make one\), got {got}"):
+            pipeline.warp_frame_depth(*args)
+    with pytest.raises(TypeError, match=r"masked_squared_error: argument 'b' must be a wp.array"):
+        pipeline.masked_squared_error(warped, warped.numpy(), valid)
+    # a channel-last image: said so
+    last = wp.zeros((B, 6, 8, 3), dtype=wp.float32)
+    with pytest.raises(ValueError, match=r"argument 'depth' must be of shape \(1, 1, 8, 3\), got \(1, 1, 6, 8\), "
+                                         r"which looks channel-last"):
+        pipeline.warp_frame_depth(last, wp.ones((B, 1, 6, 8), dtype=wp.float32), pose, K)
 
 
 @pytest.mark.parametrize("W", [13, 16])  # the row kernel; the 8-lane kernel (rows of whole 8-pixel blocks)
