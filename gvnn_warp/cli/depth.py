@@ -105,7 +105,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt (a new run if there is none)")
     t.add_argument("--overwrite", action="store_true", help="start again in an OUT that holds an earlier run")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
-    t.set_defaults(func=run)
+    t.set_defaults(func=run, _parser=t)  # (its usage for its own mistakes)
     e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files (if it has them)")
     e.add_argument("--checkpoint", type=Path, required=True, metavar="CKPT", help="OUT/checkpoint.pt of train")
     e.add_argument("--data", type=Path, nargs="+", required=True, metavar="DIR",
@@ -113,7 +113,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     e.add_argument("--out", type=output_dir, required=True, metavar="OUT", help="output folder (metrics.json, "
                    "depth.png)")
     e.add_argument("--no-progress", action="store_true", help="no progress bar")
-    e.set_defaults(func=run)
+    e.set_defaults(func=run, _parser=e)
     return p
 
 

@@ -187,7 +187,9 @@ def parse_and_run(parser: argparse.ArgumentParser, argv: list[str] | None) -> in
     if argv is None:
         freeze_at_exit()
     try:
-        args = parser.parse_args(argv)
+        args, extras = parser.parse_known_args(argv)
+        if extras:  # (refused by the command's own parser: its usage, not the program's)
+            getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extras)}")
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS

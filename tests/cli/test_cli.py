@@ -133,6 +133,8 @@ def _bad_cases():
         ],
     }
     for command, rows in cases.items():
+        # an option the command does not have: refused after the command's usage, not the program's
+        rows.append((["--no-such-option", "3"], "unrecognized arguments: --no-such-option 3"))
         for extra, message in rows:
             yield pytest.param(command, extra, message, id=f"{command}{' '.join(extra)}")
 
@@ -302,7 +304,8 @@ def test_keyboard_interrupt_anywhere_in_a_command(command, tmp_path, capsys, mon
     monkeypatch.setattr(module, "run", interrupted)
     argv = [command, *(a.format(out=tmp_path / "o") for a in _VALID[command])]
     assert cli.main(argv) == 130
-    assert capsys.readouterr().err == f"gvnn-warp {command}: interrupted\n"
+    assert capsys.readouterr().err == f"gvnn-warp {' '.join(argv[:2] if command == 'depth' else argv[:1])}: " \
+                                      "interrupted\n"  # (depth's subcommand named: depth train)
 
 
 def test_a_file_the_command_cannot_write_is_one_line(tmp_path, capsys, monkeypatch):
@@ -575,7 +578,8 @@ def test_missing_figure_library_is_reported_before_work(command, tmp_path, capsy
     argv = [command, *(a.format(out=tmp_path / "o") for a in _VALID[command])]
     assert cli.main(argv) == 1
     err = capsys.readouterr().err
-    assert err == f"gvnn-warp {command}: error: this command needs matplotlib, which is not installed: " \
+    prog = " ".join(argv[:2] if command == "depth" else argv[:1])  # (depth's subcommand named: depth train)
+    assert err == f"gvnn-warp {prog}: error: this command needs matplotlib, which is not installed: " \
                   "pip install matplotlib\n"
     assert not (tmp_path / "o").exists()
 
