@@ -137,8 +137,11 @@ def run_train(args: argparse.Namespace) -> int:
     m = train(cfg)  # (a folder or checkpoint that cannot be used: one line, status 1, by the runner)
     if not m:  # a rank other than 0 of a data-parallel run: rank 0 reports
         return 0
-    if m["interrupted"]:
-        return 130
+    if m["interrupted"]:  # (the checkpoint is written: say how to go on; the status of the signal's default)
+        by = "SIGTERM" if m.get("stopped_by") == "SIGTERM" else "Ctrl-C"
+        print(f"depth train: stopped by {by} at step {m['steps']}; {cfg.out}/checkpoint.pt holds the run (no "
+              "training.png): --resume continues it", file=sys.stderr)
+        return 143 if by == "SIGTERM" else 130
     loss = m["train_loss"]
     change = f"loss {loss[0]:.4f} -> {loss[-1]:.4f}" if loss else "no step"
     print(f"depth train: {m['steps']} steps in {m['train_seconds'] / 60:.1f} min on {m['triplets']} triplets, "

@@ -242,8 +242,8 @@ def _config_dict(cfg: DepthConfig) -> dict:
 
 def train(cfg: DepthConfig) -> dict:
     """Train (see the module docstring); returns the metrics written to ``OUT/metrics.json``:
-    ``steps``, ``train_loss`` (per step), ``train_seconds``, ``interrupted`` (rank 0; the other
-    ranks of a data-parallel run get {})."""
+    ``steps``, ``train_loss`` (per step), ``train_seconds``, ``interrupted`` and ``stopped_by``
+    ("SIGINT" for Ctrl-C, "SIGTERM", or None) (rank 0; the other ranks of a data-parallel run get {})."""
     rank, world = setup()
     if world > 1:  # the cores shared between the ranks (torch's and gvnn_warp's threads)
         from ..kernels.core.threads import set_num_threads
@@ -375,8 +375,9 @@ def train(cfg: DepthConfig) -> dict:
                 save(elapsed + time.perf_counter() - t0)
                 last_ck = time.perf_counter()
         interrupted = bool(all_max(float(stop["flag"]), world))
+        stopped_by = "SIGTERM" if interrupted else None
     except KeyboardInterrupt:
-        interrupted = True
+        interrupted, stopped_by = True, "SIGINT"
     finally:
         bar.close()
         for sig, handler in previous.items():
@@ -384,6 +385,7 @@ def train(cfg: DepthConfig) -> dict:
         seconds = elapsed + time.perf_counter() - t0
         save(seconds)
     metrics = {"steps": step, "train_loss": history, "train_seconds": seconds, "interrupted": interrupted,
+               "stopped_by": stopped_by,
                "frames": int(video.images.shape[0]), "triplets": int(video.targets.numel()),
                "size": list(cfg.size), "config": _config_dict(cfg)}
     if world > 1:  # sanity check: DDP must leave every rank with the same weights

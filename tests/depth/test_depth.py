@@ -236,6 +236,36 @@ def test_colour_video_trains_evaluates_without_metrics_and_has_no_depth(folders,
     assert len(read_tum(extra)) == 5 and len(read_tum(extra, colour_only=True)) == 6
 
 
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGINT"])
+def test_a_stopped_run_says_how_to_go_on(folders, tmp_path, capsys, monkeypatch, how):
+    # a signal in the first step: the step ends, the checkpoint is written, one line says how to resume,
+    # and the status is the signal's (130 Ctrl-C, 143 SIGTERM)
+    import signal
+
+    import gvnn_warp.depth.train as T
+
+    real = T.self_supervised_loss
+
+    def stopped(*args, **kwargs):
+        if how == "SIGTERM":
+            signal.raise_signal(signal.SIGTERM)  # (the run's handler: it stops after this step)
+            return real(*args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(T, "self_supervised_loss", stopped)
+    out = tmp_path / "run"
+    argv = ["depth", "train", "--data", *map(str, folders), "--out", str(out), "--size", "64x64", "--steps", "5",
+            "--gap", "1", "--no-progress"]
+    assert main(argv) == (143 if how == "SIGTERM" else 130)
+    err = capsys.readouterr().err.strip().splitlines()
+    by = "SIGTERM" if how == "SIGTERM" else "Ctrl-C"
+    steps = 1 if how == "SIGTERM" else 0
+    assert err[-1] == f"depth train: stopped by {by} at step {steps}; {out}/checkpoint.pt holds the run (no " \
+                      "training.png): --resume continues it"
+    assert json.loads((out / "metrics.json").read_text())["stopped_by"] == how
+    assert torch.load(out / "checkpoint.pt", weights_only=True)["step"] == steps
+
+
 def test_train_resume_and_eval(folders, tmp_path):
     out = tmp_path / "run"
     m = train(_cfg(folders, out))
