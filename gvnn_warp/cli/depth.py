@@ -5,7 +5,8 @@ Usage::
 
     gvnn-warp depth train --data DIR [DIR ...] --out OUT [--size WxH] [--minutes M] [--gap G] [--fixed-gap]
                           [--inner-targets] [--norm batch|none] [--pose direct|network] [--supervised] [--ema DECAY]
-                          [--steps N] [--batch-size B] [--lr LR] [--seed S] [--resume] [--no-progress]
+                          [--steps N] [--batch-size B] [--lr LR] [--seed S] [--resume] [--overwrite]
+                          [--no-progress]
     gvnn-warp depth eval --checkpoint CKPT --data DIR [DIR ...] --out OUT [--no-progress]
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
@@ -90,7 +91,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "written before the option, to resume them)")
     t.add_argument("--pose", choices=_POSES, default=_POSES[0],
                    help="where each triplet's poses come from: direct (the direct aligner on the predicted depth, "
-                        "no gradient) or network (a pose network trained with the depth network, Monodepth2's)")
+                        "no gradient; default) or network (a pose network trained with the depth network, "
+                        "Monodepth2's)")
     t.add_argument("--supervised", action="store_true",
                    help="train on the folders' depth files instead (scale-invariant log loss): the upper bound "
                         "to compare the self-supervised network with")

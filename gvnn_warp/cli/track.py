@@ -150,8 +150,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--color", action="store_true", help="photometric term on RGB instead of grey")
     p.add_argument("--lens", choices=LENS_MODES, default="resample",
                    help="through a lens (radial-tangential intrinsics): resample each frame once into the ideal "
-                        "pinhole image and track that with the pinhole's kernels (~1.4x the pinhole's time), or move "
-                        "every ray through the lens model (exact; ~3.3x)")
+                        "pinhole image and track that with the pinhole's kernels (~1.1x the pinhole's time; default), "
+                        "or move every ray through the lens model (exact; ~3.2x)")
     fuse = p.add_mutually_exclusive_group()
     fuse.add_argument("--fuse", action="store_true",
                       help="integrate the frames at the estimated poses into a TSDF and write OUT/mesh.ply and "

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import torch
 from torch import Tensor
 
 __all__ = ["depth_panel"]
@@ -21,7 +22,7 @@ def _plt():
 
 
 def depth_panel(image: Tensor, depth: Tensor, true_depth: Tensor | None, last: Tensor | None, path: Path, *,
-                title: str = "", last_title: str = "auto-mask (white: the reprojection is used)",
+                title: str = "", last_title: str = "auto-mask (white: reprojection used)",
                 last_cmap: str = "gray") -> None:
     """Writes a row of panels: ``image`` (3, H, W), predicted ``depth`` (H, W), the true depth
     (1, H, W) or (H, W) (0 = none) if given, and ``last`` (H, W) if given. With a true depth the
@@ -55,7 +56,7 @@ def depth_panel(image: Tensor, depth: Tensor, true_depth: Tensor | None, last: T
     if last is not None:
         im = axes[k].imshow(last.float().numpy(), cmap=last_cmap)
         axes[k].set_title(last_title, fontsize=10)
-        if last.dtype != bool:
+        if last.dtype != torch.bool:  # (a mask needs no colour bar: its title says what white is)
             fig.colorbar(im, ax=axes[k], fraction=0.046, pad=0.04)
     for ax in axes:
         ax.set_xticks([])

@@ -441,5 +441,5 @@ def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, p
         target, sources = video.triplets(first)
         _, depth, maps = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, return_maps=True)
     frame = int(video.targets[first[0]])
-    depth_panel(target[0], depth[0, 0], _true_depth(video, frame, cfg.size), maps["automask"][0, 0], path,
+    depth_panel(target[0], depth[0, 0], _true_depth(video, frame, cfg.size), maps["automask"][0, 0].bool(), path,
                 title=f"depth after training ({video.roots[0].name}, frame {frame})")
