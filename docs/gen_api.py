@@ -61,6 +61,8 @@ def render() -> str:
                 sig = str(inspect.signature(obj)).replace("torch.Tensor", "Tensor")
             except ValueError:  # (an exception class: no signature of its own)
                 sig = ""
+            if inspect.isclass(obj) and sig == "(*args: Any, **kwargs: Any) -> None":
+                sig = "()"  # (a layer with no constructor arguments: nn.Module's own __init__)
             out += [f"### `{name}{sig}`", "", inspect.cleandoc(obj.__doc__ or "(undocumented)"), ""]
             if inspect.isclass(obj) and getattr(obj, "forward", None) and obj.forward.__doc__:
                 out += [inspect.cleandoc(obj.forward.__doc__), ""]
