@@ -10,6 +10,7 @@ from torch import Tensor, nn
 from ..functional import sampling as F
 from ..functional.lie import se3_to_matrix
 from ..kernels.geometry.camera import MIN_DEPTH
+from ..ops.checks import ArgCheck
 from .camera import Intrinsics
 
 __all__ = ["BilinearSampler", "SpatialTransformer3D"]
@@ -47,6 +48,7 @@ class SpatialTransformer3D(Intrinsics):
         self.min_depth = min_depth
 
     def forward(self, image: Tensor, depth: Tensor, xi: Tensor) -> tuple[Tensor, Tensor]:
+        ArgCheck("nn.SpatialTransformer3D").tensor("xi", xi, "B 6")  # (the layer's own argument, named)
         return F.warp_frame_depth(
             image, depth, se3_to_matrix(xi), self.camera, padding_mode=self.padding_mode, min_depth=self.min_depth
         )

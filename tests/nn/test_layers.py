@@ -1,5 +1,6 @@
 """nn.Module layers are thin wrappers: same values as the functions, learnable intrinsics train."""
 
+import pytest
 import torch
 from refs import intrinsics
 
@@ -26,6 +27,9 @@ def test_layers_equal_functions():
     ref_w, ref_v = G.warp_frame_depth(image, depth, pose, K)
     torch.testing.assert_close(warped, ref_w)
     assert torch.equal(valid, ref_v)
+    # the layer's own argument named in its errors (an unbatched xi is not the function's 3x4 'pose')
+    with pytest.raises(ValueError, match=r"SpatialTransformer3D: argument 'xi' must have shape \(B, 6\), got \(6,\)"):
+        G.SpatialTransformer3D(K)(image, depth, xi[0, :6])
 
 
 def test_identity_at_zero_pose_and_learnable_intrinsics():
