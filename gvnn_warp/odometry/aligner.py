@@ -302,11 +302,11 @@ class DirectAligner:
             fail(fn, ValueError, f"argument '{image_name}' must be {self.resample.width}x{self.resample.height} "
                                  f"pixels (the resampling table's source), got shape {tuple(np.shape(image))}")
         if depth is not None:
-            d = as_numpy(fn, depth_name, depth, (4,) if batched else (3,))
-            if not batched:
-                d = d[None]
+            d = as_numpy(fn, depth_name, depth, (4,) if batched else (2, 3))
+            if not batched:  # ((H, W) taken as (1, H, W), as TSDFVolume.integrate takes a depth)
+                d = d.reshape(1, *d.shape) if d.ndim == 3 else d[None, None]
             if d.shape != (B, 1, H, W):
-                want = (B, 1, H, W) if batched else (1, H, W)
+                want = f"{(B, 1, H, W)}" if batched else f"{(1, H, W)} or {(H, W)}"
                 also = f"; argument '{image_name}' has shape {tuple(np.shape(image))}{hint}" if hint else ""
                 fail(fn, ValueError, f"argument '{depth_name}' must have shape {want}, got {tuple(depth.shape)}{also}")
         if not use_depth:
@@ -339,7 +339,7 @@ class DirectAligner:
 
         Args:
             ref_image, live_image: (C, H, W) or (B, C, H, W) intensities.
-            ref_depth: (1, H, W) or (B, 1, H, W) metres (0/NaN = none).
+            ref_depth: (1, H, W) (or (H, W)) or (B, 1, H, W) metres (0/NaN = none).
             live_depth: like ``ref_depth``; needed when ``depth_weight > 0``, used by the occlusion test.
             init: initial ``T`` ((4, 4) or (B, 4, 4); (3, 4) rows [R | t] also accepted), a rigid
                 transform (R a rotation within 1e-3), e.g. a constant-velocity prediction;

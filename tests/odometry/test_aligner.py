@@ -578,6 +578,18 @@ def test_numbers_of_any_kind_are_accepted_as_settings():
     assert np.all(np.isfinite(T))
 
 
+def test_depth_of_two_dimensions_is_one_frame():
+    # (H, W) depths, as TSDFVolume.integrate takes them: the (1, H, W) result, bit for bit
+    ri, rd, li, ld, K, _ = rendered_pair(motion((1.0, 0.0, 0.0), (0.02, 0.0, 0.0)), width=W, height=H)
+    al = DirectAligner(K, depth_weight=0.1)
+    want, _ = al.align(ri, rd, li, ld)
+    T, _ = al.align(ri, rd[0], li, ld[0])
+    np.testing.assert_array_equal(T, want)
+    with pytest.raises(ValueError, match=r"argument 'ref_depth' must have shape \(1, 120, 160\) or \(120, 160\), "
+                                         r"got \(120, 159\)"):
+        al.align(ri, rd[0, :, :159], li, ld)
+
+
 def test_integer_intrinsics_are_taken_as_floats():
     # K in whole pixels, written as integers (numpy or torch): the float K's result, bit for bit
     ri, rd, li, ld, _, _ = rendered_pair(motion((1.0, 0.0, 0.0), (0.02, 0.0, 0.0)), width=W, height=H)
