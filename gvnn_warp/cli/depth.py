@@ -38,6 +38,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from .args import (  # noqa: E402
+    CHECKPOINT,
     UsageError,
     bounded_int,
     description,
@@ -141,7 +142,7 @@ def run_train(args: argparse.Namespace) -> int:
         return 0
     if m["interrupted"]:  # (the checkpoint is written: say how to go on; the status of the signal's default)
         by = "SIGTERM" if m.get("stopped_by") == "SIGTERM" else "Ctrl-C"
-        print(f"depth train: stopped by {by} at step {m['steps']}; {cfg.out}/checkpoint.pt holds the run (no "
+        print(f"depth train: stopped by {by} at step {m['steps']}; {args.out / CHECKPOINT} holds the run (no "
               "training.png): --resume continues it", file=sys.stderr)
         return 143 if by == "SIGTERM" else 130
     loss = m["train_loss"]

@@ -277,6 +277,11 @@ def train(cfg: DepthConfig) -> dict:
                        max_frames=cfg.max_frames,
                        progress=cfg.progress and rank == 0, with_depth=cfg.supervised)
     out.mkdir(parents=True, exist_ok=True)  # (once the data could be read: a refused run leaves no folder)
+    if ck is not None and ck.get("frames", video.images.shape[0]) != video.images.shape[0]:
+        finish(world)  # (other frames: the resumed run would not draw the batches the run would have)
+        raise CheckpointError(f"{ck_path}: the run trained on {ck['frames']} frames, these folders give "
+                              f"{video.images.shape[0]} (other folders, or frames added or removed); resume on the "
+                              "same folders or start a new run in another directory")
     camera = video.camera()
     # a mirrored frame is a frame of the same camera only if its principal point is centred
     flip = cfg.flip and video.dist is None and abs(float(video.K[0, 2]) - (cfg.size[0] - 1) / 2) < 1e-3
@@ -315,7 +320,8 @@ def train(cfg: DepthConfig) -> dict:
                      **({"depth_net_trained": _module(depth_net).state_dict()} if average is not None else {}),
                      "pose_net": _module(pose_net).state_dict(),
                      "optimizer": opt.state_dict(), "rng": rng_state(), "K": video.K,
-                     "dist": video.dist if video.dist is not None else torch.zeros(0)}, ck_path)
+                     "dist": video.dist if video.dist is not None else torch.zeros(0),
+                     "frames": int(video.images.shape[0])}, ck_path)
 
     stop = {"flag": False}
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM,)}
@@ -374,7 +380,9 @@ def train(cfg: DepthConfig) -> dict:
             if time.perf_counter() - last_ck >= cfg.checkpoint_seconds:
                 save(elapsed + time.perf_counter() - t0)
                 last_ck = time.perf_counter()
-        interrupted = bool(all_max(float(stop["flag"]), world))
+        # (a SIGTERM in the last step: the run is complete, not stopped)
+        finished = elapsed + time.perf_counter() - t0 >= budget or (cfg.steps is not None and step >= cfg.steps)
+        interrupted = bool(all_max(float(stop["flag"] and not finished), world))
         stopped_by = "SIGTERM" if interrupted else None
     except KeyboardInterrupt:
         interrupted, stopped_by = True, "SIGINT"
@@ -417,8 +425,12 @@ def _module(net):
 
 
 def _true_depth(video: Video, frame: int, size: tuple[int, int]) -> Tensor | None:
-    """The true depth (1, 1, H, W) of frame ``frame`` of the first folder (read colour only), if the
-    folder has a depth image for that colour image."""
+    """The true depth (1, 1, H, W) of frame ``frame`` of the first folder, if the folder has a depth
+    image for that frame (the video's own with ``--supervised``; else read colour only, the depth
+    image associated with that colour image)."""
+    if video.depths is not None:  # (supervised: the frames are the colour images with depth)
+        dep = video.depths[frame][None]
+        return dep if (dep > 0).any() else None
     try:
         colour = read_tum(video.roots[0], colour_only=True)
         seq = read_tum(video.roots[0])  # (its frames: the colour images with a depth image)

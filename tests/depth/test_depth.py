@@ -245,10 +245,13 @@ def test_a_stopped_run_says_how_to_go_on(folders, tmp_path, capsys, monkeypatch,
     import gvnn_warp.depth.train as T
 
     real = T.self_supervised_loss
+    before = signal.getsignal(signal.SIGTERM)
 
     def stopped(*args, **kwargs):
-        if how == "SIGTERM":
-            signal.raise_signal(signal.SIGTERM)  # (the run's handler: it stops after this step)
+        if how == "SIGTERM":  # (while training, under the run's handler: it stops after this step; not in
+            # the figure's pass after training, where the default handler would end the test's process)
+            if signal.getsignal(signal.SIGTERM) is not before:
+                signal.raise_signal(signal.SIGTERM)
             return real(*args, **kwargs)
         raise KeyboardInterrupt
 
@@ -264,6 +267,27 @@ def test_a_stopped_run_says_how_to_go_on(folders, tmp_path, capsys, monkeypatch,
                       "training.png): --resume continues it"
     assert json.loads((out / "metrics.json").read_text())["stopped_by"] == how
     assert torch.load(out / "checkpoint.pt", weights_only=True)["step"] == steps
+    assert signal.getsignal(signal.SIGTERM) is before  # (the run's handler is gone)
+    if how == "SIGTERM":  # a signal in the last step: the run is complete, not stopped
+        done = tmp_path / "done"
+        assert main(["depth", "train", "--data", *map(str, folders), "--out", str(done), "--size", "64x64",
+                     "--steps", "1", "--gap", "1", "--no-progress"]) == 0
+        assert json.loads((done / "metrics.json").read_text())["stopped_by"] is None
+        assert (done / "training.png").exists()
+
+
+def test_resume_refuses_other_frames(folders, tmp_path):
+    # the same folders with a frame more: the resumed run would draw other batches than the run did
+    data = [tmp_path / "a", tmp_path / "b"]
+    for src, dst in zip(folders, data):
+        shutil.copytree(src, dst)
+    out = tmp_path / "run"
+    train(_cfg(data, out))
+    rows = (data[0] / "rgb.txt").read_text().splitlines()
+    stamp, name = rows[-1].split()
+    (data[0] / "rgb.txt").write_text("\n".join([*rows, f"{float(stamp) + 1:.6f} {name}"]) + "\n")
+    with pytest.raises(ValueError, match=r"checkpoint.pt: the run trained on 10 frames, these folders give 11"):
+        train(DepthConfig(**{**_cfg(data, out).__dict__, "steps": 3, "resume": True}))
 
 
 def test_train_resume_and_eval(folders, tmp_path):
