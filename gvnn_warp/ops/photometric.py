@@ -18,6 +18,7 @@ from ..kernels.core.launch import RecordedLaunch, get_num_threads, launch
 from ..kernels.photometric import error, error_reduce, error_rows, normal_equations, normal_equations_lanes
 from ..kernels.photometric import normal_equations_reduce as ne_reduce
 from ..kernels.photometric.residual import GRAIN_PIXELS
+from ..kernels.sampling.lanes import MAX_LANES_PLANE
 from .bridge import WARP_FLOAT, descriptor, null_array, warp_op
 from .registry import Output, Param, custom_op, define_op, lazy_ops
 
@@ -173,9 +174,11 @@ def _normal_equations(
         return tuple(outs)
     depth_term = live_depth.numel() > 0 and depth_weight > 0
     arrays = [(t, "scalar") for t in (ref_image, ref_depth, live_image, live_depth)] + [(pose, "mat34"), (K, "mat33")]
-    rows_kernel = normal_equations_lanes.normal_equations_lanes(depth_term, False, C, kind, W)
+    lanes = H * W <= MAX_LANES_PLANE  # (else the lanes' float tap addresses are not exact: pixel by pixel)
+    rows_kernel = (normal_equations_lanes.normal_equations_lanes(depth_term, False, C, kind, W) if lanes else
+                   normal_equations.normal_equations_rows(depth_term, False))
     _run_normal_equations(rows_kernel[WARP_FLOAT[ref_image.dtype]], ref_image, arrays,
-                          [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=True)
+                          [C, H, W, kind, scale, min_depth, depth_weight, 0.0], outs, acc=lanes)
     return tuple(outs)
 
 

@@ -20,6 +20,7 @@ import warp as wp
 
 from ..core import launch as _launch
 from ..geometry.camera import MIN_DEPTH
+from ..sampling.lanes import MAX_LANES_PLANE
 from ..sampling.pipeline import (
     _expect,
     _expect_dist,
@@ -30,7 +31,7 @@ from ..sampling.pipeline import (
     pixel_rays,
 )
 from .error_rows import photometric_mean, photometric_rows, photometric_rows_lens
-from .normal_equations import normal_equations_rows_lens
+from .normal_equations import normal_equations_rows, normal_equations_rows_lens
 from .normal_equations_lanes import normal_equations_lanes
 from .normal_equations_reduce import N_SUMS, ROW_STRIDE, normal_equations_reduce
 from .residual import GRAIN_PIXELS, KINDS
@@ -251,7 +252,11 @@ def photometric_normal_equations(
     outputs = [_flat(out.JtWJ, B * 36), _flat(out.JtWr, B * 6), out.cost, out.count]
     depth_term = live_depth is not None and depth_weight > 0
     occlusion_test = live_depth is not None and occlusion > 0
-    rows_kernel = normal_equations_lanes(depth_term, occlusion_test, C, NORMAL_EQUATIONS_KINDS_CODES[robust], W)[ft]
+    if H * W <= MAX_LANES_PLANE:
+        rows_kernel = normal_equations_lanes(depth_term, occlusion_test, C, NORMAL_EQUATIONS_KINDS_CODES[robust],
+                                             W)[ft]
+    else:  # (the lanes' float tap addresses are exact only up to MAX_LANES_PLANE pixels: the pixel-by-pixel kernel)
+        rows_kernel, inputs = normal_equations_rows(depth_term, occlusion_test)[ft], inputs[:-1]
     out._cmds = [
         _launch.RecordedLaunch(rows_kernel, B * H, inputs, work=W, grain=GRAIN_PIXELS),
         _launch.RecordedLaunch(normal_equations_reduce[ft], B * N_SUMS, [out._rows, H, *outputs], grain=GRAIN_PIXELS),

@@ -608,6 +608,30 @@ def test_error_large_planes_take_the_reference_path(monkeypatch):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)
 
 
+def test_normal_equations_beyond_the_lanes_exact_addresses_go_pixel_by_pixel(monkeypatch):
+    # planes of more than MAX_LANES_PLANE pixels (float32 lane addresses inexact) take the one-pixel
+    # kernel, in the torch op and the pure-Warp function alike: the same sums up to their order (a
+    # lowered limit stands in for a 16.7-megapixel image)
+    import gvnn_warp as G
+    from gvnn_warp.ops import photometric as ops_photometric
+
+    ref, depth, live, pose, K, live_depth = scene(B=2, C=1, H=6, W=9, seed=33)
+    results = []
+    for limit in (pp.MAX_LANES_PLANE, 6 * 9 - 1):
+        monkeypatch.setattr(pp, "MAX_LANES_PLANE", limit)
+        monkeypatch.setattr(ops_photometric, "MAX_LANES_PLANE", limit)
+        arrays, ld = to_wp(ref, depth, live, pose, K, live_depth)
+        warp_ne = [a.numpy() for a in pp.photometric_normal_equations(*arrays, robust="huber", scale=0.1,
+                                                                       live_depth=ld, depth_weight=0.5)]
+        torch_ne = [t.numpy() for t in G.photometric_normal_equations(ref, depth, live, pose, K, robust="huber",
+                                                                      scale=0.1, live_depth=live_depth,
+                                                                      depth_weight=0.5)]
+        results.append(warp_ne + torch_ne)
+    assert results[0][3].sum() > 0
+    for a, b in zip(*results):
+        np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12 * max(np.abs(a).max(), 1.0))
+
+
 def test_error_pure_warp_tape_matches_torch():
     from gvnn_warp.functional.photometric import photometric_error
 
