@@ -49,7 +49,8 @@ class DepthPredictor:
         if img.shape[0] != 3:
             hint = ", which looks channel-last (H, W, 3): transpose it" if img.shape[-1] == 3 else ""
             fail(fn, ValueError, f"argument 'image' must be (3, H, W) RGB, got {img.shape}{hint}")
-        top = float(np.nanmax(img[:, ::7, ::7], initial=0.0))
+        sample = img[:, ::7, ::7]
+        top = float(np.max(sample, where=np.isfinite(sample), initial=0.0))  # (inf: the non-finite warning's)
         if top > INTENSITY_LIMIT and "8-bit" not in self._warned:
             self._warned.add("8-bit")
             warnings.warn(f"{fn}: argument 'image' has values up to {top:g}; colours are expected in [0, 1] (divide "

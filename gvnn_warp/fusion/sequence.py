@@ -163,7 +163,8 @@ class FrameToModel:
             channels = (lambda c: c) if self.color else to_gray
             # (the live depth too: the aligner's occlusion test and depth term use it)
             guess = self._step if self.init == "velocity" else None
-            if "8-bit" in self._warned:  # (add's own warning named the user's argument: not the aligner's too)
+            if "8-bit" in self._warned or not self.warn:  # (add's own warning named the user's argument, or
+                # warnings are off: not the aligner's, about arguments the caller never passed)
                 with warnings.catch_warnings():
                     warnings.filterwarnings("ignore", message=r"DirectAligner\.\w+: argument '\w+' has intensities")
                     T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth,

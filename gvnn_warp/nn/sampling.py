@@ -48,7 +48,9 @@ class SpatialTransformer3D(Intrinsics):
         self.min_depth = min_depth
 
     def forward(self, image: Tensor, depth: Tensor, xi: Tensor) -> tuple[Tensor, Tensor]:
-        ArgCheck("nn.SpatialTransformer3D").tensor("xi", xi, "B 6")  # (the layer's own argument, named)
+        chk = ArgCheck("nn.SpatialTransformer3D")  # (the layer's own argument named: xi, not the function's pose)
+        chk.tensor("image", image, "B C H W", image=True)
+        chk.tensor("xi", xi, "B 6")
         return F.warp_frame_depth(
             image, depth, se3_to_matrix(xi), self.camera, padding_mode=self.padding_mode, min_depth=self.min_depth
         )

@@ -8,9 +8,9 @@ over the reference pixels ``u`` with valid depth (``X`` their back-projected poi
 (pixel centres, intrinsics, poses, valid depths): ``docs/conventions.md``.
 
 Shapes: images ``(C, H, W)`` or ``(B, C, H, W)`` float intensities (e.g. in [0, 1]); depths
-``(1, H, W)`` / ``(B, 1, H, W)`` metres, where 0, NaN, inf and negative values mean "no depth";
-numpy arrays or torch tensors (CPU), float32 or float64 (computed in float32). Results come back
-as the kind of the reference image (numpy or torch), poses always float64.
+``(1, H, W)`` (or ``(H, W)``) / ``(B, 1, H, W)`` metres, where 0, NaN, inf and negative values mean
+"no depth"; numpy arrays or torch tensors (CPU), float32 or float64 (computed in float32). Results
+come back as the kind of the reference image (numpy or torch), poses always float64.
 
 How it works
 ------------

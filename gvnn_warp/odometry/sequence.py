@@ -201,7 +201,8 @@ def track_sequence(seq: TUMSequence, n: int, aligner, out: Path, *, method: str 
                      "init": init if method == "direct" else "network",
                      "levels": levels or "auto", "iterations": iterations, "robust": robust,
                      "depth_weight": depth_weight,
-                     "channels": "grey" if gray else "rgb", "depth_scale": seq.depth_scale,
+                     "channels": "grey" if gray else "rgb",
+                     "depth_scale": seq.depth_scale if predictor is None else None,  # (no depth file read)
                      "depth": "sensor" if predictor is None else "predicted",
                      "depth_checkpoint": str(getattr(predictor, "checkpoint", "")) or None},
         "ms_per_pair": result.ms_per_pair,

@@ -66,6 +66,9 @@ def reprojection_loss(target: wp.array, sources: wp.array, depth: wp.array, pose
                 sampling_pipeline._type_name(a.dtype), TypeError)
     sampling_pipeline._expect_matrices(fn, "poses", poses, (3, 4), ft)
     sampling_pipeline._expect_matrices(fn, "K", K, (3, 3), ft)
+    _expect("min_depth", 0 < min_depth < float("inf"), "a positive finite number", repr(min_depth))
+    if sampling_pipeline._lens_model(fn, model) != lens.PINHOLE:  # (checked here: the warps see (B S,) repeats)
+        sampling_pipeline._expect_dist(fn, dist, B, ft)
     hw = H * W
     depth_s = _repeat(rk.repeat_scalar, depth.flatten(), hw, S).reshape((B * S, 1, H, W))
     K_s = _repeat(rk.repeat_mat33, K, 1, S)

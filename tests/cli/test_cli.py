@@ -189,6 +189,19 @@ def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, 
     assert bad_file.read_text() == "not a directory"
 
 
+@pytest.mark.parametrize("sub", ["train", "eval"])
+def test_depth_subcommands_refuse_unknown_options_after_their_own_usage(sub, tmp_path, capsys):
+    argv = ["depth", sub, "--data", str(tmp_path), "--out", str(tmp_path / "o"), "--no-such-option"]
+    if sub == "eval":
+        argv += ["--checkpoint", str(tmp_path / "c.pt")]
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and lines[0].startswith(f"usage: gvnn-warp depth {sub} ")
+    assert lines[-1] == f"gvnn-warp depth {sub}: error: unrecognized arguments: --no-such-option"
+    assert not (tmp_path / "o").exists()
+
+
 DATA_ERRORS = [  # a file or folder that cannot be used: one line naming it, status 1, no usage text
     ("vo", ["--data", NOWHERE, NOWHERE], "nowhere: no such directory"),
     ("track", [NOWHERE], "nowhere: no such directory"),

@@ -428,6 +428,10 @@ def test_predicted_depth_has_one_scale_and_tracks_a_sequence(folders, tmp_path, 
     plain = seq.image(2).copy()
     plain[:, 10:20, 30:40], plain[0, 0, 0] = 0.0, 0.0
     np.testing.assert_array_equal(d, fresh(plain))
+    with warnings.catch_warnings(record=True) as caught:  # (an inf pixel is not taken for 8-bit values)
+        warnings.simplefilter("always")
+        DepthPredictor(out / "checkpoint.pt")(np.where(np.arange(96) == 5, np.inf, seq.image(0)).astype(np.float32))
+    assert [str(w.message).split(": ", 1)[1][:30] for w in caught] == ["argument 'image' has NaN or in"]
 
     track = tmp_path / "track"
     assert main(["track", str(folders[0]), "--out", str(track), "--depth", "predicted", "--checkpoint",

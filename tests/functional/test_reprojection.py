@@ -325,3 +325,11 @@ def test_pure_warp_pipeline_names_bad_arguments():
                           ((t, t, d, P.numpy(), K), "argument 'poses' must be a wp.array")):
         with pytest.raises(TypeError, match=r"gvnn_warp\.kernels\.reprojection_loss: " + re.escape(message)):
             warp_loss(*args)
+    # the lens arguments under the loss's own name, for its (B,) items (not the repeated (B S,) warps')
+    for kw, exc, message in (({"model": "radtan"}, TypeError, "argument 'dist' must be a wp.array of length-8"),
+                             ({"model": "radtan", "dist": t.numpy()[:, 0, 0]}, TypeError,
+                              "argument 'dist' must be a wp.array of length-8"),
+                             ({"model": "magic"}, ValueError, "argument 'model' must be one of"),
+                             ({"min_depth": 0.0}, ValueError, "argument 'min_depth' must be a positive finite")):
+        with pytest.raises(exc, match=r"gvnn_warp\.kernels\.reprojection_loss: " + re.escape(message)):
+            warp_loss(t, t, d, P, K, **kw)

@@ -757,6 +757,13 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
     # argument the caller never passed)
     assert [("8-bit" in str(w.message), "millimetres" in str(w.message)) for w in caught] == [(True, False),
                                                                                            (False, True)]
+    quiet = FrameToModel(DirectAligner(seq.K), TSDFVolume(0.01, max_depth=10.0), seq.K, seq.height, seq.width, 2,
+                         warn=False)
+    with warnings.catch_warnings(record=True) as caught:  # (warn=False: none, the aligner's included)
+        warnings.simplefilter("always")
+        quiet.add(255 * seq.image(0), seq.depth(0))
+        quiet.add(255 * seq.image(1), seq.depth(1))
+    assert caught == []
     fresh.add(seq.image(0), seq.depth(0)[0])  # (H, W) depth, as TSDFVolume.integrate takes it
     fresh.add(seq.image(1), seq.depth(1)[0])
     np.testing.assert_allclose(fresh.result().poses[1], r.poses[1], atol=1e-6)

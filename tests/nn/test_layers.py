@@ -30,6 +30,10 @@ def test_layers_equal_functions():
     # the layer's own argument named in its errors (an unbatched xi is not the function's 3x4 'pose')
     with pytest.raises(ValueError, match=r"SpatialTransformer3D: argument 'xi' must have shape \(B, 6\), got \(6,\)"):
         G.SpatialTransformer3D(K)(image, depth, xi[0, :6])
+    with pytest.raises(ValueError, match=r"argument 'xi' has B=2 \(shape \(2, 6\)\) but 'image' has B=4"):
+        G.SpatialTransformer3D(K)(image, depth, xi[:2, :6])
+    with pytest.raises(TypeError, match=r"argument 'xi' has dtype torch.float32 but 'image' has torch.float64"):
+        G.SpatialTransformer3D(K)(image, depth, xi[:, :6].float())
 
 
 def test_identity_at_zero_pose_and_learnable_intrinsics():
