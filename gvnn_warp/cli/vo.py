@@ -185,8 +185,8 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as e:  # e.g. --refine with a single stage, or --resume of another run
         raise UsageError(str(e)) from None
     metrics = train(cfg)
-    if metrics.get("interrupted"):
-        return 130
+    if metrics.get("interrupted"):  # (the status of the signal's default: 143 for SIGTERM, as depth train)
+        return 143 if metrics.get("stopped_by") == "SIGTERM" else 130
     if metrics:
         ev = metrics["eval"]
         print(

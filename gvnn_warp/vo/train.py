@@ -116,12 +116,14 @@ class _StopFlag:
 
     def __init__(self):
         self.stop = False
+        self.signal: str | None = None  # the first one received ("SIGINT" / "SIGTERM")
         self._old: dict = {}
 
     def _handler(self, signum, frame):
         if self.stop and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.stop = True
+        self.signal = self.signal or signal.Signals(signum).name
 
     def __enter__(self):
         for s in (signal.SIGINT, signal.SIGTERM):
@@ -290,7 +292,7 @@ def train(cfg: VOConfig) -> dict:
     if interrupted:
         _log(rank, f"interrupted at step {step}; checkpoint saved in {ckpt_path} (continue with --resume)")
         finish(world)
-        return {"interrupted": True, "step": step}
+        return {"interrupted": True, "step": step, "stopped_by": flag.signal or "SIGINT"}
 
     ddp = {"world_size": world}
     if world > 1:  # sanity check: DDP must leave every rank with the same weights

@@ -468,6 +468,23 @@ def test_too_few_training_pairs_for_the_batch(tmp_path):
 
 
 @pytest.mark.long
+def test_stop_flag_records_the_signal_and_the_cli_its_status(tmp_path, monkeypatch):
+    # SIGTERM: the flag says which signal stopped the run, the handlers come back, and the command's
+    # status is the signal's default one (143; Ctrl-C 130), as depth train's
+    import importlib
+
+    from gvnn_warp.cli.vo import main
+
+    T = importlib.import_module("gvnn_warp.vo.train")  # (the module: gvnn_warp.vo's `train` is its function)
+    before = signal.getsignal(signal.SIGTERM)
+    with T._StopFlag() as flag:
+        signal.raise_signal(signal.SIGTERM)
+    assert flag.stop and flag.signal == "SIGTERM" and signal.getsignal(signal.SIGTERM) is before
+    for by, status in (("SIGTERM", 143), ("SIGINT", 130)):
+        monkeypatch.setattr(T, "train", lambda cfg, by=by: {"interrupted": True, "step": 3, "stopped_by": by})
+        assert main(["--motion", "so3", "--out", str(tmp_path / by), "--steps", "5", "--no-progress"]) == status
+
+
 def test_cli_interrupt_and_resume(tmp_path):
     """SIGINT mid-run saves a checkpoint and exits 130; --resume continues from its step."""
     out = tmp_path / "run"
