@@ -11,9 +11,9 @@ Usage::
 
 ``train`` reads the colour frames and intrinsics of TUM-format folders (``gvnn-warp render`` writes
 them; TUM RGB-D downloads are read the same way, with the fr1/fr2 lens distortion), never their depth
-files, and trains a depth network (and a pose network) on triplets (t - g, t, t + g) through
-the fused self-supervised objective (``gvnn_warp.reprojection_loss`` at four scales plus
-edge-aware smoothness: Monodepth2's). It writes ``OUT/checkpoint.pt`` (atomically, every minute, on
+files, and trains a depth network (and, with ``--pose network``, a pose network) on triplets
+(t - g, t, t + g) through the fused self-supervised objective (``gvnn_warp.reprojection_loss`` at
+four scales plus edge-aware smoothness: Monodepth2's). It writes ``OUT/checkpoint.pt`` (atomically, every minute, on
 Ctrl-C / SIGTERM and at the end; ``--resume`` continues from it), ``OUT/metrics.json`` (the loss per
 step) and ``OUT/training.png`` (a frame, its depth, the true depth if the folder has it, the
 auto-mask).
@@ -72,7 +72,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("depth", help="learn depth and motion from video without labels, and evaluate it",
                               description=description(__doc__))
     sub = p.add_subparsers(dest="depth_command", required=True, metavar="{train,eval}")
-    t = sub.add_parser("train", help="train the depth and pose networks on TUM-format folders' colour frames")
+    t = sub.add_parser("train", help="train a depth network on TUM-format folders' colour frames (no labels)",
+                       description="Train a depth network (and, with --pose network, a pose network) on the colour "
+                                   "frames of TUM-format folders through the self-supervised objective; see "
+                                   "docs/depth.md.")
     t.add_argument("--data", type=Path, nargs="+", required=True, metavar="DIR", help="TUM-format folders")
     t.add_argument("--out", type=output_dir, required=True, metavar="OUT",
                    help="output folder (checkpoint, metrics.json, training.png; made if missing)")
@@ -109,7 +112,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--overwrite", action="store_true", help="start again in an OUT that holds an earlier run")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.set_defaults(func=run, _parser=t)  # (its usage for its own mistakes)
-    e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files (if it has them)")
+    e = sub.add_parser("eval", help="predict a folder's depth and measure it against its depth files (if it has them)",
+                       description="Predict every frame's depth and, where the folders have depth files, write the "
+                                   "standard metrics (median-scaled) to OUT/metrics.json, with OUT/depth.png; see "
+                                   "docs/depth.md.")
     e.add_argument("--checkpoint", type=Path, required=True, metavar="CKPT", help="OUT/checkpoint.pt of train")
     e.add_argument("--data", type=Path, nargs="+", required=True, metavar="DIR",
                    help="TUM-format folders (one test set: the metrics are means over all their frames)")
