@@ -132,9 +132,10 @@ class DirectAligner:
             needs live depths.
         occlusion: the occlusion test's relative depth difference (0: none): when the live frame
             has a depth, a reference pixel is skipped where a live depth under its bilinear sample
-            (the diagonal taps) differs from its moved point's z by more than ``occlusion * z`` (occluded in the live
-            view, or a sample across a depth edge). Without it, such pixels bias the optimum
-            (issue 15: +0.05 cm in y and +0.0075 deg about x per pair on the rendered sequence).
+            (the diagonal taps) differs from its moved point's z by more than ``occlusion * z``
+            (occluded in the live view, or a sample across a depth edge). Without it, such pixels
+            bias the optimum (measured: +0.05 cm in y and +0.0075 deg about x per pair on a
+            rendered sequence, benchmarks/RESULTS.md).
             Applied at the two finest levels: at the coarser ones, far from the optimum, it
             would drop the very pixels that pull the pose in (a much narrower basin); without it
             at the second finest level, the estimate the finest level starts from kept that bias
