@@ -283,6 +283,9 @@ def train(cfg: DepthConfig) -> dict:
                               f"{video.images.shape[0]} (other folders, or frames added or removed); resume on the "
                               "same folders or start a new run in another directory")
     camera = video.camera()
+    if rank == 0 and cfg.batch_size > video.targets.numel():  # (drawn with replacement: said, not refused)
+        print(f"depth train: the batch of {cfg.batch_size} triplets is larger than the {video.targets.numel()} "
+              "the folders give; triplets repeat within each step", file=sys.stderr)
     # a mirrored frame is a frame of the same camera only if its principal point is centred
     flip = cfg.flip and video.dist is None and abs(float(video.K[0, 2]) - (cfg.size[0] - 1) / 2) < 1e-3
     depth_net, pose_net = _networks(cfg)

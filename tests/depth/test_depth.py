@@ -276,6 +276,14 @@ def test_a_stopped_run_says_how_to_go_on(folders, tmp_path, capsys, monkeypatch,
         assert (done / "training.png").exists()
 
 
+def test_a_batch_larger_than_the_triplets_is_said(folders, tmp_path, capsys):
+    m = train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "batch_size": 8, "steps": 1}))
+    assert m["triplets"] == 6 and m["steps"] == 1
+    assert "the batch of 8 triplets is larger than the 6 the folders give" in capsys.readouterr().err
+    train(DepthConfig(**{**_cfg(folders, tmp_path / "small").__dict__, "steps": 1}))
+    assert "larger than" not in capsys.readouterr().err
+
+
 def test_resume_refuses_other_frames(folders, tmp_path):
     # the same folders with a frame more: the resumed run would draw other batches than the run did
     data = [tmp_path / "a", tmp_path / "b"]
