@@ -188,8 +188,13 @@ def parse_and_run(parser: argparse.ArgumentParser, argv: list[str] | None) -> in
         freeze_at_exit()
     try:
         args, extras = parser.parse_known_args(argv)
-        if extras:  # (refused by the command's own parser: its usage, not the program's)
-            getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extras)}")
+        if extras:  # (refused by the command's own parser: its usage, not the program's, unless they
+            # come before the command's name)
+            given = sys.argv[1:] if argv is None else list(argv)
+            command = getattr(args, "command", None)
+            before = given[:given.index(command)] if command in given else []
+            owner = parser if any(e in before for e in extras) else getattr(args, "_parser", parser)
+            owner.error(f"unrecognized arguments: {' '.join(extras)}")
     except KeyboardInterrupt:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return INTERRUPTED_STATUS

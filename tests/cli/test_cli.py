@@ -189,6 +189,14 @@ def test_bad_arguments_get_one_line_after_the_usage_and_no_work(command, extra, 
     assert bad_file.read_text() == "not a directory"
 
 
+def test_an_unknown_option_before_the_command_is_the_programs(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["--no-such-option", "render", "--out", str(tmp_path / "o")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and lines[0].startswith("usage: gvnn-warp [-h] COMMAND")
+    assert lines[-1] == "gvnn-warp: error: unrecognized arguments: --no-such-option"
+
+
 @pytest.mark.parametrize("sub", ["train", "eval"])
 def test_depth_subcommands_refuse_unknown_options_after_their_own_usage(sub, tmp_path, capsys):
     argv = ["depth", sub, "--data", str(tmp_path), "--out", str(tmp_path / "o"), "--no-such-option"]
