@@ -69,7 +69,9 @@ def _out_view(a: wp.array, lanes: bool) -> wp.array:
     """A flat view of an output buffer: float32 scalars, or vec8 (8 consecutive pixels) for the
     8-lane kernels (an empty one for a missing or empty buffer)."""
     if lanes and a.size > 0:
-        return wp.array(ptr=a.ptr, dtype=_launch.vec8f, shape=(a.size // 8,), device="cpu")
+        view = wp.array(ptr=a.ptr, dtype=_launch.vec8f, shape=(a.size // 8,), device="cpu")
+        view._ref = a  # (keeps the buffer alive, as Warp's own views do)
+        return view
     if lanes:
         return wp.empty(0, dtype=_launch.vec8f, device="cpu")
     return a.flatten()

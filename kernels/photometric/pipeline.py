@@ -73,8 +73,10 @@ class NormalEquations:
 
 
 def _flat(a: wp.array, n: int) -> wp.array:
-    """A 1-D view of a contiguous array's ``n`` scalars."""
-    return wp.array(ptr=a.ptr, dtype=a.dtype, shape=(n,), device=a.device)
+    """A 1-D view of a contiguous array's ``n`` scalars (keeping ``a`` alive, as Warp's own views do)."""
+    view = wp.array(ptr=a.ptr, dtype=a.dtype, shape=(n,), device=a.device)
+    view._ref = a
+    return view
 
 
 def _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth):

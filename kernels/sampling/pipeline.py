@@ -105,8 +105,13 @@ def _lanes_view(a: wp.array) -> wp.array:
     memory (a tape's adjoint launch then reads and adds to the original's gradient)."""
     vec8 = wp.types.vector(8, a.dtype)
     n = a.size // 8
-    grad = wp.array(ptr=a.grad.ptr, dtype=vec8, shape=(n,), device=a.device) if a.grad is not None else None
-    return wp.array(ptr=a.ptr, dtype=vec8, shape=(n,), device=a.device, grad=grad, requires_grad=grad is not None)
+    grad = None
+    if a.grad is not None:
+        grad = wp.array(ptr=a.grad.ptr, dtype=vec8, shape=(n,), device=a.device)
+        grad._ref = a.grad  # (a view keeps its memory alive, as Warp's own views do: a tape replays it later)
+    view = wp.array(ptr=a.ptr, dtype=vec8, shape=(n,), device=a.device, grad=grad, requires_grad=grad is not None)
+    view._ref = a
+    return view
 
 
 def warp_frame_depth(

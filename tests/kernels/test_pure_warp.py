@@ -127,6 +127,45 @@ def test_pipeline_checks_its_arguments():
         pipeline.warp_frame_depth(last, wp.ones((B, 1, 6, 8), dtype=wp.float32), pose, K)
 
 
+def test_tape_keeps_the_arrays_its_views_read():
+    # the 8-lane kernel's inputs are views over the caller's arrays; the tape replays them in the
+    # backward pass after the call's temporaries are gone: the views must keep their memory alive (a
+    # temporary depth's memory was freed and reused, and the pose gradient changed from run to run)
+    import gc
+
+    import warp as wp
+    from gvnn_warp.kernels.core.kinds import mat34f
+
+    from gvnn_warp import kernels as gk
+    from gvnn_warp.synthetic import default_intrinsics, make_room_scene, render_rgbd, smooth_se3_trajectory
+
+    K = default_intrinsics(64, 48)
+    img, dep = render_rgbd(make_room_scene(seed=0), smooth_se3_trajectory(10, seed=0)[[0, 9]], K, 64, 48)
+    c, s = np.cos(0.01), np.sin(0.01)
+    P = np.array([[c, -s, 0, 0.0123], [s, c, 0, -0.0071], [0, 0, 1, 0.0093]])
+
+    def pose_grad(keep):
+        pose = wp.array([P], dtype=mat34f, requires_grad=True)
+        kept = wp.array(dep[:1], dtype=wp.float32)
+        tape = wp.Tape()
+        with tape:
+            warped, valid = gk.warp_frame_depth(wp.array(img[1:], dtype=wp.float32, requires_grad=True),
+                                                kept if keep else wp.array(dep[:1], dtype=wp.float32), pose,
+                                                wp.array([K], dtype=wp.mat33f))
+            loss = gk.masked_squared_error(warped, wp.array(img[:1], dtype=wp.float32), valid)
+        del kept
+        gc.collect()
+        reuse = [wp.full(64 * 48, 1.0e6, dtype=wp.float32) for _ in range(50)]  # (freed memory reused)
+        tape.backward(loss=loss)
+        del reuse
+        return pose.grad.numpy()[0]
+
+    want = pose_grad(True)
+    assert np.abs(want).max() > 0
+    for _ in range(3):
+        np.testing.assert_array_equal(pose_grad(False), want)
+
+
 @pytest.mark.parametrize("W", [13, 16])  # the row kernel; the 8-lane kernel (rows of whole 8-pixel blocks)
 def test_both_fronts_run_the_same_kernel(W):
     """The torch op and the pure-Warp pipeline launch the same warp_frame_depth kernel: outputs and
