@@ -96,6 +96,8 @@ def op_samples(B=2, C=2, H=5, W=6, seed=0):
         # (every gradient computed in the forward pass: needs = 31)
         "photometric_error": (img, r(B, 1, H, W) + 1, r(B, C, H, W), pose, K, PHOTOMETRIC_CODES["cauchy"], 0.5,
                               1e-3, 31),
+        # gvnn_warp.ops.geometry: a lens camera's domain bound (TUM freiburg1's radtan, and one scaled down)
+        "lens_domain_limit": (torch.tensor([tum, [c / 2 for c in tum]], dtype=f64), lens.RADTAN),
         "photometric_normal_equations": (img, r(B, 1, H, W) + 1, r(B, C, H, W), r(B, 1, H, W) + 1, pose, K,
                                          PHOTOMETRIC_CODES["tukey"], 0.4, 1e-3, 2.0),
         "photometric_normal_equations_lens": (img, r(B, 1, H, W) + 1, r(B, C, H, W), r(B, 1, H, W) + 1, pose, K,

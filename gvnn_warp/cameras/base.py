@@ -59,13 +59,13 @@ class Camera:
         if self.model == lens.PINHOLE:
             return self.K.new_zeros(B, lens.DIST_SIZE)
         coeffs = self.dist if self.dist.dim() == 2 else self.dist.unsqueeze(0)
-        key = (id(self.dist), self.dist._version, tuple(coeffs.shape))
-        if self._limits is None or self._limits[0] != key:
-            rows = coeffs.detach().to(torch.float64).numpy()
-            padded = [list(r) + [0.0] * (5 - len(r)) for r in rows]
-            lim = [lens.domain_limit(self.model, p if self.model == lens.RADTAN else r) for p, r in zip(padded, rows)]
-            self._limits = (key, torch.tensor(lim, dtype=coeffs.dtype).unsqueeze(1))
-        limits = self._limits[1]
+        if torch.compiler.is_compiling():  # (an op in the graph: the bound follows the traced coefficients)
+            limits = _ops.lens_domain_limit(coeffs.detach(), int(self.model))
+        else:
+            key = (id(self.dist), self.dist._version, tuple(coeffs.shape))
+            if self._limits is None or self._limits[0] != key:
+                self._limits = (key, _ops.lens_domain_limit(coeffs.detach(), int(self.model)))
+            limits = self._limits[1]
         pad = coeffs.new_zeros(coeffs.shape[0], 5 - self.n_coeffs)
         tail = coeffs.new_zeros(coeffs.shape[0], 2)
         d = torch.cat([coeffs, pad, limits, tail], dim=1)

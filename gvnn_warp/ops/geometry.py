@@ -9,9 +9,12 @@ the public function and layer it serves.
 
 from __future__ import annotations
 
+import torch
+
 from ..kernels.geometry import kernels as gk
+from ..kernels.geometry import lens
 from .bridge import warp_op
-from .registry import Output, Param, lazy_ops, per_row, rows
+from .registry import Output, Param, custom_op, lazy_ops, per_row, rows
 
 _PARAMETRISATION = "no layer: a parametrisation used inside user modules"
 _INVERSE = "no layer: the inverse map, applied to outputs rather than learnt through"
@@ -119,6 +122,25 @@ warp_op(
     [Param("P", "int"), Param("model", "int")], [Output("out", "vec2", per_row(2)), _valid], rows,
     array_kinds={"pixels": "vec2", **_LENS}, lazy=True,
     function="undistort_points", layer="no layer: a fixed resampling map, used once",
+)
+
+
+# coeffs (N, n) -> (N, 1): each camera's domain bound on r^2 (lens.domain_limit: a polynomial's first
+# positive root, found on the host), an op so that torch.compile(fullgraph=True) traces a lens camera
+def _lens_domain_limit(coeffs: torch.Tensor, model: int) -> torch.Tensor:
+    rows_ = coeffs.detach().to(torch.float64).cpu().numpy()
+    padded = [list(r) + [0.0] * (5 - len(r)) if model == lens.RADTAN else list(r) for r in rows_]
+    return torch.tensor([[lens.domain_limit(model, r)] for r in padded], dtype=coeffs.dtype).reshape(-1, 1)
+
+
+def _lens_domain_limit_fake(coeffs, model):
+    return coeffs.new_empty(coeffs.shape[0], 1)
+
+
+lens_domain_limit = custom_op(
+    "lens_domain_limit", _lens_domain_limit, _lens_domain_limit_fake,
+    function="RadTanCamera", layer="no layer: a lens camera's domain bound (RadTanCamera, FisheyeCamera; not "
+                                   "differentiable)",
 )
 
 __getattr__ = lazy_ops(__name__)  # (the ops registered with lazy=True)

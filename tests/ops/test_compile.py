@@ -54,6 +54,38 @@ def test_compile_fullgraph_matches_eager():
     torch.testing.assert_close(xi1.grad, xi2.grad)
 
 
+@pytest.mark.parametrize("model", ["radtan", "fisheye"])
+def test_compile_fullgraph_through_a_lens_camera_matches_eager(model):
+    # the camera made inside the compiled function, its coefficients learnt: the domain bound of its
+    # lens is an op in the graph (it used to be computed in numpy from the tensor's values)
+    torch._dynamo.reset()  # (each model compiled on its own: no shapes turned dynamic by the other case)
+    B, C, H, W = 2, 3, 8, 10
+    K = intrinsics(W, H, dtype=torch.float64)
+    image = torch.rand(B, C, H, W, dtype=torch.float64)
+    depth = torch.rand(B, 1, H, W, dtype=torch.float64) + 1
+    camera = G.RadTanCamera if model == "radtan" else G.FisheyeCamera
+    coeffs = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633] if model == "radtan" else [0.08, -0.02, 0.004, -0.001]
+
+    def loss_fn(xi, dist):
+        cam = camera(K, dist)
+        warped, valid = G.warp_frame_depth(image, depth, G.se3_to_matrix(xi), cam)
+        target = image.flip(-1)
+        loss = ((warped - image) * valid).square().mean()
+        return loss + G.reprojection_loss(image, target[:, None], depth, G.se3_to_matrix(xi)[:, None], cam).mean()
+
+    compiled = torch.compile(loss_fn, fullgraph=True)
+    args = [torch.tensor([[0.01, -0.02, 0.0, 0.03, 0.0, 0.01]] * B, dtype=torch.float64),
+            torch.tensor(coeffs, dtype=torch.float64)]
+    eager = [a.clone().requires_grad_() for a in args]
+    traced = [a.clone().requires_grad_() for a in args]
+    l1, l2 = loss_fn(*eager), compiled(*traced)
+    l1.backward()
+    l2.backward()
+    torch.testing.assert_close(l1, l2, rtol=1e-12, atol=1e-12)
+    for a, b in zip(eager, traced):
+        torch.testing.assert_close(a.grad, b.grad, rtol=1e-10, atol=1e-12)
+
+
 def test_backward_from_needs_the_same_signature():
     from gvnn_warp.ops.bridge import warp_op
     from gvnn_warp.ops.registry import Output, Param
