@@ -254,9 +254,21 @@ def train(cfg: DepthConfig) -> dict:
     if cfg.batch_size % world:
         finish(world)
         raise ValueError(f"depth train: the batch size {cfg.batch_size} must be divisible by the {world} ranks")
+    if isinstance(cfg.data, (str, os.PathLike)):  # (one folder given as such, not as a tuple of them)
+        cfg = dataclasses.replace(cfg, data=(str(cfg.data),))
+    problem = None
     if cfg.norm not in NORMS:
+        problem = f"norm must be one of {list(NORMS)}, got {cfg.norm!r}"
+    elif cfg.pose not in POSES:
+        problem = f"pose must be one of {list(POSES)}, got {cfg.pose!r}"
+    elif not (len(cfg.size) == 2 and all(isinstance(v, (int, np.integer)) and v >= 32 and v % 32 == 0
+                                         for v in cfg.size)):
+        problem = f"size must be (W, H), multiples of 32 (the network halves them 5 times), got {cfg.size!r}"
+    elif not cfg.data:
+        problem = "data must name at least one folder"
+    if problem is not None:
         finish(world)
-        raise ValueError(f"depth train: norm must be one of {list(NORMS)}, got {cfg.norm!r}")
+        raise ValueError(f"depth train: {problem}")
     if not 0.0 <= cfg.ema < 1.0:
         finish(world)
         raise ValueError(f"depth train: ema must be a decay in [0, 1), got {cfg.ema!r}")

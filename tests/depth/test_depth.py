@@ -276,6 +276,18 @@ def test_a_stopped_run_says_how_to_go_on(folders, tmp_path, capsys, monkeypatch,
         assert (done / "training.png").exists()
 
 
+def test_train_refuses_bad_settings_and_takes_one_folder(folders, tmp_path):
+    # from Python (the command line checks its own options): one ValueError naming the setting
+    for kw, message in (({"pose": "bogus"}, "pose must be one of"), ({"size": (70, 50)}, "multiples of 32"),
+                        ({"data": ()}, "at least one folder"), ({"norm": "layer"}, "norm must be one of")):
+        with pytest.raises(ValueError, match=rf"depth train: .*{message}"):
+            train(DepthConfig(**{**_cfg(folders, tmp_path / "x").__dict__, **kw}))
+    assert not (tmp_path / "x").exists()
+    # a folder given as such, not in a tuple: that folder (not one per character of its name)
+    m = train(DepthConfig(**{**_cfg(folders, tmp_path / "one").__dict__, "data": str(folders[0]), "steps": 1}))
+    assert m["frames"] == 5
+
+
 def test_a_batch_larger_than_the_triplets_is_said(folders, tmp_path, capsys):
     m = train(DepthConfig(**{**_cfg(folders, tmp_path / "run").__dict__, "batch_size": 8, "steps": 1}))
     assert m["triplets"] == 6 and m["steps"] == 1
