@@ -36,7 +36,7 @@ from ..kernels.fusion import raycasting as R_
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
-from ..odometry.inputs import as_numpy, dist_array, fail, lens_camera, real_number
+from ..odometry.inputs import as_numpy, dist_array, fail, lens_camera, real_number, rigid_pose
 
 __all__ = ["BYTES_PER_BLOCK", "EMPTY_VOLUME", "IntegrateReport", "MAX_BLOCKS", "MapFull", "TSDFVolume"]
 
@@ -66,18 +66,6 @@ class IntegrateReport:
 
 def _name(method: str) -> str:
     return f"gvnn_warp.fusion.TSDFVolume.{method}"
-
-
-def rigid_pose(fn: str, name: str, T) -> np.ndarray:
-    """Argument ``name`` of function ``fn`` (its full name) as a float64 (4, 4) rigid transform
-    (``T_world_cam``): finite, an orthonormal rotation, last row 0 0 0 1; ValueError otherwise."""
-    T = as_numpy(fn, name, T, (2,)).astype(np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        fail(fn, ValueError, f"argument '{name}' must be a finite (4, 4) pose, got shape {T.shape}")
-    R = T[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-6:
-        fail(fn, ValueError, f"argument '{name}' must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
-    return T
 
 
 class TSDFVolume:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..kernels.geometry import lens as _lens
 
-__all__ = ["as_numpy", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera", "real_number"]
+__all__ = ["as_numpy", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera", "real_number", "rigid_pose"]
 
 MIN_SIDE = 4  # smallest side (pixels) of an image the aligner takes, and of a pyramid level
 RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)
@@ -142,3 +142,15 @@ def initial_pose(fn: str, init, B: int, batched: bool) -> np.ndarray:
     out = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
     out[:, :3, :] = T[:, :3, :]
     return out
+
+
+def rigid_pose(fn: str, name: str, T) -> np.ndarray:
+    """Argument ``name`` of function ``fn`` (its full name) as a float64 (4, 4) rigid transform
+    (``T_world_cam``): finite, an orthonormal rotation, last row 0 0 0 1; ValueError otherwise."""
+    T = as_numpy(fn, name, T, (2,)).astype(np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        fail(fn, ValueError, f"argument '{name}' must be a finite (4, 4) pose, got shape {T.shape}")
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-6:
+        fail(fn, ValueError, f"argument '{name}' must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+    return T

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..progress import progress_bar
+from .inputs import rigid_pose
 
 __all__ = [
     "INITS",
@@ -220,7 +221,8 @@ class Tracker:
         self.keyframes, self.init, self.warmup = keyframes, init, warmup
         self.n = 0
         self.poses = np.empty((n_frames, 4, 4))
-        self.poses[0] = np.eye(4) if start_pose is None else np.asarray(start_pose, dtype=np.float64)
+        self.poses[0] = np.eye(4) if start_pose is None else rigid_pose(
+            "gvnn_warp.odometry.tracking.track", "start_pose", start_pose)
         self.reference = np.full(n_frames, -1, dtype=np.int64)
         self.converged = np.ones(n_frames, dtype=bool)
         self.finite = np.ones(n_frames, dtype=bool)

@@ -163,6 +163,19 @@ def test_nearest_groundtruth_is_evos_association():
     assert np.isnan(poses[~valid]).all() and 4 <= (~valid).sum() <= 6
 
 
+def test_tracker_refuses_a_start_pose_that_is_not_rigid():
+    # (a scaled or 3x4 start pose used to run, every later pose carrying its scale, or to fail in numpy)
+    from gvnn_warp.odometry import DirectAligner
+    from gvnn_warp.odometry.tracking import Tracker
+
+    aligner = DirectAligner(np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]]))
+    for pose, message in ((np.diag([2.0, 2, 2, 1]), "must be a rigid transform"),
+                          (np.eye(4)[:3], r"must be a finite \(4, 4\) pose, got shape \(3, 4\)")):
+        with pytest.raises(ValueError, match=r"gvnn_warp.odometry.tracking.track: argument 'start_pose' " + message):
+            Tracker(aligner, 3, start_pose=pose)
+    assert np.array_equal(Tracker(aligner, 3, start_pose=np.eye(4)).poses[0], np.eye(4))
+
+
 def test_pose_error_closed_form():
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec([0, np.radians(0.3), 0]).as_matrix()
