@@ -17,8 +17,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..odometry.aligner import INTENSITY_LIMIT
-from ..odometry.inputs import as_numpy, fail
+from ..odometry.inputs import INTENSITY_LIMIT, as_numpy, fail
 from ..vo.frontend import resize_frame
 from .checkpoint import load_checkpoint, load_depth_net
 

@@ -18,6 +18,7 @@ voxel size and truncation are in them too).
 
 from __future__ import annotations
 
+import contextlib
 import time
 import warnings
 from pathlib import Path
@@ -27,11 +28,10 @@ import numpy as np
 from ..datasets.images import to_gray
 from ..datasets.tum import TUMSequence
 from ..errors import InputError
-from ..odometry.aligner import INTENSITY_LIMIT
-from ..odometry.inputs import as_numpy, fail, is_torch
+from ..odometry.inputs import INTENSITY_LIMIT, as_numpy, fail, is_torch, rigid_pose
 from ..odometry.tracking import TrackingStopped, TrackResult, check_init, info_converged, info_valid_fraction
 from ..progress import progress_bar
-from .volume import IntegrateReport, MapFull, TSDFVolume, rigid_pose
+from .volume import IntegrateReport, MapFull, TSDFVolume
 
 __all__ = ["FrameToModel", "FuseReport", "ModelTracker", "camera_of", "fuse_sequence", "render_picture"]
 
@@ -163,13 +163,7 @@ class FrameToModel:
             channels = (lambda c: c) if self.color else to_gray
             # (the live depth too: the aligner's occlusion test and depth term use it)
             guess = self._step if self.init == "velocity" else None
-            if "8-bit" in self._warned or not self.warn:  # (add's own warning named the user's argument, or
-                # warnings are off: not the aligner's, about arguments the caller never passed)
-                with warnings.catch_warnings():
-                    warnings.filterwarnings("ignore", message=r"DirectAligner\.\w+: argument '\w+' has intensities")
-                    T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth,
-                                                 init=guess)
-            else:
+            with self._quiet():
                 T, info = self.aligner.align(channels(ref_colour), ref_depth[None], channels(rgb), depth, init=guess)
             T = np.asarray(T, dtype=np.float64)
             if not np.all(np.isfinite(T)):
@@ -177,7 +171,8 @@ class FrameToModel:
             step, pose = T, self.poses[i - 1] @ np.linalg.inv(T)
             converged, valid = info_converged(info), info_valid_fraction(info)
         t = time.perf_counter()
-        report = self.volume.integrate(depth, rgb, self.camera, pose)  # (MapFull: nothing of frame i kept)
+        with self._quiet():
+            report = self.volume.integrate(depth, rgb, self.camera, pose)  # (MapFull: nothing of frame i kept)
         done = time.perf_counter()
         self.fuse.add(i, report, done - t)
         if report.valid_pixels == 0 and self.warn and "no depth" not in self._warned:
@@ -191,6 +186,19 @@ class FrameToModel:
             self.infos.append(info)
             self.seconds[i], self.integrate_seconds[i] = done - s, done - t
         self.n += 1
+
+    @contextlib.contextmanager
+    def _quiet(self):
+        """Around the aligner's and the volume's calls: once :meth:`add` has warned about 8-bit
+        colours (naming the user's argument), or with warnings off, their own warnings about the
+        same values (naming arguments the caller never passed) are not given too."""
+        if "8-bit" not in self._warned and self.warn:
+            yield
+            return
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"DirectAligner\.\w+: argument '\w+' has intensities")
+            warnings.filterwarnings("ignore", message=r".*TSDFVolume\.integrate: argument 'colour' has values up to")
+            yield
 
     @property
     def ms_per_frame(self) -> float:

@@ -73,10 +73,8 @@ from ..kernels import pyramid as _pyramid
 from ..kernels.geometry.camera import MIN_DEPTH
 from ..kernels.sampling.remap import RemapTable
 from .frame import Frame, PyramidBuffers, recycle
-from .inputs import MIN_SIDE, as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
+from .inputs import INTENSITY_LIMIT, MIN_SIDE, as_numpy, fail, initial_pose, is_torch, lens_camera, real_number
 from .solver import LMState
-
-INTENSITY_LIMIT = 1.5  # above this an image is taken for [0, 255] intensities (warned about once per aligner)
 
 __all__ = ["DirectAligner", "Frame"]
 

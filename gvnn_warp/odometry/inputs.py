@@ -13,7 +13,12 @@ import numpy as np
 
 from ..kernels.geometry import lens as _lens
 
-__all__ = ["as_numpy", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera", "real_number", "rigid_pose"]
+__all__ = [
+    "INTENSITY_LIMIT", "as_numpy", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera", "real_number",
+    "rigid_pose",
+]
+
+INTENSITY_LIMIT = 1.5  # above this an image is taken for [0, 255] intensities (warned once per aligner or volume)
 
 MIN_SIDE = 4  # smallest side (pixels) of an image the aligner takes, and of a pyramid level
 RIGID_TOLERANCE = 1e-3  # an init's |R^T R - I| and last-row deviation (chained float32 poses: ~1e-6)

@@ -558,6 +558,35 @@ def test_integer_intrinsics_are_taken_as_floats():
     np.testing.assert_array_equal(a.raycast(torch.tensor(Ki), np.eye(4), H, W)[0], b.raycast(Ki, np.eye(4), H, W)[0])
 
 
+def test_colours_not_finite_or_8_bit_are_warned_about_and_the_model_stays_finite():
+    depth = np.full((H, W), 1.0, np.float32)
+    colour = np.random.default_rng(0).random((3, H, W)).astype(np.float32)
+    holes = colour.copy()
+    holes[:, 5:15, 10:30] = np.nan
+    holes[0, 0, 0] = np.inf
+    vol = TSDFVolume(VOXEL)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        vol.integrate(depth, holes, K, np.eye(4))
+        vol.integrate(depth, holes, K, np.eye(4))
+        vol.integrate(depth, 255 * colour, K, np.eye(4))
+        vol.integrate(depth, 255 * colour, K, np.eye(4))
+    messages = [str(w.message).split(": ", 1)[1] for w in caught]
+    assert len(messages) == 2 and messages[0].startswith("argument 'colour' has NaN or infinite values")
+    assert messages[1].startswith("argument 'colour' has values up to 254")
+    d, c, _ = vol.raycast(K, np.eye(4), H, W)
+    assert (d > 0).mean() > 0.5 and np.isfinite(c).all()
+    v, f, vc = vol.extract_mesh()
+    assert len(f) > 0 and np.isfinite(vc).all()
+    # non-finite colour values are black (0), as a colour of zeros would be
+    a, b = TSDFVolume(VOXEL), TSDFVolume(VOXEL)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a.integrate(depth, holes, K, np.eye(4))
+    b.integrate(depth, np.where(np.isfinite(holes), holes, 0.0).astype(np.float32), K, np.eye(4))
+    np.testing.assert_array_equal(a.raycast(K, np.eye(4), H, W)[1], b.raycast(K, np.eye(4), H, W)[1])
+
+
 def test_empty_volume_has_empty_results():
     vol = TSDFVolume(VOXEL)
     with pytest.warns(UserWarning, match=r"TSDFVolume.extract_mesh: the volume is empty \(no frame has been "
