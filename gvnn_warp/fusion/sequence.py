@@ -238,6 +238,13 @@ def _check_camera(fn: str, aligner, camera, height: int, width: int) -> None:
             and not np.allclose(A, K, rtol=1e-6, atol=1e-6):
         fail(fn, ValueError, f"argument 'aligner' has K {A.tolist()}, argument 'camera' {K.tolist()}: the model "
                              "is raycast with the camera and aligned with the aligner's, so they must be the same")
+    if plain and A is not None and getattr(aligner, "dist", None) is None and isinstance(camera, tuple):
+        dist = camera[1]
+        dist = np.asarray(dist.detach().cpu() if is_torch(dist) else dist, dtype=np.float64)
+        if np.any(dist != 0):
+            fail(fn, ValueError, "argument 'aligner' is a pinhole DirectAligner and argument 'camera' has a lens "
+                                 "distortion: make the aligner for the same camera (DirectAligner(K, dist=...), or "
+                                 "with resample=)")
 
 
 class ModelTracker:

@@ -834,6 +834,12 @@ def test_frame_to_model_one_frame_at_a_time(tmp_path):
         FrameToModel(DirectAligner(big_K), vol, big_K, seq.height, seq.width, 3)
     with pytest.raises(ValueError, match="argument 'aligner' has K .* argument 'camera'"):
         FrameToModel(DirectAligner(seq.K * [[1.1], [1.1], [1]]), vol, seq.K, seq.height, seq.width, 3)
+    fr1 = np.array([0.2624, -0.9531, -0.0054, 0.0026, 1.1633])
+    with pytest.raises(ValueError, match="argument 'aligner' is a pinhole DirectAligner and argument 'camera' has a "
+                                         "lens distortion"):
+        FrameToModel(DirectAligner(seq.K), vol, (seq.K, fr1), seq.height, seq.width, 3)
+    FrameToModel(DirectAligner(seq.K, dist=fr1), vol, (seq.K, fr1), seq.height, seq.width, 3)  # (the same camera)
+    FrameToModel(DirectAligner(seq.K), vol, (seq.K, np.zeros(5)), seq.height, seq.width, 3)  # (no distortion)
     with pytest.raises(ValueError, match="FrameToModel: argument 'n_frames'"):
         FrameToModel(DirectAligner(seq.K), vol, seq.K, seq.height, seq.width, 0)
     with pytest.raises(ValueError, match="FrameToModel: arguments 'height' and 'width'"):
