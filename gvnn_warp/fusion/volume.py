@@ -105,12 +105,13 @@ class TSDFVolume:
             fail(_name("__init__"), ValueError, f"argument 'max_memory_mb' must be a finite number of MiB that holds "
                                                 f"at least one block ({BYTES_PER_BLOCK / 2**20:.3f} MiB), got "
                                                 f"{max_memory_mb!r}")
-        if not (isinstance(pixel_stride, int) and pixel_stride >= 1):
+        whole = isinstance(pixel_stride, (int, np.integer)) and not isinstance(pixel_stride, bool)
+        if not (whole and pixel_stride >= 1):
             fail(_name("__init__"), ValueError, f"argument 'pixel_stride' must be an integer >= 1, got "
                                                 f"{pixel_stride!r}")
         self.voxel_size, self.truncation = float(v), float(trunc)
         self.min_depth, self.max_depth = float(lo), float(hi)
-        self.pixel_stride = pixel_stride
+        self.pixel_stride = int(pixel_stride)
         self.max_blocks = min(int(mem * 2**20 // BYTES_PER_BLOCK), MAX_BLOCKS)
         self._calls = 0
         self._frames = 0  # (frames given to integrate: an empty volume's warning says which case it is)
@@ -170,7 +171,10 @@ class TSDFVolume:
             if d is None or d.shape != (5,) or not np.all(np.isfinite(d)):
                 fail(_name(fn), ValueError, f"argument 'camera' as (K, dist) needs dist = 5 finite radial-tangential "
                                             f"coefficients (k1, k2, p1, p2, k3), got {dist!r}")
-        K, model, packed = lens_camera(_name(fn), camera, None, dist)
+        if isinstance(camera, (list, tuple)):  # ((fx, fy, cx, cy) or a list: not a camera this takes)
+            fail(_name(fn), TypeError, "argument 'camera' must be a (3, 3) K (numpy or torch), a (K, dist) pair or a "
+                                       f"camera of gvnn_warp.cameras, got a {type(camera).__name__} of {len(camera)}")
+        K, model, packed = lens_camera(_name(fn), camera, None, dist, name="camera")
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             fail(_name(fn), ValueError, f"argument 'camera' must have a finite (3, 3) K with fx, fy > 0, got {K}")
         mid = _lens.MODEL_IDS[model]

@@ -86,15 +86,16 @@ def dist_array(fn: str, name: str, dist) -> np.ndarray | None:
     return as_numpy(fn, name, dist, (1,)).astype(np.float64)
 
 
-def lens_camera(fn: str, K, model, dist):
+def lens_camera(fn: str, K, model, dist, name: str = "K"):
     """(K (3, 3) float64, model name, packed dist (8,) float64 or None for the pinhole) from K and
-    the ``model`` / ``dist`` arguments, or from a camera of ``gvnn_warp.cameras``."""
+    the ``model`` / ``dist`` arguments, or from a camera of ``gvnn_warp.cameras``; ``name``: the
+    argument's name in the caller's errors."""
     if hasattr(K, "model") and hasattr(K, "K") and hasattr(K, "dist") and not isinstance(K, np.ndarray):
         if model is not None or dist is not None:
             fail(fn, ValueError, "arguments 'model' and 'dist' must not be given with a camera object")
         cam = K
         if cam.K.dim() != 2 or (cam.dist is not None and cam.dist.dim() != 1):
-            fail(fn, ValueError, "argument 'K' must be an unbatched camera (K (3, 3), dist (n,))")
+            fail(fn, ValueError, f"argument '{name}' must be an unbatched camera (K (3, 3), dist (n,))")
         model = {v: k for k, v in _lens.MODEL_IDS.items()}[int(cam.model)]
         K, dist = cam.K, cam.dist
     # (whole-pixel intrinsics written as integers: exact as floats)
@@ -102,7 +103,7 @@ def lens_camera(fn: str, K, model, dist):
         K = K.double()
     elif isinstance(K, np.ndarray) and np.issubdtype(K.dtype, np.integer):
         K = K.astype(np.float64)
-    K = as_numpy(fn, "K", K, (2,)).astype(np.float64)
+    K = as_numpy(fn, name, K, (2,)).astype(np.float64)
     if model is None:
         model = "pinhole" if dist is None else "radtan"
     if model not in _lens.MODEL_IDS:

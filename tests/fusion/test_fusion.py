@@ -537,6 +537,15 @@ def test_memory_limit_and_growth():
      r"argument 'camera' must have a finite \(3, 3\) K"),
     (lambda v: v.integrate(np.ones((H, W), np.float32), None, (K, (0.1, 0.2)), np.eye(4)), ValueError,
      r"TSDFVolume.integrate: argument 'camera' as \(K, dist\) needs dist = 5 finite radial-tangential"),
+    # the argument named 'camera', as the method calls it (not the aligner's 'K')
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, (100.0, 100.0, 80.0, 60.0), np.eye(4)), TypeError,
+     r"TSDFVolume.integrate: argument 'camera' must be a \(3, 3\) K \(numpy or torch\), a \(K, dist\) pair or a "
+     r"camera of gvnn_warp.cameras, got a tuple of 4"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, K.tolist(), np.eye(4)), TypeError,
+     r"argument 'camera' must be a \(3, 3\) K .*got a list of 3"),
+    (lambda v: v.integrate(np.ones((H, W), np.float32), None, "K", np.eye(4)), TypeError,
+     r"TSDFVolume.integrate: argument 'camera' must be a numpy array or torch tensor"),
+    (lambda v: TSDFVolume(0.01, pixel_stride=0), ValueError, r"argument 'pixel_stride' must be an integer >= 1"),
     (lambda v: TSDFVolume(0.01, max_memory_mb=float("inf")), ValueError,
      r"TSDFVolume.__init__: argument 'max_memory_mb' must be a finite number of MiB"),
     (lambda v: v.raycast(K, np.eye(4), 0, W), ValueError, r"TSDFVolume.raycast: arguments 'height' and 'width'"),
