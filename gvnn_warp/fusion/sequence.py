@@ -196,7 +196,7 @@ class FrameToModel:
             yield
             return
         with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=r"DirectAligner\.\w+: argument '\w+' has intensities")
+            warnings.filterwarnings("ignore", message=r".*DirectAligner\.\w+: argument '\w+' has intensities")
             warnings.filterwarnings("ignore", message=r".*TSDFVolume\.integrate: argument 'colour' has values up to")
             yield
 

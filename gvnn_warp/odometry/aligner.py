@@ -315,8 +315,9 @@ class DirectAligner:
             top = float(np.nanmax(sample)) if np.isfinite(sample).any() else 0.0
             if top > INTENSITY_LIMIT:
                 self._range_warned = True
-                warnings.warn(f"{fn}: argument '{image_name}' has intensities up to {top:g}; they are "
-                              f"expected in [0, 1] (divide 8-bit images by 255), and accuracy suffers otherwise",
+                warnings.warn(f"gvnn_warp.odometry.{fn}: argument '{image_name}' has intensities up to {top:g}; "
+                              "they are expected in [0, 1] (divide 8-bit images by 255), and accuracy suffers "
+                              "otherwise",
                               UserWarning, stacklevel=3)
         key = (B, C, H, W, depth is not None)
         pool = self._frame_pool.setdefault(key, [])

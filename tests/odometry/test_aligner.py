@@ -366,7 +366,8 @@ def test_eight_bit_intensities_are_warned_about_once():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # [0, 1] intensities: nothing to say
         aligner.align(ri, rd, li)
-    with pytest.warns(UserWarning, match=r"DirectAligner.align: argument 'ref_image' has intensities up to 2\d\d.*"
+    with pytest.warns(UserWarning, match=r"^gvnn_warp.odometry.DirectAligner.align: argument 'ref_image' has "
+                                         r"intensities up to 2\d\d.*"
                                          r"expected in \[0, 1\] \(divide 8-bit images by 255\)"):
         aligner.align(255 * ri, rd, 255 * li)
     with warnings.catch_warnings():
