@@ -14,6 +14,7 @@ import numpy as np
 import warp as wp
 
 from ..kernels import pyramid as _pyramid
+from ..kernels.core import compat as _compat
 from ..kernels.core import launch as _launch
 
 __all__ = ["Frame", "PyramidBuffers", "recycle"]
@@ -69,9 +70,7 @@ def _out_view(a: wp.array, lanes: bool) -> wp.array:
     """A flat view of an output buffer: float32 scalars, or vec8 (8 consecutive pixels) for the
     8-lane kernels (an empty one for a missing or empty buffer)."""
     if lanes and a.size > 0:
-        view = wp.array(ptr=a.ptr, dtype=_launch.vec8f, shape=(a.size // 8,), device="cpu")
-        view._ref = a  # (keeps the buffer alive, as Warp's own views do)
-        return view
+        return _compat.alias(a, _launch.vec8f, (a.size // 8,))
     if lanes:
         return wp.empty(0, dtype=_launch.vec8f, device="cpu")
     return a.flatten()

@@ -14,6 +14,16 @@ from collections.abc import Callable, Sequence
 import warp as wp
 
 
+def alias(a: wp.array, dtype, shape: tuple[int, ...], grad: wp.array | None = None) -> wp.array:
+    """A view of contiguous ``a``'s memory as ``shape`` elements of ``dtype`` (with ``grad`` as its
+    gradient, if given) that keeps ``a`` alive, as Warp's own views do through their ``_ref``: an
+    array made from a bare ``ptr`` does not, and a ``wp.Tape`` that replays it after the caller
+    dropped ``a`` would read freed memory."""
+    view = wp.array(ptr=a.ptr, dtype=dtype, shape=shape, device=a.device, grad=grad, requires_grad=grad is not None)
+    view._ref = a
+    return view
+
+
 def kernel_arguments(kernel: wp.Kernel) -> list[tuple[str, bool]]:
     """``(name, is_array)`` of every argument of ``kernel``, in order.
 

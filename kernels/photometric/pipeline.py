@@ -18,6 +18,7 @@ import math
 
 import warp as wp
 
+from ..core import compat as _compat
 from ..core import launch as _launch
 from ..geometry.camera import MIN_DEPTH
 from ..sampling.lanes import MAX_LANES_PLANE
@@ -73,10 +74,8 @@ class NormalEquations:
 
 
 def _flat(a: wp.array, n: int) -> wp.array:
-    """A 1-D view of a contiguous array's ``n`` scalars (keeping ``a`` alive, as Warp's own views do)."""
-    view = wp.array(ptr=a.ptr, dtype=a.dtype, shape=(n,), device=a.device)
-    view._ref = a
-    return view
+    """A 1-D view of a contiguous array's ``n`` scalars (keeping ``a`` alive)."""
+    return _compat.alias(a, a.dtype, (n,))
 
 
 def _check_common(fn, ref_image, ref_depth, live_image, pose, K, min_depth):

@@ -105,13 +105,8 @@ def _lanes_view(a: wp.array) -> wp.array:
     memory (a tape's adjoint launch then reads and adds to the original's gradient)."""
     vec8 = wp.types.vector(8, a.dtype)
     n = a.size // 8
-    grad = None
-    if a.grad is not None:
-        grad = wp.array(ptr=a.grad.ptr, dtype=vec8, shape=(n,), device=a.device)
-        grad._ref = a.grad  # (a view keeps its memory alive, as Warp's own views do: a tape replays it later)
-    view = wp.array(ptr=a.ptr, dtype=vec8, shape=(n,), device=a.device, grad=grad, requires_grad=grad is not None)
-    view._ref = a
-    return view
+    grad = _compat.alias(a.grad, vec8, (n,)) if a.grad is not None else None
+    return _compat.alias(a, vec8, (n,), grad)
 
 
 def warp_frame_depth(

@@ -137,6 +137,24 @@ def test_set_replay_arg_updates_the_replays_in_place():
     assert not wcompat.set_replay_arg(cmd, [cmd.launch], 1)  # not replay_pieces' replays
 
 
+def test_alias_keeps_its_source_alive():
+    # a view from a bare pointer does not hold its array: alias must (Warp's _ref), or a tape's replay
+    # reads freed memory
+    import gc
+    import weakref
+
+    src = wp.array(np.arange(16, dtype=np.float32), dtype=wp.float32)
+    alive = weakref.ref(src)
+    view = wcompat.alias(src, wp.types.vector(8, wp.float32), (2,))
+    del src
+    gc.collect()
+    assert alive() is not None
+    np.testing.assert_array_equal(view.numpy().reshape(-1), np.arange(16, dtype=np.float32))
+    del view
+    gc.collect()
+    assert alive() is None  # (and nothing else holds it)
+
+
 def test_warp_type_attributes():
     assert wcompat.scalar_type(wp.vec3f) is wp.float32 and wcompat.scalar_type(wp.float64) is wp.float64
     assert wcompat.scalar_type(L.mat34d) is wp.float64
