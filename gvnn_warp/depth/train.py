@@ -351,9 +351,8 @@ def train(cfg: DepthConfig) -> dict:
         depth_net.train()
         pose_net.train()
         while True:
-            now = time.perf_counter()
-            done = stop["flag"] or elapsed + now - t0 >= budget or (cfg.steps is not None and step >= cfg.steps)
-            if all_max(float(done), world):  # (every rank stops at the same step)
+            finished = elapsed + time.perf_counter() - t0 >= budget or (cfg.steps is not None and step >= cfg.steps)
+            if all_max(float(stop["flag"] or finished), world):  # (every rank stops at the same step)
                 break
             # the same global batch on every rank (the same seed), each rank its share
             idx = torch.randint(len(video.targets), (cfg.batch_size,))
@@ -396,7 +395,6 @@ def train(cfg: DepthConfig) -> dict:
                 save(elapsed + time.perf_counter() - t0)
                 last_ck = time.perf_counter()
         # (a SIGTERM in the last step: the run is complete, not stopped)
-        finished = elapsed + time.perf_counter() - t0 >= budget or (cfg.steps is not None and step >= cfg.steps)
         interrupted = bool(all_max(float(stop["flag"] and not finished), world))
         stopped_by = "SIGTERM" if interrupted else None
     except KeyboardInterrupt:
