@@ -10,14 +10,13 @@ with it is compared with the truth after a similarity (scale) alignment (``evo_a
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..odometry.inputs import INTENSITY_LIMIT, as_numpy, fail
+from ..odometry.inputs import as_numpy, colour_values, fail
 from ..vo.frontend import resize_frame
 from .checkpoint import load_checkpoint, load_depth_net
 
@@ -48,19 +47,7 @@ class DepthPredictor:
         if img.shape[0] != 3:
             hint = ", which looks channel-last (H, W, 3): transpose it" if img.shape[-1] == 3 else ""
             fail(fn, ValueError, f"argument 'image' must be (3, H, W) RGB, got {img.shape}{hint}")
-        sample = img[:, ::7, ::7]
-        top = float(np.max(sample, where=np.isfinite(sample), initial=0.0))  # (inf: the non-finite warning's)
-        if top > INTENSITY_LIMIT and "8-bit" not in self._warned:
-            self._warned.add("8-bit")
-            warnings.warn(f"{fn}: argument 'image' has values up to {top:g}; colours are expected in [0, 1] (divide "
-                          "8-bit images by 255), and the depth differs otherwise", UserWarning, stacklevel=2)
-        finite = np.isfinite(img)
-        if not finite.all():  # (a defined depth: such pixels read as black)
-            img = np.where(finite, img, 0.0).astype(np.float32)
-            if "non-finite" not in self._warned:
-                self._warned.add("non-finite")
-                warnings.warn(f"{fn}: argument 'image' has NaN or infinite values; they are taken as 0",
-                              UserWarning, stacklevel=2)
+        img = colour_values(fn, "image", img, self._warned, ", and the depth differs otherwise")
         image = torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32))
         H, W = image.shape[-2:]
         small, _ = resize_frame(image, torch.zeros(1, H, W), self.size)

@@ -36,7 +36,7 @@ from ..kernels.fusion import raycasting as R_
 from ..kernels.fusion.hashing import BLOCK, BLOCK_VOXELS
 from ..kernels.geometry import lens as _lens
 from ..kernels.sampling.pipeline import pixel_rays
-from ..odometry.inputs import INTENSITY_LIMIT, as_numpy, dist_array, fail, lens_camera, real_number, rigid_pose
+from ..odometry.inputs import as_numpy, colour_values, dist_array, fail, lens_camera, real_number, rigid_pose
 
 __all__ = ["BYTES_PER_BLOCK", "EMPTY_VOLUME", "IntegrateReport", "MAX_BLOCKS", "MapFull", "TSDFVolume"]
 
@@ -225,7 +225,7 @@ class TSDFVolume:
                 hint = ", which looks channel-last (H, W, 3): transpose it" if c.shape == (H, W, 3) else ""
                 fail(_name(fn), ValueError, f"argument 'colour' must be (3, {H}, {W}) like the depth, got "
                                             f"{c.shape}{hint}")
-            c = self._checked_colour(c)
+            c = colour_values(_name(fn), "colour", c, self._warned)  # (NaN and inf: black; 8-bit: said)
             image = wp.array(np.ascontiguousarray(c, np.float32).reshape(-1), dtype=wp.float32, device="cpu")
         else:
             image = wp.zeros(3, dtype=wp.float32, device="cpu")
@@ -282,23 +282,6 @@ class TSDFVolume:
                        wp.mat33(*R_cw.ravel()), wp.vec3(*t_cw), self.voxel_size, self.truncation, self.min_depth,
                        self.max_depth, self.tw, self.colour])
         return IntegrateReport(valid, n_active, self.n_blocks - before, self.n_blocks)
-
-    def _checked_colour(self, c: np.ndarray) -> np.ndarray:
-        """``c`` with non-finite values taken as 0 (black: the model's colours stay finite); each of
-        that and colours beyond [0, 1] (8-bit values) warned about once per volume."""
-        finite = np.isfinite(c)  # (~0.25 ms at 640x480 against the integration's ~45)
-        if not finite.all():
-            c = np.where(finite, c, 0.0)
-            if "non-finite" not in self._warned:
-                self._warned.add("non-finite")
-                warnings.warn(f"{_name('integrate')}: argument 'colour' has NaN or infinite values; they are taken "
-                              "as 0 (black)", UserWarning, stacklevel=3)
-        top = float(np.max(c[:, ::7, ::7], initial=0.0))
-        if top > INTENSITY_LIMIT and "8-bit" not in self._warned:
-            self._warned.add("8-bit")
-            warnings.warn(f"{_name('integrate')}: argument 'colour' has values up to {top:g}; colours are expected "
-                          "in [0, 1] (divide 8-bit images by 255)", UserWarning, stacklevel=3)
-        return c
 
     # ------------------------------------------------------------------------------ raycasting
 

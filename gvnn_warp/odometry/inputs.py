@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 
 import numpy as np
 
 from ..kernels.geometry import lens as _lens
 
 __all__ = [
-    "INTENSITY_LIMIT", "as_numpy", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera", "real_number",
-    "rigid_pose",
+    "INTENSITY_LIMIT", "as_numpy", "colour_values", "dist_array", "fail", "initial_pose", "is_torch", "lens_camera",
+    "real_number", "rigid_pose",
 ]
 
 INTENSITY_LIMIT = 1.5  # above this an image is taken for [0, 255] intensities (warned once per aligner or volume)
@@ -160,3 +161,22 @@ def rigid_pose(fn: str, name: str, T) -> np.ndarray:
     if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-6:
         fail(fn, ValueError, f"argument '{name}' must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
     return T
+
+
+def colour_values(fn: str, name: str, c: np.ndarray, warned: set, consequence: str = "") -> np.ndarray:
+    """Colour image ``c`` (C, H, W) with NaN and infinite values taken as 0 (black: what is made of it
+    stays finite; a copy, the input untouched), warning once each, as recorded in ``warned``, about
+    those and about values beyond [0, 1] (8-bit ones; ``consequence`` ends that warning)."""
+    finite = np.isfinite(c)
+    if not finite.all():
+        c = np.where(finite, c, 0.0).astype(c.dtype)
+        if "non-finite" not in warned:
+            warned.add("non-finite")
+            warnings.warn(f"{fn}: argument '{name}' has NaN or infinite values; they are taken as 0 (black)",
+                          UserWarning, stacklevel=3)
+    top = float(np.max(c[..., ::7, ::7], initial=0.0))  # (1/49 of the pixels: cheap beside the caller's work)
+    if top > INTENSITY_LIMIT and "8-bit" not in warned:
+        warned.add("8-bit")
+        warnings.warn(f"{fn}: argument '{name}' has values up to {top:g}; colours are expected in [0, 1] (divide "
+                      f"8-bit images by 255){consequence}", UserWarning, stacklevel=3)
+    return c
