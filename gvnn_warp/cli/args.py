@@ -33,6 +33,7 @@ __all__ = [
     "positive_float",
     "positive_int",
     "refuse_earlier_run",
+    "refuse_sequence_folder",
     "seed",
 ]
 
@@ -167,6 +168,13 @@ def output_dir(text: str) -> Path:
 # a training run's checkpoint in its --out folder: gvnn_warp.vo.checkpoint.CHECKPOINT, spelled out here
 # because importing that module loads torch before the arguments are checked (a test keeps them equal)
 CHECKPOINT = "checkpoint.pt"
+
+
+def refuse_sequence_folder(out: Path) -> None:
+    """A results ``--out`` that holds a sequence (its ``rgb.txt``): refused, one line, before any work
+    (the results would be written among the sequence's files)."""
+    if (out / "rgb.txt").exists():
+        raise UsageError(f"--out {out} holds a sequence (rgb.txt); choose another folder")
 
 
 def refuse_earlier_run(out: Path, resume: bool, overwrite: bool) -> None:

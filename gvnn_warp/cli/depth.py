@@ -48,6 +48,7 @@ from .args import (  # noqa: E402
     positive_float,
     positive_int,
     refuse_earlier_run,
+    refuse_sequence_folder,
     seed,
 )
 from .runner import command_main  # noqa: E402
@@ -164,8 +165,7 @@ def run_eval(args: argparse.Namespace) -> int:
     twice = repeated_folder(args.data)
     if twice is not None:
         raise UsageError(f"--data names the folder {twice[0]} twice")
-    if (args.out / "rgb.txt").exists():  # (its files would be written among a sequence's)
-        raise UsageError(f"--out {args.out} holds a sequence (rgb.txt); choose another folder")
+    refuse_sequence_folder(args.out)
     m = evaluate(args.checkpoint, args.data, args.out, progress=not args.no_progress)
     folders = " ".join(str(d) for d in args.data)
     if m.get("abs_rel") is None:

@@ -62,7 +62,15 @@ from ..datasets.tum import DEFAULT_DEPTH_SCALE, DatasetError, read_tum
 from ..errors import InputError
 from ..odometry.sequence import LENS_MODES, RESULT_FILES, make_aligner, track_sequence
 from ..odometry.tracking import INITS, KeyframePolicy, TrackingStopped
-from .args import UsageError, bounded_int, description, finite_float, output_dir, positive_float
+from .args import (
+    UsageError,
+    bounded_int,
+    description,
+    finite_float,
+    output_dir,
+    positive_float,
+    refuse_sequence_folder,
+)
 from .runner import INSTALL_HINTS, command_main, missing_packages
 
 __all__ = ["add_parser", "check", "run"]
@@ -203,8 +211,7 @@ def check(args: argparse.Namespace):
             raise UsageError(f"--{given[0].replace('_', '-')} applies with --keyframes only")
     if args.out.exists() and args.data.exists() and args.out.resolve() == args.data.resolve():
         raise UsageError(f"--out {args.out} is the sequence's own folder; choose another")
-    if (args.out / "rgb.txt").exists():
-        raise UsageError(f"--out {args.out} holds a sequence (rgb.txt); choose another folder")
+    refuse_sequence_folder(args.out)
     existing = [name for name in RESULT_FILES if (args.out / name).exists()]
     if existing and not getattr(args, "overwrite", False):
         raise UsageError(f"--out {args.out} already holds results ({existing[0]}); pass --overwrite or choose "
