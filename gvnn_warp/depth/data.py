@@ -70,6 +70,25 @@ class Video:
             g = gaps
         return self.images[t], torch.stack([self.images[t - g], self.images[t + g]], 1)
 
+    def true_depth(self, frame: int) -> Tensor | None:
+        """The true depth (1, 1, H, W) of frame ``frame`` of the first folder, if the folder has a
+        depth image for that frame (the video's own when read ``with_depth``; else the depth image
+        associated with that colour image), for figures; None otherwise."""
+        if self.depths is not None:  # (read with depth: the frames are the colour images with depth)
+            dep = self.depths[frame][None]
+            return dep if (dep > 0).any() else None
+        try:
+            colour = read_tum(self.roots[0], colour_only=True)
+            seq = read_tum(self.roots[0])  # (its frames: the colour images with a depth image)
+            with_depth = np.flatnonzero(seq.timestamps == colour.timestamps[frame])
+            if with_depth.size == 0:
+                return None
+            size = (self.images.shape[-1], self.images.shape[-2])
+            _, dep = resize_frame(colour.image(frame), seq.depth(int(with_depth[0])), size)
+        except (OSError, ValueError):  # (no depth list, or a depth image that cannot be read: none shown)
+            return None
+        return dep if (dep > 0).any() else None
+
     def draw_gaps(self, idx: Tensor, drawn: Tensor) -> Tensor:
         """Each triplet's gap from ``drawn`` (B,) integers in [1, gap] (uniform draws): at most its
         target's ``reach`` (a target near a folder's end takes the largest gap it has)."""

@@ -38,14 +38,12 @@ import torch.nn.functional as F
 from torch import Tensor
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from ..datasets.tum import read_tum
 from ..functional.lie import se3_to_matrix
 from ..functional.reprojection import edge_aware_smoothness, reprojection_loss
 from ..odometry.aligner import DirectAligner
 from ..progress import progress_bar
 from ..vo.checkpoint import CHECKPOINT, CheckpointError, atomic_save, atomic_write_text, rng_state, set_rng_state
 from ..vo.distributed import all_max, average_gradients, finish, setup
-from ..vo.frontend import resize_frame
 from ..vo.pose import invert_pose
 from .checkpoint import BEFORE, CHECKPOINT_FORMAT, load_checkpoint, load_depth_net
 from .data import Video, read_video
@@ -437,25 +435,6 @@ def _module(net):
     return getattr(net, "module", net)
 
 
-def _true_depth(video: Video, frame: int, size: tuple[int, int]) -> Tensor | None:
-    """The true depth (1, 1, H, W) of frame ``frame`` of the first folder, if the folder has a depth
-    image for that frame (the video's own with ``--supervised``; else read colour only, the depth
-    image associated with that colour image)."""
-    if video.depths is not None:  # (supervised: the frames are the colour images with depth)
-        dep = video.depths[frame][None]
-        return dep if (dep > 0).any() else None
-    try:
-        colour = read_tum(video.roots[0], colour_only=True)
-        seq = read_tum(video.roots[0])  # (its frames: the colour images with a depth image)
-        with_depth = np.flatnonzero(seq.timestamps == colour.timestamps[frame])
-        if with_depth.size == 0:
-            return None
-        _, dep = resize_frame(colour.image(frame), seq.depth(int(with_depth[0])), size)
-    except (OSError, ValueError):  # (no depth list, or a depth image that cannot be read: no true depth shown)
-        return None
-    return dep if (dep > 0).any() else None
-
-
 def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, path: Path) -> None:
     from .plots import depth_panel  # (matplotlib is slow to import: only for the figure)
 
@@ -466,5 +445,5 @@ def _training_figure(depth_net, poser, video: Video, camera, cfg: DepthConfig, p
         target, sources = video.triplets(first)
         _, depth, maps = self_supervised_loss(depth_net, poser, target, sources, camera, cfg, return_maps=True)
     frame = int(video.targets[first[0]])
-    depth_panel(target[0], depth[0, 0], _true_depth(video, frame, cfg.size), maps["automask"][0, 0].bool(), path,
+    depth_panel(target[0], depth[0, 0], video.true_depth(frame), maps["automask"][0, 0].bool(), path,
                 title=f"depth after training ({video.roots[0].name}, frame {frame})")

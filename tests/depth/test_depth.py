@@ -310,6 +310,26 @@ def test_resume_refuses_other_frames(folders, tmp_path):
         train(DepthConfig(**{**_cfg(data, out).__dict__, "steps": 3, "resume": True}))
 
 
+def test_true_depth_of_a_frame_is_its_own_with_or_without_depth_read(folders, tmp_path):
+    # (the training figure's true depth) a colour image without a depth image listed first: the colour
+    # video's frames are one ahead of the RGB-D frames; each frame's true depth is its own either way
+    extra = tmp_path / "extra"
+    shutil.copytree(folders[0], extra)
+    rows = (extra / "rgb.txt").read_text().splitlines()
+    data = [r for r in rows if r and not r.startswith("#")]
+    stamp, name = data[0].split()
+    shutil.copy(extra / name, extra / "rgb" / "early.png")
+    (extra / "rgb.txt").write_text("\n".join([f"{float(stamp) - 1:.6f} rgb/early.png", *data]) + "\n")
+    colour = read_video([extra], (96, 64))
+    rgbd = read_video([extra], (96, 64), with_depth=True)
+    assert colour.images.shape[0] == 6 and rgbd.images.shape[0] == 5
+    assert colour.true_depth(0) is None  # (the colour image without a depth image)
+    for k in range(5):
+        want = rgbd.depths[k][None]
+        torch.testing.assert_close(rgbd.true_depth(k), want, rtol=0, atol=0)
+        torch.testing.assert_close(colour.true_depth(k + 1), want, rtol=0, atol=0)
+
+
 def test_train_resume_and_eval(folders, tmp_path):
     out = tmp_path / "run"
     m = train(_cfg(folders, out))
